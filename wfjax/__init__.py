@@ -1,0 +1,28 @@
+"""wfjax: JAX-accelerated, differentiable simulation of railway wheel-flat impact forces.
+
+Reproduces and extends the time-domain wheel/rail interaction model of Pieringer, Kropp &
+Nielsen (2014), Wear 314, 273-281. SI units throughout the Python API.
+
+Precision: wfjax computes in float64. Importing wfjax switches on ``jax_enable_x64`` -- the one
+place in the package where JAX configuration is touched. Set the environment variable
+``WFJAX_PRECISION=float32`` before importing to keep JAX's float32 default (GPU runs).
+"""
+
+import os as _os
+
+import jax as _jax
+
+if _os.environ.get("WFJAX_PRECISION", "float64").lower() != "float32":
+    _jax.config.update("jax_enable_x64", True)
+
+from . import geometry as geometry
+from . import params as params
+from .params import Flat as Flat
+from .params import Material as Material
+from .params import SimConfig as SimConfig
+from .params import Track as Track
+from .params import Wheel as Wheel
+from .params import kmh as kmh
+from .params import mm as mm
+
+__version__ = "0.1.0"

@@ -1,0 +1,49 @@
+"""The ``wfjax`` command: one entry point, one module per subcommand in ``wfjax.commands``.
+
+Each subcommand module defines ``HELP`` (one line), ``add_arguments(parser)`` and
+``run(args) -> int``. Bad input exits with status 2 and a one-line reason on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+SUBCOMMANDS = ("sweep", "simulate", "compare", "figures", "fit", "receptance", "geometry")
+
+
+def _available():
+    for name in SUBCOMMANDS:
+        try:
+            yield name, importlib.import_module(f"wfjax.commands.{name}")
+        except ModuleNotFoundError as exc:  # a subcommand not built yet
+            if exc.name != f"wfjax.commands.{name}":
+                raise
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``wfjax`` command with every available subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="wfjax", description="Wheel-flat impact forces (Pieringer, Kropp & Nielsen 2014)."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, module in _available():
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``wfjax`` command line; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except ValueError as exc:
+        print(f"wfjax {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

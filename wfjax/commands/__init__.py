@@ -1,0 +1,1 @@
+"""Subcommands of the ``wfjax`` command line (see :mod:`wfjax.cli`)."""

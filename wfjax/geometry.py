@@ -1,0 +1,194 @@
+"""Wheel-flat geometry (Section 2 of Pieringer, Kropp & Nielsen 2014), pure JAX.
+
+Conventions (used across wfjax):
+
+* ``x`` is the circumferential (arc-length) coordinate on the wheel tread, measured from the
+  flat centre, in m. Rolling the wheel forward by a distance X turns it by X / R.
+* The *profile deviation* z(x) >= 0 is the radial depth of material missing from the ideal
+  circle of radius R (m). Outside the flat it is zero.
+* The *wheel-centre trajectory* is the vertical position of the centre of a rigid wheel
+  rolling on a rigid straight rail, relative to the undamaged wheel, in m (<= 0: the centre
+  drops), as a function of the rolling distance measured from the position where the flat
+  centre is at the bottom (Wu & Thompson 2002).
+
+Every function is differentiable with respect to the flat's depth, length and profile values.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .params import Flat, new_flat_length
+
+__all__ = [
+    "new_flat_length",
+    "new_flat_half_angle",
+    "profile_deviation",
+    "profile_deviation_small_depth",
+    "flat_surface",
+    "centre_trajectory",
+    "wheel_radius_at",
+]
+
+
+def new_flat_half_angle(depth, wheel_radius):
+    """Half the angle [rad] subtended by the exact chord of a new flat: arccos(1 - d/R)."""
+    return jnp.arccos(1.0 - depth / wheel_radius)
+
+
+def _safe_positive(value):
+    """max(value, 0) with a zero (not NaN) gradient where value <= 0."""
+    return jnp.where(value > 0, value, 0.0)
+
+
+def _new_flat_exact(depth, wheel_radius, x):
+    # Radial distance of the chord at angle theta = x/R is (R - d)/cos(theta); the deviation is
+    # R minus that, clipped to zero beyond the chord's ends at theta = +-arccos(1 - d/R).
+    theta = jnp.clip(x / wheel_radius, -1.2, 1.2)
+    return _safe_positive(wheel_radius - (wheel_radius - depth) / jnp.cos(theta))
+
+
+def _rounded_flat(depth, length, x):
+    inside = jnp.abs(x) <= length / 2
+    safe_x = jnp.where(inside, x, 0.0)
+    return jnp.where(inside, 0.5 * depth * (1.0 + jnp.cos(2.0 * jnp.pi * safe_x / length)), 0.0)
+
+
+def _profile_flat(profile_x, profile_z, x):
+    return jnp.interp(x, profile_x, profile_z, left=0.0, right=0.0)
+
+
+def profile_deviation(flat: Flat, x):
+    """Profile deviation z(x) >= 0 [m] of ``flat`` at circumferential positions ``x`` [m].
+
+    * ``"new"``: the exact chord of the circle, z = R - (R - d) / cos(x / R) for
+      |x| <= R arccos(1 - d/R), else 0. Eq. (2) of the paper, z = d - x^2 / (2R), is its
+      small-depth form (see :func:`profile_deviation_small_depth`); the two differ by less than
+      d^2 / R + x^4 / (3 R^3) (about 4 um for d = 2 mm, R = 0.45 m).
+    * ``"rounded"``: Eq. (3), z = d/2 (1 + cos(2 pi x / l)) for |x| <= l/2.
+    * ``"profile"``: linear interpolation of the measured deviation, zero outside its support.
+    * ``"none"``: zero.
+
+    Args:
+        flat: the flat.
+        x: array of any shape, positions on the tread relative to the flat centre [m].
+
+    Returns:
+        Array shaped like ``x`` [m].
+    """
+    x = jnp.asarray(x)
+    if flat.kind == "new":
+        return _new_flat_exact(flat.depth, flat.wheel_radius, x)
+    if flat.kind == "rounded":
+        return _rounded_flat(flat.depth, flat.length, x)
+    if flat.kind == "profile":
+        return _profile_flat(flat.profile_x, flat.profile_z, x)
+    return jnp.zeros_like(x, dtype=jnp.result_type(float))
+
+
+def profile_deviation_small_depth(flat: Flat, x):
+    """Eq. (2) of the paper for a new flat: z = d - x^2 / (2R) on |x| <= l0/2 [m].
+
+    Kept to document (and test) its difference to the exact chord used by
+    :func:`profile_deviation`. Only defined for ``flat.kind == "new"``.
+    """
+    if flat.kind != "new":
+        raise ValueError(f"profile_deviation_small_depth needs a 'new' flat, got {flat.kind!r}")
+    x = jnp.asarray(x)
+    half = new_flat_length(flat.depth, flat.wheel_radius) / 2
+    return jnp.where(jnp.abs(x) <= half, flat.depth - x**2 / (2 * flat.wheel_radius), 0.0)
+
+
+def flat_surface(flat: Flat, x, y, transverse_radius):
+    """3D profile deviation r(x, y) >= 0 [m] on a rectangular grid.
+
+    The flat is the imprint of the rail head on which it formed (Section 2, Fig. 2): along the
+    rolling direction its lines are those of :func:`profile_deviation`, across it they are
+    circular arcs of the rail head radius, so
+    r(x, y) = max(0, z(x) - (R_R - sqrt(R_R^2 - y^2))).
+
+    Args:
+        flat: the flat.
+        x: [nx] circumferential positions relative to the flat centre [m].
+        y: [ny] transverse positions relative to the running band centre [m].
+        transverse_radius: R_R [m], the rail head radius that formed the flat.
+
+    Returns:
+        [nx, ny] deviation [m].
+    """
+    z = profile_deviation(flat, jnp.asarray(x))[:, None]
+    y = jnp.asarray(y)[None, :]
+    arc = transverse_radius - jnp.sqrt(transverse_radius**2 - y**2)
+    return _safe_positive(z - arc)
+
+
+def wheel_radius_at(flat: Flat, theta):
+    """Deviated wheel radius r(theta) = R - z(R theta) [m] at polar angles ``theta`` [rad]."""
+    return flat.wheel_radius - profile_deviation(flat, flat.wheel_radius * theta)
+
+
+def _kink_angles(flat: Flat):
+    """Angles [rad] where r(theta) has a kink: candidates for the trajectory's maximiser."""
+    R = flat.wheel_radius
+    if flat.kind == "new":
+        a = new_flat_half_angle(flat.depth, R)
+        return jnp.stack([-a, a])
+    if flat.kind == "rounded":
+        return jnp.stack([-flat.length / (2 * R), flat.length / (2 * R)])
+    if flat.kind == "profile":
+        return jnp.asarray(flat.profile_x) / R
+    return jnp.zeros((1,))
+
+
+def _trajectory_window(flat: Flat) -> float:
+    """Half-width [rad] of the angle range around phi searched for the contact (concrete).
+
+    The contact point lies on the flat or at its edges while the flat passes, so it is within
+    twice the flat's half angle of phi; a margin is added.
+    """
+    return 2.5 * flat.half_extent / float(flat.wheel_radius) + 1e-3
+
+
+def centre_trajectory(flat: Flat, x, n_coarse: int = 1024, n_fine: int = 256):
+    """Vertical wheel-centre trajectory [m] of a rigid wheel on a rigid rail (Wu & Thompson).
+
+    With r(theta) the deviated radius, the centre height at rolling angle phi = X / R is
+    H(phi) = max_theta r(theta) cos(theta - phi); the returned value is H - R (<= 0).
+
+    The maximum is found on a coarse grid of ``n_coarse`` angles across the flat, refined on a
+    grid of ``n_fine`` angles around the coarse maximiser, and compared with the kink angles of
+    the profile (chord ends of a new flat, data points of a measured one), where the contact
+    pivots. The gradient with respect to the flat's parameters follows from the envelope
+    theorem (the maximiser is held fixed), which is exact where the maximiser is unique.
+
+    Args:
+        flat: the flat.
+        x: [n] rolling distances [m] from the position where the flat centre is at the contact.
+        n_coarse, n_fine: grid sizes (static).
+
+    Returns:
+        [n] centre height relative to the undamaged wheel [m].
+    """
+    x = jnp.asarray(x, dtype=jnp.result_type(float))
+    if flat.kind == "none":
+        return jnp.zeros_like(x)
+    R = flat.wheel_radius
+    window = _trajectory_window(flat)
+    kinks = _kink_angles(flat)
+
+    def height(theta, phi):
+        return wheel_radius_at(flat, theta) * jnp.cos(theta - phi)
+
+    def one(phi):
+        coarse = phi + jnp.linspace(-window, window, n_coarse)
+        step = 2 * window / (n_coarse - 1)
+        h_coarse = height(coarse, phi)
+        best = jax.lax.stop_gradient(coarse[jnp.argmax(h_coarse)])
+        fine = best + jnp.linspace(-2 * step, 2 * step, n_fine)
+        candidates = jnp.concatenate([fine, kinks, phi[None]])
+        candidates = jax.lax.stop_gradient(candidates)
+        return jnp.max(height(candidates, phi))
+
+    H = jax.vmap(one)(x / R)
+    return H - R

@@ -1,0 +1,399 @@
+"""Model parameters as JAX pytrees, with the defaults of Pieringer, Kropp & Nielsen (2014).
+
+Every number is a pytree *leaf*, so ``jax.grad`` and ``jax.vmap`` reach it (flat depth and
+length, every stiffness, ...). Choices that change the compiled program (flat kind, numerical
+resolution) are *static* metadata.
+
+Units are SI throughout: m, s, kg, N, Pa. Attribute names carry the unit where it is not
+obvious from the physics (``depth`` is in m, ``speed`` in m/s).
+
+Validation: constructing a parameter object from concrete numbers checks them and raises
+``ValueError`` naming the parameter, the value and the allowed range. Objects rebuilt by JAX
+transformations (with tracers as leaves) are not checked again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, ClassVar
+
+import jax
+import numpy as np
+
+__all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT_KINDS"]
+
+MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (half-space, Eq. 1)
+FLAT_KINDS = ("new", "rounded", "profile", "none")
+
+
+def kmh(speed_kmh: float) -> float:
+    """Convert a speed in km/h to m/s."""
+    return speed_kmh / 3.6
+
+
+def mm(length_mm: float) -> float:
+    """Convert a length in mm to m."""
+    return length_mm * 1e-3
+
+
+def _is_concrete(value: Any) -> bool:
+    if isinstance(value, jax.core.Tracer):
+        return False
+    return isinstance(value, (int, float, np.number, np.ndarray)) or (
+        hasattr(value, "shape") and hasattr(value, "dtype")
+    )
+
+
+def _check_finite(cls_name: str, name: str, value: Any) -> None:
+    arr = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{cls_name}.{name} must be finite, got {value!r}")
+
+
+def _check_positive(cls_name: str, name: str, value: Any, unit: str) -> None:
+    _check_finite(cls_name, name, value)
+    arr = np.asarray(value, dtype=float)
+    if np.any(arr <= 0):
+        raise ValueError(
+            f"{cls_name}.{name} must be > 0 {unit}, got {value!r} (allowed range: (0, inf) {unit})"
+        )
+
+
+def _pytree(cls=None, *, static: tuple[str, ...] = ()):
+    """Register a frozen dataclass as a pytree; fields named in ``static`` are metadata."""
+
+    def wrap(c):
+        c = dataclasses.dataclass(frozen=True)(c)
+        names = [f.name for f in dataclasses.fields(c)]
+        data = [n for n in names if n not in static]
+        return jax.tree_util.register_dataclass(c, data_fields=data, meta_fields=list(static))
+
+    return wrap if cls is None else wrap(cls)
+
+
+class _Validated:
+    """Mixin: check positive leaves on construction when they are concrete numbers."""
+
+    _positive: ClassVar[dict[str, str]] = {}
+
+    def __post_init__(self):
+        for name, unit in self._positive.items():
+            value = getattr(self, name)
+            if _is_concrete(value):
+                _check_positive(type(self).__name__, name, value, unit)
+
+
+@_pytree
+class Material(_Validated):
+    """Linear elastic material of wheel and rail (the same for both, as in the paper).
+
+    Attributes:
+        youngs_modulus: E in Pa (default 210 GPa).
+        poisson_ratio: nu, dimensionless, in (0, 0.5) (default 0.3).
+    """
+
+    youngs_modulus: Any = 210e9
+    poisson_ratio: Any = 0.3
+
+    _positive: ClassVar[dict[str, str]] = {"youngs_modulus": "Pa"}
+
+    def __post_init__(self):
+        super().__post_init__()
+        nu = self.poisson_ratio
+        if _is_concrete(nu):
+            _check_finite("Material", "poisson_ratio", nu)
+            if not 0.0 <= float(np.max(nu)) < 0.5 or float(np.min(nu)) < 0.0:
+                raise ValueError(
+                    f"Material.poisson_ratio must be in [0, 0.5), got {nu!r}"
+                )
+
+    @property
+    def plane_strain_modulus(self):
+        """E / (1 - nu^2) in Pa."""
+        return self.youngs_modulus / (1.0 - self.poisson_ratio**2)
+
+
+@_pytree
+class Wheel(_Validated):
+    """Two-degree-of-freedom wheel model of Table 1 (Fig. 3 of the paper).
+
+    The contact force acts on the small mass ``small_mass`` (m_W), joined to half the wheelset
+    mass ``wheelset_mass`` (M_W) by ``contact_stiffness`` (k_W) in parallel with
+    ``contact_damping`` (c_W). M_W hangs from the vehicle, which is fixed and carries the static
+    preload ``preload`` (P), through the primary suspension ``suspension_stiffness`` (k_S) and
+    ``suspension_damping`` (c_S).
+
+    Attributes (SI units): wheelset_mass [kg], suspension_stiffness [N/m],
+    suspension_damping [N s/m], small_mass [kg], contact_stiffness [N/m],
+    contact_damping [N s/m], radius [m], preload [N].
+    """
+
+    wheelset_mass: Any = 593.0
+    suspension_stiffness: Any = 1.12e6
+    suspension_damping: Any = 13.2e3
+    small_mass: Any = 3.0
+    contact_stiffness: Any = 2.4e9
+    contact_damping: Any = 155e3
+    radius: Any = 0.45
+    preload: Any = 118e3
+
+    _positive: ClassVar[dict[str, str]] = {
+        "wheelset_mass": "kg",
+        "suspension_stiffness": "N/m",
+        "suspension_damping": "N s/m",
+        "small_mass": "kg",
+        "contact_stiffness": "N/m",
+        "contact_damping": "N s/m",
+        "radius": "m",
+        "preload": "N",
+    }
+
+
+@_pytree(static=("n_bays", "elements_per_bay"))
+class Track(_Validated):
+    """Discretely supported track of Table 2 (Nielsen & Igeland 1995).
+
+    A 60E1 rail as Rayleigh-Timoshenko beam elements on rail pads, half-sleeper masses and
+    ballast, ``n_bays`` sleeper bays long with clamped rail ends.
+
+    Attributes (SI units):
+        bending_stiffness: EI [N m^2]; shear_stiffness: kGA [N]; rail_mass: m' [kg/m];
+        rail_rotary_inertia: rho I [kg m] (7850 kg/m^3 x 3.05e-5 m^4);
+        rail_head_radius: transverse radius of the rail head R_R [m] (0.30 m; the paper's model
+        comparison uses 0.45 m, see :meth:`comparison`);
+        sleeper_spacing: L_S [m]; pad_stiffness: k_P [N/m]; pad_damping: c_P [N s/m];
+        sleeper_mass: half sleeper m_SL [kg]; ballast_stiffness: k_B [N/m];
+        ballast_damping: c_B [N s/m].
+        n_bays (static): number of sleeper bays of the finite model.
+        elements_per_bay (static): rail beam elements per sleeper bay.
+    """
+
+    bending_stiffness: Any = 6.4e6
+    shear_stiffness: Any = 250e6
+    rail_mass: Any = 60.0
+    rail_rotary_inertia: Any = 7850.0 * 3.05e-5
+    rail_head_radius: Any = 0.30
+    sleeper_spacing: Any = 0.65
+    pad_stiffness: Any = 120e6
+    pad_damping: Any = 16e3
+    sleeper_mass: Any = 125.0
+    ballast_stiffness: Any = 140e6
+    ballast_damping: Any = 165e3
+    n_bays: int = 70
+    elements_per_bay: int = 8
+
+    _positive: ClassVar[dict[str, str]] = {
+        "bending_stiffness": "N m^2",
+        "shear_stiffness": "N",
+        "rail_mass": "kg/m",
+        "rail_rotary_inertia": "kg m",
+        "rail_head_radius": "m",
+        "sleeper_spacing": "m",
+        "pad_stiffness": "N/m",
+        "pad_damping": "N s/m",
+        "sleeper_mass": "kg",
+        "ballast_stiffness": "N/m",
+        "ballast_damping": "N s/m",
+    }
+
+    def __post_init__(self):
+        super().__post_init__()
+        for name, low in (("n_bays", 4), ("elements_per_bay", 1)):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or value < low:
+                raise ValueError(
+                    f"Track.{name} must be an integer >= {low}, got {value!r}"
+                )
+
+    @classmethod
+    def comparison(cls, **overrides) -> Track:
+        """The track of the paper's contact-model comparison (Section 4.3): R_R = 0.45 m."""
+        return cls(**{"rail_head_radius": 0.45, **overrides})
+
+
+@_pytree(static=("kind",))
+class Flat:
+    """A wheel flat: its kind (static) and geometry (leaves).
+
+    Build with :meth:`new`, :meth:`rounded`, :meth:`from_profile` or :meth:`none`.
+
+    Attributes:
+        kind: ``"new"`` (sharp chord, Eq. 2), ``"rounded"`` (cosine, Eq. 3), ``"profile"``
+            (measured deviation, linear interpolation) or ``"none"`` (smooth wheel).
+        depth: d [m]. For ``"profile"`` the maximum of the profile.
+        length: flat length along the circumference [m]; l for rounded flats, the chord
+            length l0 = sqrt(8 R d) for new flats (informative; geometry derives it from depth),
+            the support of the measured profile for ``"profile"``.
+        wheel_radius: R_W [m] of the wheel carrying the flat.
+        profile_x: [n] circumferential coordinates of a measured profile [m] (``"profile"``
+            only; empty otherwise), centred on the flat.
+        profile_z: [n] profile deviation (material removed, >= 0) at ``profile_x`` [m].
+    """
+
+    kind: str
+    depth: Any
+    length: Any
+    wheel_radius: Any = 0.45
+    profile_x: Any = None
+    profile_z: Any = None
+
+    def __post_init__(self):
+        if self.kind not in FLAT_KINDS:
+            raise ValueError(f"Flat.kind must be one of {FLAT_KINDS}, got {self.kind!r}")
+
+    # -- constructors -------------------------------------------------------------------
+    @classmethod
+    def new(cls, depth: float, wheel_radius: float = 0.45) -> Flat:
+        """A newly formed flat: a chord of the wheel circle, depth ``depth`` [m]."""
+        _validate_depth(depth)
+        _check_positive("Flat", "wheel_radius", wheel_radius, "m")
+        return cls("new", depth=depth, length=new_flat_length(depth, wheel_radius),
+                   wheel_radius=wheel_radius)
+
+    @classmethod
+    def rounded(cls, depth: float, length: float, wheel_radius: float = 0.45) -> Flat:
+        """A rounded (cosine) flat of depth ``depth`` [m] and length ``length`` [m].
+
+        Requires ``length >= pi/2 * l0`` with l0 = sqrt(8 R d) (the paper's condition that the
+        rounded flat is everywhere at least as deep as the new flat of the same depth).
+        """
+        _validate_depth(depth)
+        _check_positive("Flat", "wheel_radius", wheel_radius, "m")
+        _check_positive("Flat", "length", length, "m")
+        l0 = new_flat_length(depth, wheel_radius)
+        l_min = math.pi / 2 * l0
+        if float(np.min(np.asarray(length) - l_min)) < -1e-12:
+            raise ValueError(
+                f"Flat.length of a rounded flat must be >= pi/2 * l0 = {l_min * 1e3:.2f} mm "
+                f"for depth {float(np.max(depth)) * 1e3:.3f} mm, got {float(np.min(length)) * 1e3:.2f} mm"
+            )
+        return cls("rounded", depth=depth, length=length, wheel_radius=wheel_radius)
+
+    @classmethod
+    def rounded_relative(cls, depth: float, length_factor: float = 1.76,
+                         wheel_radius: float = 0.45) -> Flat:
+        """A rounded flat of length ``length_factor * l0`` (Fig. 8 uses 1.76)."""
+        return cls.rounded(depth, length_factor * new_flat_length(depth, wheel_radius),
+                           wheel_radius)
+
+    @classmethod
+    def from_profile(cls, x, z, wheel_radius: float = 0.45) -> Flat:
+        """A measured flat: profile deviation ``z`` [m] (>= 0) at circumferential ``x`` [m].
+
+        ``x`` must be strictly increasing and finite, with support shorter than the wheel's
+        circumference; the flat centre is taken at x = 0 (centre the data before calling).
+        """
+        x = np.asarray(x, dtype=float)
+        z = np.asarray(z, dtype=float)
+        if x.ndim != 1 or z.shape != x.shape or x.size < 3:
+            raise ValueError(
+                f"Flat.from_profile needs 1-D x and z of equal length >= 3, got shapes "
+                f"{x.shape} and {z.shape}"
+            )
+        _check_finite("Flat", "profile_x", x)
+        _check_finite("Flat", "profile_z", z)
+        if np.any(np.diff(x) <= 0):
+            raise ValueError("Flat.profile_x must be strictly increasing")
+        if np.any(z < 0):
+            raise ValueError(
+                f"Flat.profile_z must be >= 0 (material removed), got min {z.min():.3g} m"
+            )
+        support = x[-1] - x[0]
+        if support >= 2 * math.pi * wheel_radius:
+            raise ValueError(
+                f"Flat.profile_x support {support:.3f} m must be shorter than the wheel "
+                f"circumference {2 * math.pi * wheel_radius:.3f} m"
+            )
+        depth = float(z.max())
+        if depth > MAX_FLAT_DEPTH:
+            raise ValueError(
+                f"Flat.profile_z maximum {depth * 1e3:.3f} mm exceeds {MAX_FLAT_DEPTH * 1e3} mm"
+            )
+        return cls("profile", depth=depth, length=support, wheel_radius=wheel_radius,
+                   profile_x=x, profile_z=z)
+
+    @classmethod
+    def none(cls, wheel_radius: float = 0.45) -> Flat:
+        """A smooth, undamaged wheel."""
+        return cls("none", depth=0.0, length=0.0, wheel_radius=wheel_radius)
+
+    @property
+    def half_extent(self) -> float:
+        """Half the circumferential extent [m] outside which the deviation is zero (concrete)."""
+        if self.kind == "profile":
+            x = np.asarray(self.profile_x)
+            return float(max(abs(x[0]), abs(x[-1])))
+        return float(np.max(np.asarray(self.length))) / 2
+
+
+def new_flat_length(depth, wheel_radius=0.45):
+    """l0 = sqrt(8 R d) [m] (Eq. 1), the small-depth chord length of a new flat of depth d [m]."""
+    return (8.0 * wheel_radius * depth) ** 0.5
+
+
+def _validate_depth(depth) -> None:
+    if not _is_concrete(depth):
+        return
+    _check_finite("Flat", "depth", depth)
+    d = np.asarray(depth, dtype=float)
+    if np.any(d <= 0) or np.any(d > MAX_FLAT_DEPTH):
+        raise ValueError(
+            f"Flat.depth must be in (0, {MAX_FLAT_DEPTH * 1e3:g} mm], got {depth!r} m"
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+    """Numerical settings of a simulation (all static: they shape the compiled program).
+
+    Attributes:
+        time_step: time step [s]; ``None`` picks ``min(max_time_step, max_travel_step / v)``.
+        max_time_step: upper bound of the automatic time step [s].
+        max_travel_step: upper bound of the distance travelled per step [m].
+        run_in: distance travelled before the flat reaches the contact [m] (from static
+            equilibrium; long enough for the sleeper-passing transient to settle).
+        run_out: distance travelled after the flat centre passed the contact [m].
+        contact_element: side of the square 3D contact elements and 2D bedding elements [m].
+        contact_mode_3d: ``"table"`` (F(delta, s) table, fast) or ``"direct"`` (a Kalker solve
+            every step, the reference).
+        track_max_frequency: modes of the track model above this frequency [Hz] are replaced
+            by their static contribution.
+        newton_iterations: fixed iteration count of the per-step contact equation.
+    """
+
+    time_step: float | None = None
+    max_time_step: float = 2.5e-5
+    max_travel_step: float = 0.5e-3
+    run_in: float = 0.4
+    run_out: float = 0.4
+    contact_element: float = 1e-3
+    contact_mode_3d: str = "table"
+    track_max_frequency: float = 20e3
+    newton_iterations: int = 30
+
+    def __post_init__(self):
+        for name in ("max_time_step", "max_travel_step", "contact_element",
+                     "track_max_frequency"):
+            _check_positive("SimConfig", name, getattr(self, name), "")
+        if self.time_step is not None:
+            _check_positive("SimConfig", "time_step", self.time_step, "s")
+        for name in ("run_in", "run_out"):
+            v = getattr(self, name)
+            _check_finite("SimConfig", name, v)
+            if v < 0:
+                raise ValueError(f"SimConfig.{name} must be >= 0 m, got {v!r}")
+        if self.contact_mode_3d not in ("table", "direct"):
+            raise ValueError(
+                f"SimConfig.contact_mode_3d must be 'table' or 'direct', got {self.contact_mode_3d!r}"
+            )
+        if self.newton_iterations < 1:
+            raise ValueError(
+                f"SimConfig.newton_iterations must be >= 1, got {self.newton_iterations!r}"
+            )
+
+    def time_step_for(self, speed: float) -> float:
+        """Time step [s] used at ``speed`` [m/s]."""
+        if self.time_step is not None:
+            return float(self.time_step)
+        return float(min(self.max_time_step, self.max_travel_step / speed))
