@@ -157,10 +157,12 @@ def centre_trajectory(flat: Flat, x, n_coarse: int = 1024, n_fine: int = 256):
     H(phi) = max_theta r(theta) cos(theta - phi); the returned value is H - R (<= 0).
 
     The maximum is found on a coarse grid of ``n_coarse`` angles across the flat, refined on a
-    grid of ``n_fine`` angles around the coarse maximiser, and compared with the kink angles of
+    grid of ``n_fine`` angles around the coarse maximiser, polished by Newton steps where the
+    deviated surface is smooth, and compared with the kink angles of
     the profile (chord ends of a new flat, data points of a measured one), where the contact
     pivots. The gradient with respect to the flat's parameters follows from the envelope
-    theorem (the maximiser is held fixed), which is exact where the maximiser is unique.
+    theorem (a smooth maximiser is held fixed; a kink maximiser moves with the parameters),
+    which is exact where the maximiser is unique.
 
     Args:
         flat: the flat.
@@ -186,8 +188,17 @@ def centre_trajectory(flat: Flat, x, n_coarse: int = 1024, n_fine: int = 256):
         h_coarse = height(coarse, phi)
         best = jax.lax.stop_gradient(coarse[jnp.argmax(h_coarse)])
         fine = best + jnp.linspace(-2 * step, 2 * step, n_fine)
-        candidates = jnp.concatenate([fine, kinks, phi[None]])
-        candidates = jax.lax.stop_gradient(candidates)
+        theta = fine[jnp.argmax(height(fine, phi))]
+        # Two Newton steps polish a smooth maximiser (so the envelope gradient is accurate);
+        # max() below discards them where the maximiser is a kink instead.
+        for _ in range(2):
+            d1 = jax.grad(height)(theta, phi)
+            d2 = jax.grad(jax.grad(height))(theta, phi)
+            theta = jnp.where(d2 < 0, theta - d1 / jnp.where(d2 < 0, d2, -1.0), theta)
+        fine = jnp.concatenate([fine, theta[None]])
+        # Grid maximisers are held fixed (envelope theorem); kink angles move with the flat's
+        # parameters, and the pivot height depends on that motion, so they keep their gradient.
+        candidates = jnp.concatenate([jax.lax.stop_gradient(fine), kinks, phi[None]])
         return jnp.max(height(candidates, phi))
 
     H = jax.vmap(one)(x / R)

@@ -25,6 +25,7 @@ __all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT
 
 MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (half-space, Eq. 1)
 FLAT_KINDS = ("new", "rounded", "profile", "none")
+DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
 
 
 def kmh(speed_kmh: float) -> float:
@@ -212,7 +213,7 @@ class Track(_Validated):
         return cls(**{"rail_head_radius": 0.45, **overrides})
 
 
-@_pytree(static=("kind",))
+@_pytree(static=("kind", "extent_bound"))
 class Flat:
     """A wheel flat: its kind (static) and geometry (leaves).
 
@@ -229,6 +230,9 @@ class Flat:
         profile_x: [n] circumferential coordinates of a measured profile [m] (``"profile"``
             only; empty otherwise), centred on the flat.
         profile_z: [n] profile deviation (material removed, >= 0) at ``profile_x`` [m].
+        extent_bound (static): an upper bound [m] of the flat's half extent, used to size
+            numerical windows when depth and length are traced by ``jax.grad``/``vmap``;
+            ``None`` uses the concrete values, or :data:`DEFAULT_EXTENT_BOUND` under tracing.
     """
 
     kind: str
@@ -237,6 +241,7 @@ class Flat:
     wheel_radius: Any = 0.45
     profile_x: Any = None
     profile_z: Any = None
+    extent_bound: float | None = None
 
     def __post_init__(self):
         if self.kind not in FLAT_KINDS:
@@ -320,10 +325,18 @@ class Flat:
 
     @property
     def half_extent(self) -> float:
-        """Half the circumferential extent [m] outside which the deviation is zero (concrete)."""
+        """Half the circumferential extent [m] outside which the deviation is zero.
+
+        A concrete float even when depth and length are traced: then ``extent_bound`` (or
+        :data:`DEFAULT_EXTENT_BOUND`) is returned. Used only to size numerical windows.
+        """
+        if self.extent_bound is not None:
+            return float(self.extent_bound)
         if self.kind == "profile":
             x = np.asarray(self.profile_x)
             return float(max(abs(x[0]), abs(x[-1])))
+        if not _is_concrete(self.length):
+            return DEFAULT_EXTENT_BOUND
         return float(np.max(np.asarray(self.length))) / 2
 
 

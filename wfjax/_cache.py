@@ -1,0 +1,125 @@
+"""A small, generic on-disk cache of named dictionaries of numpy arrays.
+
+``load_or_build(name, key, build)`` returns the arrays stored under a hash of ``key`` and the
+wfjax version, or calls ``build()``, stores and returns its result.
+
+Files are ``<cache dir>/<name>-<hash>.npz.sha256``: a 64-character hex SHA-256 of the payload,
+a newline, then the ``.npz`` payload. They are written to a temporary file in the same
+directory and moved into place with ``os.replace`` (atomic), and verified on load: a file
+whose checksum or contents do not match is rebuilt, never trusted.
+
+Cache directory: the ``cache_dir`` argument, else the environment variable
+``WFJAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/wfjax`` (``~/.cache/wfjax``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["cache_directory", "cache_path", "load_or_build", "key_hash"]
+
+
+def cache_directory(cache_dir: str | os.PathLike | None = None) -> Path:
+    """The cache directory: argument, else ``$WFJAX_CACHE_DIR``, else ``~/.cache/wfjax``."""
+    if cache_dir is not None:
+        return Path(cache_dir)
+    env = os.environ.get("WFJAX_CACHE_DIR")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "wfjax"
+
+
+def _canonical(value):
+    if isinstance(value, dict):
+        return {str(k): _canonical(v) for k, v in sorted(value.items())}
+    if isinstance(value, (list, tuple)):
+        return [_canonical(v) for v in value]
+    if hasattr(value, "shape") and hasattr(value, "dtype"):
+        arr = np.asarray(value)
+        return {"dtype": str(arr.dtype), "shape": list(arr.shape),
+                "sha256": hashlib.sha256(np.ascontiguousarray(arr).tobytes()).hexdigest()}
+    if isinstance(value, float):
+        return repr(float(value))
+    if isinstance(value, (int, str, bool)) or value is None:
+        return value
+    return repr(value)
+
+
+def key_hash(name: str, key: dict) -> str:
+    """SHA-256 hex digest of ``name``, ``key`` (canonical JSON) and the wfjax version."""
+    import wfjax
+
+    payload = json.dumps({"name": name, "key": _canonical(key),
+                          "version": getattr(wfjax, "__version__", "unknown")}, sort_keys=True)
+    return hashlib.sha256(payload.encode()).hexdigest()
+
+
+def cache_path(name: str, key: dict, cache_dir=None) -> Path:
+    """The file that holds (or will hold) the entry ``name``/``key``."""
+    return cache_directory(cache_dir) / f"{name}-{key_hash(name, key)[:24]}.npz.sha256"
+
+
+def _read(path: Path) -> dict[str, np.ndarray] | None:
+    try:
+        blob = path.read_bytes()
+    except OSError:
+        return None
+    digest, sep, payload = blob.partition(b"\n")
+    if not sep or hashlib.sha256(payload).hexdigest().encode() != digest:
+        return None
+    try:
+        with np.load(io.BytesIO(payload), allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+    except Exception:  # noqa: BLE001 - any unreadable payload means "rebuild"
+        return None
+
+
+def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    buf = io.BytesIO()
+    np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    payload = buf.getvalue()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(hashlib.sha256(payload).hexdigest().encode() + b"\n" + payload)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_or_build(name: str, key: dict, build: Callable[[], dict[str, np.ndarray]],
+                  cache_dir: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
+    """Load the arrays cached under ``name``/``key``, or build, store and return them.
+
+    Args:
+        name: short file-name-safe label of the kind of entry (e.g. ``"track-modal"``).
+        key: every input the result depends on (numbers, strings, arrays, nested dicts).
+        build: zero-argument function returning a dict of numpy arrays.
+        cache_dir: cache directory (see :func:`cache_directory`).
+
+    Returns:
+        dict of numpy arrays (identical to what ``build()`` returned when it was stored).
+        If the cache directory cannot be written, the freshly built result is returned.
+    """
+    path = cache_path(name, key, cache_dir)
+    cached = _read(path)
+    if cached is not None:
+        return cached
+    arrays = {k: np.asarray(v) for k, v in build().items()}
+    try:
+        _write(path, arrays)
+    except OSError:
+        pass
+    return arrays

@@ -1,0 +1,443 @@
+"""Discretely supported track: the Nielsen-Igeland finite-element model (Section 3.2, Table 2).
+
+Model (Nielsen & Igeland 1995, J. Sound Vib. 187, 825-839): a 60E1 rail of ``track.n_bays``
+sleeper bays of length L_S, discretised by ``track.elements_per_bay`` two-node
+Rayleigh-Timoshenko beam elements per bay (shear deformation and rotary inertia) with the
+element matrices of **Friedman & Kosmatka (1993)**, "An improved two-node Timoshenko beam
+finite element", Computers & Structures 47, 473-481 (exact static shape functions,
+consistent translational + rotary mass; written out in ``reference/formulas.md``). Below every
+interior sleeper position the rail node is joined by a rail pad (k_P || c_P) to a half-sleeper
+mass m_SL, which rests on ballast (k_B || c_B) on rigid ground. Both rail ends are clamped
+(displacement and rotation zero); the end sleepers under the clamps carry no load and are left
+out. The rail itself is undamped, so the damping is non-proportional.
+
+Coordinates: ``x`` [m] along the rail, ``x = 0`` at the sleeper centre in the middle of the
+track (sleeper number ``n_bays // 2``), so sleepers sit at ``x = j L_S`` and midspans at
+``x = (j + 1/2) L_S``. Displacements are positive in the direction of the applied force.
+
+Main entry points:
+
+* :func:`receptance` -- point / transfer receptance by a direct sparse frequency-domain solve
+  (the reference).
+* :func:`modal_model` -> :class:`ModalModel` -- complex modes with a static correction for the
+  truncated modes; what the time loop uses (cached on disk, speed independent).
+* :func:`moving_greens` -- moving Green's functions g(x0, t) (Eq. 5) from the modal model;
+  :func:`moving_greens_newmark` computes the same by direct time integration of the full FE
+  model (independent check).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
+
+from . import _cache
+from ._modal import complex_modes, discrete_step_coefficients
+from .params import Track
+
+__all__ = [
+    "ModalModel",
+    "MovingGreens",
+    "FEModel",
+    "assemble",
+    "receptance",
+    "static_deflection",
+    "modal_model",
+    "mode_shapes_at",
+    "residual_compliance_at",
+    "modal_receptance",
+    "moving_greens",
+    "moving_greens_newmark",
+    "discrete_step_coefficients",
+]
+
+_TRACK_FIELDS = (
+    "bending_stiffness", "shear_stiffness", "rail_mass", "rail_rotary_inertia",
+    "sleeper_spacing", "pad_stiffness", "pad_damping", "sleeper_mass",
+    "ballast_stiffness", "ballast_damping",
+)
+
+
+# --------------------------------------------------------------------------------------------
+# validation helpers
+# --------------------------------------------------------------------------------------------
+def _track_numbers(track: Track) -> dict[str, float]:
+    if not isinstance(track, Track):
+        raise ValueError(f"track must be a wfjax.Track, got {type(track).__name__}")
+    out = {}
+    for name in _TRACK_FIELDS:
+        try:
+            value = float(np.asarray(getattr(track, name)))
+        except (TypeError, jax.errors.ConcretizationTypeError) as exc:
+            raise ValueError(f"Track.{name} must be a concrete scalar here, got "
+                             f"{getattr(track, name)!r}") from exc
+        if not math.isfinite(value) or value <= 0:
+            raise ValueError(f"Track.{name} must be finite and > 0, got {value!r} "
+                             "(allowed range: (0, inf))")
+        out[name] = value
+    for name, low in (("n_bays", 4), ("elements_per_bay", 1)):
+        value = getattr(track, name)
+        if not isinstance(value, (int, np.integer)) or value < low:
+            raise ValueError(f"Track.{name} must be an integer >= {low}, got {value!r}")
+    return out
+
+
+def _check_freqs(freqs) -> np.ndarray:
+    f = np.asarray(freqs, dtype=float)
+    if f.ndim > 1 or f.size == 0 or not np.all(np.isfinite(f)) or np.any(f < 0):
+        raise ValueError(f"freqs must be a non-empty 1-D array of finite frequencies >= 0 Hz, "
+                         f"got {freqs!r}")
+    return np.atleast_1d(f)
+
+
+def _check_positive_scalar(name: str, value, unit: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a number > 0 {unit}, got {value!r}") from exc
+    if not math.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be finite and > 0 {unit}, got {value!r} "
+                         f"(allowed range: (0, inf) {unit})")
+    return v
+
+
+# --------------------------------------------------------------------------------------------
+# finite-element model
+# --------------------------------------------------------------------------------------------
+class FEModel(NamedTuple):
+    """Assembled FE matrices of the track (scipy CSC, free DOFs only).
+
+    DOF order: rail nodes 1 .. N-1 as (w, theta) pairs, then the interior sleepers.
+    """
+
+    stiffness: scipy.sparse.csc_matrix  # [n_dof, n_dof] N/m
+    mass: scipy.sparse.csc_matrix       # [n_dof, n_dof] kg
+    damping: scipy.sparse.csc_matrix    # [n_dof, n_dof] N s/m
+    node_x: np.ndarray                  # [N+1] rail node positions [m] (including clamped ends)
+    element_length: float               # [m]
+    phi: float                          # shear parameter 12 EI / (kGA Le^2)
+    n_rail_dof: int                     # 2 (N - 1)
+
+
+def element_matrices(bending_stiffness, shear_stiffness, rail_mass, rotary_inertia, length):
+    """Friedman & Kosmatka (1993) Timoshenko element: stiffness and consistent mass [4x4].
+
+    DOFs (w1, theta1, w2, theta2); units N/m, N, N m/rad and kg, kg m, kg m^2.
+    Returns ``(K, M, phi)`` with ``M = M_t + M_r`` (translational + rotary inertia).
+    """
+    ei, L = bending_stiffness, length
+    phi = 12.0 * ei / (shear_stiffness * L**2)
+    k = ei / ((1 + phi) * L**3) * np.array([
+        [12, 6 * L, -12, 6 * L],
+        [6 * L, (4 + phi) * L**2, -6 * L, (2 - phi) * L**2],
+        [-12, -6 * L, 12, -6 * L],
+        [6 * L, (2 - phi) * L**2, -6 * L, (4 + phi) * L**2]])
+    m11 = 70 * phi**2 + 147 * phi + 78
+    m12 = (35 * phi**2 + 77 * phi + 44) * L / 4
+    m13 = 35 * phi**2 + 63 * phi + 27
+    m14 = -(35 * phi**2 + 63 * phi + 26) * L / 4
+    m22 = (7 * phi**2 + 14 * phi + 8) * L**2 / 4
+    m24 = -(7 * phi**2 + 14 * phi + 6) * L**2 / 4
+    mt = rail_mass * L / (210 * (1 + phi) ** 2) * np.array([
+        [m11, m12, m13, m14],
+        [m12, m22, -m14, m24],
+        [m13, -m14, m11, -m12],
+        [m14, m24, -m12, m22]])
+    r12 = -(15 * phi - 3) * L
+    r22 = (10 * phi**2 + 5 * phi + 4) * L**2
+    r24 = (5 * phi**2 - 5 * phi - 1) * L**2
+    mr = rotary_inertia / (30 * (1 + phi) ** 2 * L) * np.array([
+        [36, r12, -36, r12],
+        [r12, r22, -r12, r24],
+        [-36, -r12, 36, -r12],
+        [r12, r24, -r12, r22]])
+    return k, mt + mr, phi
+
+
+def shape_functions(xi, phi, length):
+    """Timoshenko displacement shape functions N1..N4 at xi = s / Le in [0, 1] (array-like).
+
+    Returns a tuple of four arrays shaped like ``xi`` (N2, N4 in m/rad). Works with numpy and
+    jax.numpy inputs.
+    """
+    xp = jnp if isinstance(xi, jax.Array) else np
+    xi = xp.asarray(xi)
+    d = 1.0 + phi
+    n1 = (2 * xi**3 - 3 * xi**2 - phi * xi + 1 + phi) / d
+    n2 = length * (xi**3 - (2 + phi / 2) * xi**2 + (1 + phi / 2) * xi) / d
+    n3 = -(2 * xi**3 - 3 * xi**2 - phi * xi) / d
+    n4 = length * (xi**3 - (1 - phi / 2) * xi**2 - (phi / 2) * xi) / d
+    return n1, n2, n3, n4
+
+
+def assemble(track: Track) -> FEModel:
+    """Assemble the sparse stiffness, mass and damping matrices of the track FE model."""
+    p = _track_numbers(track)
+    nb, ne = int(track.n_bays), int(track.elements_per_bay)
+    n_el = nb * ne
+    le = p["sleeper_spacing"] / ne
+    ke, me, phi = element_matrices(p["bending_stiffness"], p["shear_stiffness"],
+                                   p["rail_mass"], p["rail_rotary_inertia"], le)
+    n_rail = 2 * (n_el - 1)
+    n_sl = nb - 1
+    n_dof = n_rail + n_sl
+
+    # global (unconstrained) rail dof g = 2*node + {0, 1}; free rail dof = g - 2
+    e = np.arange(n_el)
+    gdof = np.stack([2 * e, 2 * e + 1, 2 * e + 2, 2 * e + 3], axis=1) - 2  # [n_el, 4]
+    rows = np.repeat(gdof, 4, axis=1).ravel()
+    cols = np.tile(gdof, (1, 4)).ravel()
+    ok = (rows >= 0) & (rows < n_rail) & (cols >= 0) & (cols < n_rail)
+    kv = np.tile(ke.ravel(), n_el)[ok]
+    mv = np.tile(me.ravel(), n_el)[ok]
+    rows, cols = rows[ok], cols[ok]
+
+    # supports: rail w dof of node j*ne (j = 1..nb-1) <-> sleeper dof n_rail + j - 1
+    j = np.arange(1, nb)
+    rw = 2 * (j * ne) - 2
+    sl = n_rail + j - 1
+    s_rows = np.concatenate([rw, sl, rw, sl])
+    s_cols = np.concatenate([rw, sl, sl, rw])
+    kp, kb, cp, cb = p["pad_stiffness"], p["ballast_stiffness"], p["pad_damping"], p["ballast_damping"]
+    ones = np.ones(n_sl)
+    ks_v = np.concatenate([kp * ones, (kp + kb) * ones, -kp * ones, -kp * ones])
+    cs_v = np.concatenate([cp * ones, (cp + cb) * ones, -cp * ones, -cp * ones])
+
+    shape = (n_dof, n_dof)
+    k = scipy.sparse.coo_matrix((np.concatenate([kv, ks_v]),
+                                 (np.concatenate([rows, s_rows]), np.concatenate([cols, s_cols]))),
+                                shape=shape).tocsc()
+    m = scipy.sparse.coo_matrix((np.concatenate([mv, p["sleeper_mass"] * ones]),
+                                 (np.concatenate([rows, sl]), np.concatenate([cols, sl]))),
+                                shape=shape).tocsc()
+    c = scipy.sparse.coo_matrix((cs_v, (s_rows, s_cols)), shape=shape).tocsc()
+    node_x = (np.arange(n_el + 1) * le) - (nb // 2) * p["sleeper_spacing"]
+    return FEModel(k, m, c, node_x, le, phi, n_rail)
+
+
+def _load_vector(fe: FEModel, x) -> scipy.sparse.csc_matrix:
+    """[n_dof, n_x] sparse matrix whose columns are the nodal loads of unit forces at ``x``."""
+    x = np.atleast_1d(np.asarray(x, dtype=float))
+    lo, hi = fe.node_x[0], fe.node_x[-1]
+    if not np.all(np.isfinite(x)) or np.any(x < lo) or np.any(x > hi):
+        raise ValueError(f"x must be finite and within the rail [{lo:g}, {hi:g}] m, got {x!r}")
+    n_el = fe.node_x.size - 1
+    e = np.clip(np.floor((x - lo) / fe.element_length).astype(int), 0, n_el - 1)
+    xi = (x - fe.node_x[e]) / fe.element_length
+    n = np.stack(shape_functions(xi, fe.phi, fe.element_length), axis=0)  # [4, n_x]
+    g = np.stack([2 * e, 2 * e + 1, 2 * e + 2, 2 * e + 3], axis=0) - 2
+    ok = (g >= 0) & (g < fe.n_rail_dof)
+    cols = np.broadcast_to(np.arange(x.size), g.shape)
+    return scipy.sparse.csc_matrix((n[ok], (g[ok], cols[ok])),
+                                   shape=(fe.stiffness.shape[0], x.size))
+
+
+# --------------------------------------------------------------------------------------------
+# direct solves
+# --------------------------------------------------------------------------------------------
+def receptance(track: Track, freqs, x: float = 0.0, x_response=None) -> np.ndarray:
+    """Rail receptance [m/N] by a direct sparse frequency-domain solve of the FE model.
+
+    Args:
+        track: the track parameters.
+        freqs: [n_f] frequencies [Hz] (>= 0).
+        x: excitation position [m] (0 = above the middle sleeper, L_S/2 = midspan).
+        x_response: response position(s) [m], scalar or [n_r]; default ``x`` (point receptance).
+
+    Returns:
+        complex [n_f] (scalar ``x_response``) or [n_f, n_r]: displacement at ``x_response``
+        per unit harmonic force at ``x`` (convention exp(i omega t)).
+    """
+    f = _check_freqs(freqs)
+    fe = assemble(track)
+    scalar = x_response is None or np.ndim(x_response) == 0
+    xr = x if x_response is None else x_response
+    b = _load_vector(fe, x).toarray()[:, 0]
+    nr = _load_vector(fe, xr)  # [n_dof, n_r]
+    out = np.empty((f.size, nr.shape[1]), dtype=complex)
+    k, m, c = fe.stiffness, fe.mass, fe.damping
+    for i, fi in enumerate(f):
+        w = 2 * np.pi * fi
+        d = (k - w**2 * m + 1j * w * c).tocsc()
+        u = scipy.sparse.linalg.spsolve(d, b.astype(complex))
+        out[i] = nr.T @ u
+    return out[:, 0] if scalar else out
+
+
+def static_deflection(track: Track, force: float = 118e3, x: float = 0.0) -> float:
+    """Static rail deflection [m] at ``x`` [m] under a point force ``force`` [N] at ``x``."""
+    force = _check_positive_scalar("force", force, "N")
+    return float(np.real(receptance(track, [0.0], x)[0])) * force
+
+
+# --------------------------------------------------------------------------------------------
+# modal model
+# --------------------------------------------------------------------------------------------
+class ModalModel(NamedTuple):
+    """Complex-mode model of a linear structure with a static correction (a JAX pytree).
+
+    Rail displacement at ``x`` due to a unit impulse at ``x0`` at t = 0 (units m/(N s)),
+    for ``t > 0``::
+
+        h(x, x0, t) = Re sum_r weights_r * phi_r(x) * phi_r(x0) * exp(poles_r t)
+
+    plus, for a point load, the instantaneous static contribution of the truncated modes
+    ``residual_compliance_at(model, x) * F(t)`` [m] (a delta function in h).
+
+    Fields:
+        poles: complex [n_modes] lambda_r [rad/s]; one representative (Im > 0) per conjugate
+            pair plus real poles.
+        weights: float [n_modes]: 2.0 for pair representatives, 1.0 for real poles.
+        node_x: float [n_nodes] rail node positions [m], x = 0 at the middle sleeper.
+        shapes: complex [n_modes, n_nodes, 2] (displacement [sqrt(1/kg)-like units such that
+            phi*phi has m/(N s)], rotation per m of that) at the nodes; clamped ends are 0.
+        residual_x: float [n_res] positions across one bay [0, L_S] [m].
+        residual: float [n_res] static compliance [m/N] of the truncated modes at (x, x):
+            K^-1(x, x) - sum_kept Re(w phi^2 / (-lambda)); periodic in the bay.
+        sleeper_spacing: L_S [m].
+        element_phi: Timoshenko shear parameter 12 EI/(kGA Le^2) of the rail elements (needed
+            by the shape functions in :func:`mode_shapes_at`).
+    """
+
+    poles: jax.Array
+    weights: jax.Array
+    node_x: jax.Array
+    shapes: jax.Array
+    residual_x: jax.Array
+    residual: jax.Array
+    sleeper_spacing: float
+    element_phi: float = 0.0
+
+
+def mode_shapes_at(model: ModalModel, x) -> jax.Array:
+    """phi_r(x): mode shapes at rail positions ``x`` [m] (any shape), complex [..., n_modes].
+
+    Interpolates with the Timoshenko shape functions of the element containing ``x`` (the FE
+    model's own interpolation). Positions outside the rail are clamped to its ends. Pure
+    ``jax.numpy``; jit/vmap/grad-able in ``x``.
+    """
+    x = jnp.asarray(x, dtype=jnp.result_type(float))
+    node_x = model.node_x
+    le = node_x[1] - node_x[0]
+    n_el = node_x.shape[0] - 1
+    x = jnp.clip(x, node_x[0], node_x[-1])
+    e = jnp.clip(jnp.floor((x - node_x[0]) / le).astype(jnp.int32), 0, n_el - 1)
+    xi = (x - node_x[e]) / le
+    n1, n2, n3, n4 = shape_functions(xi, model.element_phi, le)
+    s = model.shapes  # [m, n, 2]
+    w1 = jnp.moveaxis(s[:, e, 0], 0, -1)
+    t1 = jnp.moveaxis(s[:, e, 1], 0, -1)
+    w2 = jnp.moveaxis(s[:, e + 1, 0], 0, -1)
+    t2 = jnp.moveaxis(s[:, e + 1, 1], 0, -1)
+    return (n1[..., None] * w1 + n2[..., None] * t1 + n3[..., None] * w2
+            + n4[..., None] * t2)
+
+
+def residual_compliance_at(model: ModalModel, x) -> jax.Array:
+    """Static compliance [m/N] of the truncated modes at (x, x), periodic in the bay.
+
+    ``x`` [m] any shape; returns float [...]. Pure ``jax.numpy``.
+    """
+    x = jnp.asarray(x, dtype=jnp.result_type(float))
+    s = jnp.mod(x, model.sleeper_spacing)
+    return jnp.interp(s, model.residual_x, model.residual)
+
+
+def modal_receptance(model: ModalModel, freqs, x: float = 0.0) -> np.ndarray:
+    """Point receptance [m/N] at ``x`` [m] from the modal model, complex [n_f] (freqs in Hz).
+
+    Includes the static residual of the truncated modes.
+    """
+    f = _check_freqs(freqs)
+    s = 2j * np.pi * f[:, None]
+    phi = np.asarray(mode_shapes_at(model, float(x)))
+    a = np.asarray(model.weights) * phi**2
+    lam = np.asarray(model.poles)
+    # pairs: (w/2) [a/(s - lam) + conj(a)/(s - conj(lam))]; real poles: a/(s - lam), w = 1
+    pair = np.asarray(model.weights) > 1.5
+    h = np.where(pair, 0.5 * (a / (s - lam) + np.conj(a) / (s - np.conj(lam))), a / (s - lam))
+    return h.sum(axis=1) + float(residual_compliance_at(model, float(x)))
+
+
+def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[str, np.ndarray]:
+    fe = assemble(track)
+    k = fe.stiffness.toarray()
+    m = fe.mass.toarray()
+    w_max = 2 * np.pi * max_frequency
+    w2, vec = scipy.linalg.eigh(k, m, subset_by_value=(0.0, w_max**2), driver="gvx",
+                                check_finite=False)
+    c_modal = vec.T @ (fe.damping @ vec)
+    poles, weights, a = complex_modes(w2, c_modal)
+    u = vec @ a  # [n_dof, n_modes] complex
+    n_nodes = fe.node_x.size
+    shapes = np.zeros((poles.size, n_nodes, 2), dtype=complex)
+    shapes[:, 1:-1, :] = u[: fe.n_rail_dof].T.reshape(poles.size, n_nodes - 2, 2)
+
+    # static correction of the truncated modes across the central bay
+    ls = float(track.sleeper_spacing)
+    res_x = np.linspace(0.0, ls, n_residual)
+    b = _load_vector(fe, res_x)
+    full = np.einsum("ij,ij->j", b.toarray(),
+                     scipy.sparse.linalg.splu(fe.stiffness).solve(b.toarray()))
+    model = ModalModel(poles, weights, fe.node_x, shapes, res_x, np.zeros_like(res_x), ls,
+                       fe.phi)
+    phi = np.asarray(mode_shapes_at(_to_jax(model), jnp.asarray(res_x)))  # [n_res, n_modes]
+    kept = np.real(weights * phi**2 / (-poles)).sum(axis=1)
+    residual = full - kept
+    return {"poles": poles, "weights": weights, "node_x": fe.node_x, "shapes": shapes,
+            "residual_x": res_x, "residual": residual, "sleeper_spacing": np.array(ls),
+            "element_phi": np.array(fe.phi)}
+
+
+def _to_jax(model: ModalModel) -> ModalModel:
+    return ModalModel(*(jnp.asarray(v) for v in model[:6]), float(model.sleeper_spacing),
+                      float(model.element_phi))
+
+
+def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
+                n_residual: int = 33, use_cache: bool = True) -> ModalModel:
+    """Complex-mode model of the track with a static correction (cached on disk).
+
+    Method: undamped real modes of (K, M) below ``max_frequency`` (``scipy.linalg.eigh``),
+    the non-proportional pad/ballast damping projected onto them, complex modes of the reduced
+    2n x 2n state-space system (:func:`wfjax._modal.complex_modes`), mode shapes mapped back
+    to the rail nodes, and the static compliance of the truncated modes tabulated across one
+    bay (``n_residual`` points). Speed independent; cached with :mod:`wfjax._cache` keyed by
+    every track parameter, ``max_frequency``, ``n_residual`` and the wfjax version.
+
+    Args:
+        track: track parameters (concrete numbers).
+        max_frequency: highest undamped natural frequency kept [Hz] (> 0).
+        cache_dir: cache directory (default ``$WFJAX_CACHE_DIR`` or ``~/.cache/wfjax``).
+        n_residual: points of the residual table across the bay (>= 2).
+        use_cache: ``False`` always rebuilds and does not touch the disk.
+
+    Returns:
+        :class:`ModalModel` with jax arrays.
+    """
+    max_frequency = _check_positive_scalar("max_frequency", max_frequency, "Hz")
+    if not isinstance(n_residual, (int, np.integer)) or n_residual < 2:
+        raise ValueError(f"n_residual must be an integer >= 2, got {n_residual!r}")
+    p = _track_numbers(track)
+
+    def build():
+        return _modal_arrays(track, max_frequency, int(n_residual))
+
+    if use_cache:
+        key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
+               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 1}
+        arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
+    else:
+        arrays = build()
+    return ModalModel(
+        jnp.asarray(arrays["poles"]), jnp.asarray(arrays["weights"]),
+        jnp.asarray(arrays["node_x"]), jnp.asarray(arrays["shapes"]),
+        jnp.asarray(arrays["residual_x"]), jnp.asarray(arrays["residual"]),
+        float(arrays["sleeper_spacing"]), float(arrays["element_phi"]))
