@@ -67,8 +67,25 @@ def _pytree(cls=None, *, static: tuple[str, ...] = ()):
     def wrap(c):
         c = dataclasses.dataclass(frozen=True)(c)
         names = [f.name for f in dataclasses.fields(c)]
-        data = [n for n in names if n not in static]
-        return jax.tree_util.register_dataclass(c, data_fields=data, meta_fields=list(static))
+        data = tuple(n for n in names if n not in static)
+        meta = tuple(n for n in names if n in static)
+
+        def flatten(obj):
+            children = tuple(getattr(obj, n) for n in data)
+            return children, tuple(getattr(obj, n) for n in meta)
+
+        def unflatten(aux, children):
+            # Bypass __init__/__post_init__: JAX rebuilds objects with tracers, cotangents
+            # (which may be negative or zero) and placeholders that must not be validated.
+            obj = object.__new__(c)
+            for n, v in zip(data, children, strict=True):
+                object.__setattr__(obj, n, v)
+            for n, v in zip(meta, aux, strict=True):
+                object.__setattr__(obj, n, v)
+            return obj
+
+        jax.tree_util.register_pytree_node(c, flatten, unflatten)
+        return c
 
     return wrap if cls is None else wrap(cls)
 
