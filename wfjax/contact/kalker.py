@@ -1,0 +1,703 @@
+"""3D non-Hertzian normal contact: Kalker's problem on an elastic half-space (Section 3.3.1).
+
+The potential contact area is a rectangular grid of ``nx x ny`` elements of size ``dx x dy``
+(x: rolling direction, y: transverse). Each element carries a uniform pressure p_e; the
+combined normal surface displacement of wheel and rail (both of the same material) is
+u = C p (Eq. 6), with the influence coefficients of Love (1929) for uniform pressure on a
+rectangle and the combined modulus 1/E* = 2 (1 - nu^2) / E. With ``gap`` the undeformed
+distance of the surfaces (Eq. 9 without the displacements) and ``delta`` the approach of the
+bodies (> 0 compresses), the deformed distance is h = gap - delta + C p and the contact
+conditions are h >= 0, p >= 0, h p = 0 (Eq. 8). The total force is F = A_e sum(p) (Eq. 7).
+
+Numerics
+--------
+* ``C p`` is a discrete 2D convolution with a kernel of (2 nx - 1) x (2 ny - 1) coefficients.
+  It is evaluated exactly (no periodic images) with a zero-padded 2D FFT of size
+  2 nx x 2 ny (circulant embedding). :func:`dense_matrix` gives the same operator as a matrix
+  for small grids (test reference).
+* The solver is an active-set method (Kalker's NORM; Vollebregt's active-set strategy): on the
+  current active set A solve C_AA p_A = delta - gap_A with conjugate gradients (approach
+  control) or the same system plus sum(p_A) = F / A_e with projected conjugate gradients
+  (force control; delta becomes the Lagrange multiplier); then release elements with negative
+  pressure and admit elements that penetrate, until the set does not change. A cold start is a
+  warm start from p = 0 (the first pass admits the rigid overlap, a superset of the contact).
+  Everything runs under ``lax.while_loop`` with a fixed-shape state, so ``solve`` works under
+  ``jit``, ``vmap`` and inside ``lax.scan``.
+* Internally pressures are scaled by E* (q = p / E*, dimensionless), so the iteration is
+  independent of the material and the material enters through one differentiable factor.
+* Gradients: the converged pressures are re-attached to the inputs through
+  ``jax.custom_vjp`` rules that solve the adjoint system on the converged active set (the
+  implicit function theorem; the loop is never unrolled). The active set is held fixed, which
+  is exact wherever the solution is differentiable (no element exactly at the contact edge).
+* Contact stiffness dF/d delta = A_e E* 1^T (C0_AA)^-1 1 [N/m] (one more CG solve), with C0
+  the influence matrix for E* = 1. Its own gradient is not propagated (``stop_gradient``).
+
+References: Love, Phil. Trans. R. Soc. A 228 (1929); Johnson, Contact Mechanics (1985) Sec. 3.2;
+Kalker, Three-dimensional elastic bodies in rolling contact (1990); Vollebregt, J. Optim.
+Theory Appl. 162 (2014).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry import flat_surface
+from ..params import Flat, Material
+
+__all__ = [
+    "Diagnostics",
+    "KalkerResult",
+    "combined_modulus",
+    "influence_kernel",
+    "dense_matrix",
+    "make_operator",
+    "solve",
+    "gap_3d",
+    "contact_grid",
+    "elliptic_hertz",
+]
+
+MIN_ELEMENTS_ACROSS = 6  # elements across the contact required by the eager validation
+
+
+# ----------------------------------------------------------------------------------------
+# Influence coefficients
+# ----------------------------------------------------------------------------------------
+
+
+def combined_modulus(material: Material):
+    """E* [Pa] of two bodies of ``material``: 1/E* = 2 (1 - nu^2) / E."""
+    return material.youngs_modulus / (2.0 * (1.0 - material.poisson_ratio**2))
+
+
+def _love_term(u, v):
+    """u asinh(v/|u|) + v asinh(u/|v|), the part of Love's f(u, v) that survives the sum.
+
+    Love's f(u, v) = u ln(v + r) + v ln(u + r) with r = sqrt(u^2 + v^2). Writing
+    ln(v + r) = asinh(v/|u|) + ln|u| the ln|u| and ln|v| pieces cancel in the four-corner sum,
+    leaving this form, which has no cancellation and is 0 for u = 0 or v = 0.
+    """
+    au, av = np.abs(u), np.abs(v)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = np.where(au > 0, u * np.arcsinh(v / np.where(au > 0, au, 1.0)), 0.0)
+        t2 = np.where(av > 0, v * np.arcsinh(u / np.where(av > 0, av, 1.0)), 0.0)
+    return t1 + t2
+
+
+@functools.lru_cache(maxsize=64)
+def _unit_kernel(nx: int, ny: int, dx: float, dy: float) -> np.ndarray:
+    """[2nx-1, 2ny-1] displacement [m] per unit q = p/E* at offsets (i dx, j dy), i=-(nx-1)..nx-1."""
+    x = np.arange(-(nx - 1), nx) * dx
+    y = np.arange(-(ny - 1), ny) * dy
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    a, b = dx / 2, dy / 2
+    w = (
+        _love_term(X + a, Y + b)
+        - _love_term(X + a, Y - b)
+        - _love_term(X - a, Y + b)
+        + _love_term(X - a, Y - b)
+    )
+    return w / math.pi
+
+
+@functools.lru_cache(maxsize=64)
+def _unit_kernel_fft(nx: int, ny: int, dx: float, dy: float) -> np.ndarray:
+    """rfft2 of the circulant embedding [2nx, 2ny] of the unit kernel (exact linear convolution)."""
+    k = _unit_kernel(nx, ny, dx, dy)
+    emb = np.zeros((2 * nx, 2 * ny))
+    ix = np.r_[np.arange(nx), np.arange(-nx + 1, 0)]  # offsets stored at index i mod 2nx
+    iy = np.r_[np.arange(ny), np.arange(-ny + 1, 0)]
+    emb[np.ix_(ix % (2 * nx), iy % (2 * ny))] = k[np.ix_(ix + nx - 1, iy + ny - 1)]
+    return np.fft.rfft2(emb)
+
+
+def influence_kernel(nx: int, ny: int, dx: float, dy: float, material: Material):
+    """Influence coefficients [m/Pa] of a uniformly loaded rectangular element (Love 1929).
+
+    Args:
+        nx, ny: grid size (elements) along x and y.
+        dx, dy: element size [m] along x and y.
+        material: wheel and rail material (combined compliance 1/E* = 2(1-nu^2)/E).
+
+    Returns:
+        [2nx-1, 2ny-1] array K: the combined displacement at an element centre offset by
+        (i dx, j dy) from a loaded element, per unit pressure, at index (i + nx-1, j + ny-1).
+    """
+    dx, dy = _check_element_size(dx, dy)
+    return jnp.asarray(_unit_kernel(int(nx), int(ny), dx, dy)) / combined_modulus(material)
+
+
+def dense_matrix(nx: int, ny: int, dx: float, dy: float, material: Material):
+    """Dense influence matrix C [m/Pa], shape [nx*ny, nx*ny] (row-major flattening of [nx, ny]).
+
+    For small grids and as the test reference of :func:`make_operator`.
+    """
+    dx, dy = _check_element_size(dx, dy)
+    k = _unit_kernel(int(nx), int(ny), dx, dy)
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    c = k[i[:, None] - i[None, :] + nx - 1, j[:, None] - j[None, :] + ny - 1]
+    return jnp.asarray(c) / combined_modulus(material)
+
+
+def _fft_apply(khat, q, nx: int, ny: int):
+    """Exact (non-periodic) convolution of q [..., nx, ny] with the embedded kernel."""
+    qhat = jnp.fft.rfft2(q, s=(2 * nx, 2 * ny))
+    return jnp.fft.irfft2(qhat * khat, s=(2 * nx, 2 * ny))[..., :nx, :ny]
+
+
+def make_operator(nx: int, ny: int, dx: float, dy: float, material: Material | None = None,
+                  method: str = "fft"):
+    """Matrix-free influence operator p [nx, ny] (Pa) -> u = C p [nx, ny] (m).
+
+    Args:
+        nx, ny: grid size; dx, dy: element size [m].
+        material: combined compliance 1/E* = 2(1-nu^2)/E; ``None`` gives the unit operator
+            (E* = 1, i.e. displacement per unit p/E*).
+        method: ``"fft"`` (zero-padded 2D FFT, exact linear convolution) or ``"dense"``.
+
+    Returns:
+        A pure function of a [..., nx, ny] array (batch dimensions allowed for ``"fft"``).
+    """
+    dx, dy = _check_element_size(dx, dy)
+    scale = 1.0 if material is None else 1.0 / combined_modulus(material)
+    base = _unit_operator(int(nx), int(ny), dx, dy, method)
+    return lambda p: base(p) * scale
+
+
+def _unit_operator(nx: int, ny: int, dx: float, dy: float, method: str):
+    if method == "fft":
+        khat = jnp.asarray(_unit_kernel_fft(nx, ny, dx, dy))
+        return lambda q: _fft_apply(khat, q, nx, ny)
+    if method == "dense":
+        k = _unit_kernel(nx, ny, dx, dy)
+        i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+        i, j = i.ravel(), j.ravel()
+        c = jnp.asarray(k[i[:, None] - i[None, :] + nx - 1, j[:, None] - j[None, :] + ny - 1])
+        return lambda q: (c @ q.reshape(-1)).reshape(nx, ny)
+    raise ValueError(f"method must be 'fft' or 'dense', got {method!r}")
+
+
+# ----------------------------------------------------------------------------------------
+# Conjugate gradients on the active set
+# ----------------------------------------------------------------------------------------
+
+
+def _dot(a, b):
+    return jnp.sum(a * b)
+
+
+def _cg(op, b, x0, mask, tol, max_iter):
+    """Solve C_AA x_A = b_A (x = 0 off A) by CG from x0. Returns (x, iterations, converged)."""
+    x = mask * x0
+    r = mask * (b - op(x))
+    bb = _dot(mask * b, mask * b)
+    rr = _dot(r, r)
+    thresh = tol**2 * bb
+
+    def cond(s):
+        _, _, _, rr, k = s
+        return (rr > thresh) & (k < max_iter)
+
+    def body(s):
+        x, r, d, rr, k = s
+        ad = mask * op(d)
+        alpha = rr / _dot(d, ad)
+        x = x + alpha * d
+        r = r - alpha * ad
+        rr_new = _dot(r, r)
+        d = r + (rr_new / rr) * d
+        return x, r, d, rr_new, k + 1
+
+    x, _, _, rr, k = jax.lax.while_loop(cond, body, (x, r, r, rr, jnp.int32(0)))
+    return x, k, rr <= thresh
+
+
+def _cg_fixed_sum(op, g, total, x0, mask, tol, max_iter):
+    """Solve C_AA x_A = mu 1 - g_A with sum(x) = total by projected CG.
+
+    Returns (x, mu, iterations, converged); mu is the Lagrange multiplier (the approach in the
+    forward problem).
+    """
+    n = jnp.maximum(jnp.sum(mask), 1.0)
+
+    def proj(v):
+        v = mask * v
+        return mask * (v - jnp.sum(v) / n)
+
+    x = mask * x0
+    x = x + mask * (total - jnp.sum(x)) / n
+    cx = op(x)
+    r = proj(-g - cx)
+    ref = _dot(mask * cx, mask * cx) + _dot(proj(g), proj(g))
+    thresh = tol**2 * ref
+    rr = _dot(r, r)
+
+    def cond(s):
+        _, _, _, rr, k = s
+        return (rr > thresh) & (k < max_iter)
+
+    def body(s):
+        x, r, d, rr, k = s
+        cd = op(d)
+        alpha = rr / _dot(d, cd)
+        x = x + alpha * d
+        r = r - alpha * proj(cd)
+        rr_new = _dot(r, r)
+        d = r + (rr_new / rr) * d
+        return x, r, d, rr_new, k + 1
+
+    x, _, _, rr, k = jax.lax.while_loop(cond, body, (x, r, r, rr, jnp.int32(0)))
+    mu = jnp.sum(mask * (op(x) + g)) / n
+    return x, mu, k, rr <= thresh
+
+
+# ----------------------------------------------------------------------------------------
+# Implicit differentiation: re-attach the converged solution to its inputs
+# ----------------------------------------------------------------------------------------
+
+
+class _Config(NamedTuple):
+    nx: int
+    ny: int
+    dx: float
+    dy: float
+    method: str
+    tol: float
+    cg_max_iter: int
+
+    def op(self):
+        return _unit_operator(self.nx, self.ny, self.dx, self.dy, self.method)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _attach_approach(cfg: _Config, g, delta, q_star, maskf):
+    """Identity on the converged q_star; VJP from C_AA q_A = delta - g_A (q = p / E*)."""
+    del g, delta, maskf
+    return q_star
+
+
+def _attach_approach_fwd(cfg, g, delta, q_star, maskf):
+    return q_star, (maskf, g, delta)
+
+
+def _attach_approach_bwd(cfg, res, q_bar):
+    maskf, g, delta = res
+    lam, _, _ = _cg(cfg.op(), maskf * q_bar, jnp.zeros_like(q_bar), maskf, cfg.tol,
+                    cfg.cg_max_iter)
+    return (-lam, jnp.sum(lam).astype(jnp.result_type(delta)), jnp.zeros_like(q_bar),
+            jnp.zeros_like(maskf))
+
+
+_attach_approach.defvjp(_attach_approach_fwd, _attach_approach_bwd)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _attach_force(cfg: _Config, g, total, q_star, delta_star, maskf):
+    """Identity on (q_star, delta_star); VJP from C_AA q_A - delta = -g_A, sum(q) = total."""
+    del g, total, maskf
+    return q_star, delta_star
+
+
+def _attach_force_fwd(cfg, g, total, q_star, delta_star, maskf):
+    return (q_star, delta_star), (maskf, total)
+
+
+def _attach_force_bwd(cfg, res, cot):
+    # Adjoint of J = [[C, -1], [1^T, 0]]: solve J^T w = (q_bar, delta_bar), i.e.
+    # C w1 + w2 = q_bar, -sum(w1) = delta_bar; then g_bar = -w1, total_bar = w2.
+    maskf, total = res
+    q_bar, delta_bar = cot
+    w1, mu, _, _ = _cg_fixed_sum(cfg.op(), -maskf * q_bar, -delta_bar, jnp.zeros_like(q_bar),
+                                 maskf, cfg.tol, cfg.cg_max_iter)
+    return (-w1, (-mu).astype(jnp.result_type(total)), jnp.zeros_like(q_bar),
+            jnp.zeros_like(delta_bar), jnp.zeros_like(maskf))
+
+
+_attach_force.defvjp(_attach_force_fwd, _attach_force_bwd)
+
+
+# ----------------------------------------------------------------------------------------
+# Active-set iteration
+# ----------------------------------------------------------------------------------------
+
+
+class Diagnostics(NamedTuple):
+    """Solver diagnostics (arrays, so they survive ``jit``/``vmap``).
+
+    Attributes:
+        iterations: active-set (outer) iterations, int32.
+        cg_iterations: conjugate-gradient iterations summed over the outer iterations, int32.
+        residual: complementarity residual of Eq. (8), dimensionless:
+            max_e |min(p_e / max(p), h_e / h_ref)| with h the deformed distance and
+            h_ref = delta - min(gap) (the rigid overlap depth). 0 at an exact solution.
+        converged: True when the active set settled and CG met its tolerance within the
+            iteration limits.
+    """
+
+    iterations: Any
+    cg_iterations: Any
+    residual: Any
+    converged: Any
+
+
+class KalkerResult(NamedTuple):
+    """Result of :func:`solve`.
+
+    Attributes:
+        pressure: [nx, ny] contact pressure [Pa].
+        force: total normal force F = A_e sum(p) [N] (Eq. 7).
+        approach: approach delta [m] (the input for approach control, the solution for force
+            control).
+        contact: [nx, ny] bool, elements in contact (active set).
+        stiffness: contact stiffness dF/d delta [N/m] at the solution (no gradient).
+        diagnostics: :class:`Diagnostics`.
+    """
+
+    pressure: Any
+    force: Any
+    approach: Any
+    contact: Any
+    stiffness: Any
+    diagnostics: Diagnostics
+
+
+def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_iter: int):
+    """Outer active-set loop on q = p / E*. Returns (q, mask, delta, u, outer, cg, ok)."""
+    op = cfg.op()
+    tol = cfg.tol
+    set_tol = 10.0 * tol
+    gmin = jnp.min(g)
+
+    def inner(q, mask, delta):
+        if force_mode:
+            q, delta, k, ok = _cg_fixed_sum(op, g, target, q, mask, tol, cfg.cg_max_iter)
+        else:
+            q, k, ok = _cg(op, delta - g, q, mask, tol, cfg.cg_max_iter)
+        return q, delta, k, ok
+
+    def cond(s):
+        return (~s["done"]) & (s["it"] < max_iter)
+
+    def body(s):
+        q, delta, k, ok = inner(s["q"], s["mask"], s["delta"])
+        u = op(q)
+        h = g - delta + u
+        qmax = jnp.max(q)
+        href = jnp.maximum(delta - gmin, 0.0)
+        active = s["mask"] > 0
+        neg = active & (q < -set_tol * qmax)
+        pen = (~active) & (h < -set_tol * href)
+        new_active = (active & ~neg) | pen
+        maskf = new_active.astype(q.dtype)
+        changed = jnp.any(neg | pen)
+        return dict(q=q * maskf, mask=maskf, delta=delta, u=u, it=s["it"] + 1,
+                    cg=s["cg"] + k, ok=ok, done=~changed & ok)
+
+    delta0 = jnp.zeros((), g.dtype) if force_mode else jnp.asarray(target, g.dtype)
+    state = dict(q=q0 * mask0, mask=mask0, delta=delta0, u=jnp.zeros_like(g),
+                 it=jnp.int32(0), cg=jnp.int32(0), ok=jnp.bool_(False),
+                 done=jnp.bool_(False))
+    s = jax.lax.while_loop(cond, body, state)
+    return s["q"], s["mask"], s["delta"], s["u"], s["it"], s["cg"], s["done"]
+
+
+def _residual(q, h, delta, gmin):
+    qref = jnp.maximum(jnp.max(q), jnp.finfo(q.dtype).tiny)
+    href = jnp.maximum(delta - gmin, jnp.finfo(q.dtype).tiny)
+    return jnp.max(jnp.abs(jnp.minimum(q / qref, h / href)))
+
+
+def _solve_impl(cfg: _Config, g, material, approach, force, p_init, max_iter, stiffness,
+                force_mode):
+    estar = combined_modulus(material)
+    area = cfg.dx * cfg.dy
+    g = jnp.asarray(g)
+    dtype = jnp.result_type(g.dtype, float)
+    g = g.astype(dtype)
+    g_sg = jax.lax.stop_gradient(g)
+    q0 = (jnp.zeros_like(g) if p_init is None
+          else jax.lax.stop_gradient(jnp.maximum(jnp.asarray(p_init, dtype), 0.0) / estar))
+    warm = q0 > 0
+    if force_mode:
+        total = jnp.asarray(force, dtype) / (area * estar)
+        # Force control needs a non-empty start: the lowest point when there is no warm start.
+        mask0 = jnp.where(jnp.any(warm), warm, g_sg <= jnp.min(g_sg)).astype(dtype)
+        target = jax.lax.stop_gradient(total)
+    else:
+        delta_in = jnp.asarray(approach, dtype)
+        mask0 = warm.astype(dtype)
+        target = jax.lax.stop_gradient(delta_in)
+    q, maskf, delta, u, it, cg_it, conv = _active_set_loop(
+        cfg, g_sg, target, jax.lax.stop_gradient(q0), mask0, force_mode, max_iter)
+    q = jnp.maximum(q, 0.0) * maskf
+    h = g_sg - delta + u
+    residual = _residual(q, h, delta, jnp.min(g_sg))
+    if force_mode:
+        q, delta = _attach_force(cfg, g, total, q, delta, maskf)
+    else:
+        q = _attach_approach(cfg, g, delta_in, q, maskf)
+        delta = delta_in
+    pressure = estar * q
+    force_out = area * jnp.sum(pressure)
+    if stiffness:
+        z, k2, ok2 = _cg(cfg.op(), maskf, jnp.zeros_like(q), maskf, cfg.tol, cfg.cg_max_iter)
+        stiff = jax.lax.stop_gradient(area * estar * jnp.sum(z))
+        cg_it = cg_it + k2
+        conv = conv & ok2
+    else:
+        stiff = jnp.full((), jnp.nan, dtype)
+    diag = Diagnostics(iterations=it, cg_iterations=cg_it, residual=residual, converged=conv)
+    return KalkerResult(pressure=pressure, force=force_out, approach=delta,
+                        contact=maskf > 0, stiffness=stiff, diagnostics=diag)
+
+
+# ----------------------------------------------------------------------------------------
+# Validation helpers (concrete inputs only)
+# ----------------------------------------------------------------------------------------
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _check_element_size(dx, dy) -> tuple[float, float]:
+    out = []
+    for name, v in (("dx", dx), ("dy", dy)):
+        if not _is_concrete(v):
+            raise ValueError(f"{name} must be a concrete number (static element size), got a tracer")
+        v = float(v)
+        if not math.isfinite(v) or v <= 0:
+            raise ValueError(f"{name} (element size) must be > 0 m and finite, got {v!r} m")
+        out.append(v)
+    return out[0], out[1]
+
+
+def _validate_inputs(gap, approach, force, p_init):
+    if gap.ndim != 2 or min(gap.shape) < 2:
+        raise ValueError(f"gap must be a 2-D array [nx, ny] with nx, ny >= 2, got shape {gap.shape}")
+    if _is_concrete(gap) and not bool(np.all(np.isfinite(np.asarray(gap)))):
+        raise ValueError("gap contains NaN or inf values (it must be finite, in m)")
+    for name, v in (("approach", approach), ("force", force)):
+        if v is not None and _is_concrete(v) and not np.all(np.isfinite(np.asarray(v))):
+            raise ValueError(f"{name} must be finite, got {v!r}")
+    if force is not None and _is_concrete(force) and np.any(np.asarray(force) <= 0):
+        raise ValueError(f"force must be > 0 N for force control, got {force!r}")
+    if p_init is not None and tuple(np.shape(p_init)) != tuple(gap.shape):
+        raise ValueError(f"p_init must have the gap's shape {gap.shape}, got {np.shape(p_init)}")
+
+
+def _check_resolution(result: KalkerResult, dx: float, dy: float) -> None:
+    """Eager post-check: the grid resolves the contact and contains it."""
+    contact = np.asarray(result.contact)
+    if not contact.any():
+        return
+    rows = np.flatnonzero(contact.any(axis=1))
+    cols = np.flatnonzero(contact.any(axis=0))
+    nx_c, ny_c = rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1
+    if min(nx_c, ny_c) < MIN_ELEMENTS_ACROSS:
+        raise ValueError(
+            f"grid too coarse for the contact: it spans {nx_c} x {ny_c} elements "
+            f"(dx = {dx * 1e3:.3g} mm, dy = {dy * 1e3:.3g} mm); at least {MIN_ELEMENTS_ACROSS} "
+            "elements across are needed: reduce dx/dy (or pass validate=False)"
+        )
+    if contact[0].any() or contact[-1].any() or contact[:, 0].any() or contact[:, -1].any():
+        raise ValueError(
+            "gap grid too small: the contact reaches the edge of the potential contact area; "
+            "enlarge the grid (see contact_grid) or pass validate=False"
+        )
+
+
+# ----------------------------------------------------------------------------------------
+# Public solver
+# ----------------------------------------------------------------------------------------
+
+
+def solve(gap, dx: float, dy: float, material: Material = Material(), approach=None, force=None,
+          p_init=None, tol: float = 1e-10, max_iter: int = 50, cg_max_iter: int = 1000,
+          method: str = "fft", stiffness: bool = True, validate: bool = True) -> KalkerResult:
+    """Solve the 3D normal contact problem (Eqs. 6-9), approach- or force-controlled.
+
+    Args:
+        gap: [nx, ny] undeformed distance of the surfaces [m] on the element centres (e.g.
+            :func:`gap_3d`). Differentiable.
+        dx, dy: element size [m] along x and y (concrete Python numbers; static).
+        material: wheel and rail material.
+        approach: approach delta [m] (> 0 compresses); exactly one of approach/force.
+            Differentiable.
+        force: total normal force F [N] (> 0). Differentiable.
+        p_init: [nx, ny] warm start [Pa] (e.g. the previous solution); its positive entries
+            are the initial active set. ``None``: cold start.
+        tol: relative tolerance of the CG solves (residual norm over right-hand side norm);
+            the active-set thresholds are 10 * tol relative to max(p) and delta - min(gap).
+        max_iter: maximum active-set iterations (static).
+        cg_max_iter: maximum CG iterations per solve (static).
+        method: ``"fft"`` (default) or ``"dense"`` influence operator (static).
+        stiffness: compute dF/d delta (one more CG solve); NaN when False (static).
+        validate: with concrete inputs, check the result resolves and fits in the grid (raise
+            ``ValueError`` otherwise). Skipped under ``jit``/``vmap``.
+
+    Returns:
+        :class:`KalkerResult` (pressure [nx, ny] Pa, force N, approach m, contact mask,
+        stiffness N/m, diagnostics). Non-convergence is reported in
+        ``result.diagnostics.converged`` (the result is then the last iterate, finite).
+
+    Raises:
+        ValueError: non-positive or non-concrete element size, NaN gap, neither or both of
+            approach/force, non-positive force, grid too coarse for (or too small to contain)
+            the contact.
+    """
+    if (approach is None) == (force is None):
+        raise ValueError("pass exactly one of approach= (m) or force= (N)")
+    dx, dy = _check_element_size(dx, dy)
+    gap = jnp.asarray(gap) if not isinstance(gap, jax.core.Tracer) else gap
+    _validate_inputs(gap, approach, force, p_init)
+    if not (0 < tol < 1):
+        raise ValueError(f"tol must be in (0, 1), got {tol!r}")
+    if int(max_iter) < 1:
+        raise ValueError(f"max_iter must be >= 1, got {max_iter!r}")
+    nx, ny = gap.shape
+    cfg = _Config(int(nx), int(ny), dx, dy, method, float(tol), int(cg_max_iter))
+    result = _solve_jit(cfg, gap, material, approach, force, p_init, int(max_iter),
+                        bool(stiffness), force is not None)
+    concrete = all(_is_concrete(v) for v in jax.tree_util.tree_leaves(
+        (gap, material, approach, force, p_init)))
+    if validate and concrete:
+        _check_resolution(result, dx, dy)
+    return result
+
+
+@functools.partial(jax.jit, static_argnums=(0, 6, 7, 8))
+def _solve_jit(cfg, gap, material, approach, force, p_init, max_iter, stiffness, force_mode):
+    return _solve_impl(cfg, gap, material, approach, force, p_init, max_iter, stiffness,
+                       force_mode)
+
+
+# ----------------------------------------------------------------------------------------
+# Geometry of the 3D contact (Eq. 9)
+# ----------------------------------------------------------------------------------------
+
+
+def gap_3d(flat: Flat, s, x, y, wheel_radius, rail_head_radius):
+    """Undeformed gap [m] between a cylindrical wheel with a 3D flat and a straight rail.
+
+    gap(x', y) = (R_W - sqrt(R_W^2 - x'^2)) + (R_R - sqrt(R_R^2 - y^2))
+                 + flat_surface(flat, x' + s, y, R_R)
+
+    The wheel is a cylinder (exact circle of radius R_W in x, no transverse curvature); the
+    rail is straight in x with a transverse head radius R_R; the flat's transverse arcs use
+    the same R_R (see :func:`wfjax.geometry.flat_surface`).
+
+    Args:
+        flat: the flat (its leaves are differentiable).
+        s: wheel position [m] relative to the position where the flat centre is at the nominal
+            contact point (s < 0 before the flat arrives). Scalar, differentiable.
+        x: [nx] rail coordinates x' [m] relative to the nominal contact point (positive in the
+            travel direction), element centres.
+        y: [ny] transverse coordinates [m], element centres.
+        wheel_radius: R_W [m]. rail_head_radius: R_R [m].
+
+    Returns:
+        [nx, ny] gap [m] (>= 0; 0 at the nominal contact point of a smooth wheel).
+    """
+    x = jnp.asarray(x)
+    y = jnp.asarray(y)
+    zx = wheel_radius - jnp.sqrt(wheel_radius**2 - x**2)
+    zy = rail_head_radius - jnp.sqrt(rail_head_radius**2 - y**2)
+    return zx[:, None] + zy[None, :] + flat_surface(flat, x + s, y, rail_head_radius)
+
+
+def elliptic_hertz(force, radius_x, radius_y, material: Material = Material()):
+    """Elliptic Hertz contact of two bodies with principal relative radii R_x, R_y (concrete).
+
+    Relative curvatures A = 1/(2 R_x), B = 1/(2 R_y). Johnson (1985) Sec. 4.2: with semi-axes
+    a (along the smaller curvature), b and e^2 = 1 - b^2/a^2,
+    B/A = ((a/b)^2 E(e) - K(e)) / (K(e) - E(e)), a^3 = 3 F (K - E) / (2 E* e^2 A_min),
+    delta = 3 F K(e) / (2 a E*), p0 = 3 F / (2 pi a b).
+
+    Args:
+        force: F [N]; radius_x, radius_y: relative radii of curvature [m] along x and y;
+        material: both bodies.
+
+    Returns:
+        (semi_axis_x [m], semi_axis_y [m], approach [m], max_pressure [Pa]) as floats.
+    """
+    from scipy.optimize import brentq
+    from scipy.special import ellipe, ellipk
+
+    estar = float(combined_modulus(material))
+    A, B = 1 / (2 * float(radius_x)), 1 / (2 * float(radius_y))
+    lo, hi = min(A, B), max(A, B)
+    F = float(force)
+    ratio = hi / lo
+    if abs(ratio - 1) < 1e-12:
+        a = (3 * F / (8 * estar * lo)) ** (1 / 3)
+        return a, a, a * a * 2 * lo, 3 * F / (2 * math.pi * a * a)
+
+    def f(m):  # m = e^2 (scipy's parameter)
+        k, e = ellipk(m), ellipe(m)
+        return (e / (1 - m) - k) / (k - e) - ratio
+
+    m = brentq(f, 1e-12, 1 - 1e-15, xtol=1e-15)
+    k, e = ellipk(m), ellipe(m)
+    a = (3 * F * (k - e) / (2 * estar * m * lo)) ** (1 / 3)
+    b = a * math.sqrt(1 - m)
+    delta = 3 * F * k / (2 * a * estar)
+    p0 = 3 * F / (2 * math.pi * a * b)
+    ax, ay = (a, b) if A <= B else (b, a)
+    return ax, ay, delta, p0
+
+
+def contact_grid(flat: Flat, wheel_radius: float, rail_head_radius: float,
+                 material: Material = Material(), max_compression: float | None = None,
+                 max_force: float = 600e3, element_size: float = 1e-3, margin: int = 2):
+    """Element centres (x [nx], y [ny]) [m] of a grid that contains every contact up to a load.
+
+    The contact lies inside the rigid overlap {gap < delta} (displacements are >= 0), and
+    gap >= x'^2/(2 R_W) (approximately) and >= y^2/(2 R_R), while min(gap) <= depth. So a
+    compression c = delta - min(gap) keeps the contact within |x'| <= sqrt(2 R_W (d + c)) and
+    |y| <= sqrt(2 R_R (d + c)) for every flat position s. The grid is symmetric with an
+    element centred on the nominal contact point (odd counts) plus ``margin`` elements.
+
+    Args:
+        flat: the flat (concrete depth).
+        wheel_radius, rail_head_radius: R_W, R_R [m].
+        material: for the Hertz estimate.
+        max_compression: largest c [m]; default 1.5 x the Hertz approach at ``max_force``.
+        max_force: force [N] used for the default compression and the resolution check.
+        element_size: square element side [m].
+        margin: extra elements on each side.
+
+    Returns:
+        (x, y) numpy arrays of element centres [m].
+
+    Raises:
+        ValueError: non-positive element size, or fewer than 6 elements across the smooth
+            Hertz contact at ``max_force`` / 8 (too coarse to resolve the contact).
+    """
+    h = float(element_size)
+    if not math.isfinite(h) or h <= 0:
+        raise ValueError(f"element_size must be > 0 m, got {element_size!r}")
+    ax, ay, dH, _ = elliptic_hertz(max_force, wheel_radius, rail_head_radius, material)
+    ax8, ay8, _, _ = elliptic_hertz(max_force / 8, wheel_radius, rail_head_radius, material)
+    if 2 * min(ax8, ay8) / h < MIN_ELEMENTS_ACROSS:
+        raise ValueError(
+            f"element_size {h * 1e3:.3g} mm too coarse: the Hertz contact at "
+            f"{max_force / 8e3:.3g} kN is only {2 * min(ax8, ay8) * 1e3:.3g} mm wide; need "
+            f"element_size <= {2 * min(ax8, ay8) / MIN_ELEMENTS_ACROSS * 1e3:.3g} mm"
+        )
+    c = 1.5 * dH if max_compression is None else float(max_compression)
+    d = float(np.max(np.asarray(flat.depth))) if flat.kind != "none" else 0.0
+    half_x = math.sqrt(2 * float(wheel_radius) * (d + c))
+    half_y = math.sqrt(2 * float(rail_head_radius) * (d + c))
+    nx_half = math.ceil(half_x / h) + margin
+    ny_half = math.ceil(half_y / h) + margin
+    x = np.arange(-nx_half, nx_half + 1) * h
+    y = np.arange(-ny_half, ny_half + 1) * h
+    return x, y
