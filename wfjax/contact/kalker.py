@@ -63,6 +63,7 @@ __all__ = [
     "elliptic_hertz",
 ]
 
+_DEFAULT_MATERIAL = Material()
 MIN_ELEMENTS_ACROSS = 6  # elements across the contact required by the eager validation
 
 
@@ -92,7 +93,7 @@ def _love_term(u, v):
 
 @functools.lru_cache(maxsize=64)
 def _unit_kernel(nx: int, ny: int, dx: float, dy: float) -> np.ndarray:
-    """[2nx-1, 2ny-1] displacement [m] per unit q = p/E* at offsets (i dx, j dy), i=-(nx-1)..nx-1."""
+    """[2nx-1, 2ny-1] displacement [m] per unit q = p/E* at offsets (i dx, j dy), |i| < nx."""
     x = np.arange(-(nx - 1), nx) * dx
     y = np.arange(-(ny - 1), ny) * dy
     X, Y = np.meshgrid(x, y, indexing="ij")
@@ -471,7 +472,8 @@ def _check_element_size(dx, dy) -> tuple[float, float]:
     out = []
     for name, v in (("dx", dx), ("dy", dy)):
         if not _is_concrete(v):
-            raise ValueError(f"{name} must be a concrete number (static element size), got a tracer")
+            raise ValueError(f"{name} must be a concrete number (static element size), "
+                             "got a tracer")
         v = float(v)
         if not math.isfinite(v) or v <= 0:
             raise ValueError(f"{name} (element size) must be > 0 m and finite, got {v!r} m")
@@ -481,7 +483,8 @@ def _check_element_size(dx, dy) -> tuple[float, float]:
 
 def _validate_inputs(gap, approach, force, p_init):
     if gap.ndim != 2 or min(gap.shape) < 2:
-        raise ValueError(f"gap must be a 2-D array [nx, ny] with nx, ny >= 2, got shape {gap.shape}")
+        raise ValueError(
+            f"gap must be a 2-D array [nx, ny] with nx, ny >= 2, got shape {gap.shape}")
     if _is_concrete(gap) and not bool(np.all(np.isfinite(np.asarray(gap)))):
         raise ValueError("gap contains NaN or inf values (it must be finite, in m)")
     for name, v in (("approach", approach), ("force", force)):
@@ -519,8 +522,8 @@ def _check_resolution(result: KalkerResult, dx: float, dy: float) -> None:
 # ----------------------------------------------------------------------------------------
 
 
-def solve(gap, dx: float, dy: float, material: Material = Material(), approach=None, force=None,
-          p_init=None, tol: float = 1e-10, max_iter: int = 50, cg_max_iter: int = 1000,
+def solve(gap, dx: float, dy: float, material: Material = _DEFAULT_MATERIAL, approach=None,
+          force=None, p_init=None, tol: float = 1e-10, max_iter: int = 50, cg_max_iter: int = 1000,
           method: str = "fft", stiffness: bool = True, validate: bool = True) -> KalkerResult:
     """Solve the 3D normal contact problem (Eqs. 6-9), approach- or force-controlled.
 
@@ -613,7 +616,7 @@ def gap_3d(flat: Flat, s, x, y, wheel_radius, rail_head_radius):
     return zx[:, None] + zy[None, :] + flat_surface(flat, x + s, y, rail_head_radius)
 
 
-def elliptic_hertz(force, radius_x, radius_y, material: Material = Material()):
+def elliptic_hertz(force, radius_x, radius_y, material: Material = _DEFAULT_MATERIAL):
     """Elliptic Hertz contact of two bodies with principal relative radii R_x, R_y (concrete).
 
     Relative curvatures A = 1/(2 R_x), B = 1/(2 R_y). Johnson (1985) Sec. 4.2: with semi-axes
@@ -655,7 +658,7 @@ def elliptic_hertz(force, radius_x, radius_y, material: Material = Material()):
 
 
 def contact_grid(flat: Flat, wheel_radius: float, rail_head_radius: float,
-                 material: Material = Material(), max_compression: float | None = None,
+                 material: Material = _DEFAULT_MATERIAL, max_compression: float | None = None,
                  max_force: float = 600e3, element_size: float = 1e-3, margin: int = 2):
     """Element centres (x [nx], y [ny]) [m] of a grid that contains every contact up to a load.
 
