@@ -188,6 +188,7 @@ def bedding_integral(c, nodes):
     return jnp.sum(h * segment, axis=-1)
 
 
+@jax.jit
 def force_at_nodes(flat: Flat, approach, s, material: Material, wheel_radius, nodes):
     """Bedding contact force F [N] on fixed nodes: the time loop's kernel (no validation).
 
@@ -201,6 +202,9 @@ def force_at_nodes(flat: Flat, approach, s, material: Material, wheel_radius, no
 
     Returns:
         [*B] force [N] (>= 0).
+
+    Wrapped in ``jax.jit`` (one compiled call per shape when used eagerly; inlined inside an
+    outer ``jit``).
     """
     c = compression(flat, approach, s, wheel_radius, nodes)
     return winkler_stiffness(material) * bedding_integral(c, nodes)
@@ -220,6 +224,7 @@ def force_and_stiffness_at_nodes(flat: Flat, approach, s, material: Material, wh
     return jax.jvp(f, (approach,), (jnp.ones_like(approach),))
 
 
+@jax.jit
 def onset_at_nodes(flat: Flat, s, wheel_radius, nodes):
     """Approach [m] at which contact begins: min over nodes of z_W(x') + z_flat(x' + s).
 
