@@ -243,6 +243,17 @@ def test_newton_helper_and_no_contact_gradients():
     assert float(f) == float(wk.force_at_nodes(flat, 0.8e-3, 0.01, MAT, R, nodes))
     g = jax.grad(wk.force_at_nodes, argnums=1)(flat, 0.8e-3, 0.01, MAT, R, nodes)
     assert float(k) == pytest.approx(float(g), rel=1e-13) and float(k) > 0
+    # the split used by the time loop: gap once per step, then F(delta) from the gap
+    gap = wk.gap_at_nodes(flat, 0.01, R, nodes)
+    f2, k2 = wk.force_and_stiffness_from_gap(gap, 0.8e-3, MAT, nodes)
+    assert float(f2) == pytest.approx(float(f), rel=1e-14)
+    assert float(k2) == pytest.approx(float(k), rel=1e-14)
+    # Newton on F(delta) = 118 kN (F is convex in delta) converges from just above the onset
+    delta = wk.onset_at_nodes(flat, 0.01, R, nodes) + 1e-4
+    for _ in range(30):
+        f_n, k_n = wk.force_and_stiffness_from_gap(gap, delta, MAT, nodes)
+        delta = delta - (f_n - 118e3) / k_n
+    assert abs(float(wk.force_from_gap(gap, delta, MAT, nodes)) - 118e3) < 1e-6
     # no contact: zero force, zero and finite gradients (also w.r.t. the flat)
     for approach in (0.0, -1e-4):
         grads = jax.grad(

@@ -42,9 +42,11 @@ The default delta_max is the flat's depth plus 1 mm (a Hertz force of about 3.3 
 dropping into the full depth of the flat). Larger approaches under-estimate F (the compressed
 region is cut off); :func:`window_max_approach` gives the limit of a node set.
 
-For the time loop, build the nodes once with :func:`bedding_nodes` (static shape) and call
-:func:`force_at_nodes` (pure, branch-free, vectorised, no validation); :func:`force` is the
-validated convenience wrapper.
+For the time loop, build the nodes once with :func:`bedding_nodes` (static shape); per time
+step compute the gap once with :func:`gap_at_nodes` (the flat position s is known) and run the
+Newton iteration on delta with :func:`force_and_stiffness_from_gap` (pure, branch-free,
+vectorised, no validation). :func:`force_at_nodes` does both in one call and :func:`force` is
+the validated convenience wrapper.
 """
 
 from __future__ import annotations
@@ -66,9 +68,12 @@ __all__ = [
     "default_half_window",
     "bedding_nodes",
     "window_max_approach",
+    "gap_at_nodes",
     "compression",
     "bedding_integral",
+    "force_from_gap",
     "force_at_nodes",
+    "force_and_stiffness_from_gap",
     "force_and_stiffness_at_nodes",
     "onset_at_nodes",
     "force",
@@ -139,6 +144,26 @@ def window_max_approach(nodes, wheel_radius):
 
 
 # -- the kernel (pure, branch-free) --------------------------------------------------------
+def gap_at_nodes(flat: Flat, s, wheel_radius, nodes):
+    """Undeformed gap g(x') = z_W(x') + z_flat(x' + s) [m] at the nodes (independent of delta).
+
+    The time loop can compute it once per step (per flat position ``s``) and reuse it in every
+    Newton iteration on the approach through :func:`force_from_gap`.
+
+    Args:
+        flat: the flat.
+        s: flat position [m] (see module docstring), any shape B.
+        wheel_radius: R [m].
+        nodes: [n] bedding nodes x' [m].
+
+    Returns:
+        [*B, n] gap [m] (>= 0).
+    """
+    nodes = jnp.asarray(nodes)
+    s = jnp.asarray(s)[..., None]
+    return wheel_profile(nodes, wheel_radius) + profile_deviation(flat, nodes + s)
+
+
 def compression(flat: Flat, approach, s, wheel_radius, nodes):
     """Spring compression c(x') = delta - z_W(x') - z_flat(x' + s) [m] at the nodes.
 
@@ -152,10 +177,7 @@ def compression(flat: Flat, approach, s, wheel_radius, nodes):
     Returns:
         [*B, n] compression [m] (positive = compressed).
     """
-    nodes = jnp.asarray(nodes)
-    approach = jnp.asarray(approach)[..., None]
-    s = jnp.asarray(s)[..., None]
-    return approach - wheel_profile(nodes, wheel_radius) - profile_deviation(flat, nodes + s)
+    return jnp.asarray(approach)[..., None] - gap_at_nodes(flat, s, wheel_radius, nodes)
 
 
 def bedding_integral(c, nodes):
@@ -189,6 +211,23 @@ def bedding_integral(c, nodes):
 
 
 @jax.jit
+def force_from_gap(gap, approach, material: Material, nodes):
+    """Bedding force F = k int max(delta - g, 0) dx' [N] from a precomputed gap (no validation).
+
+    Args:
+        gap: [*B, n] undeformed gap [m] from :func:`gap_at_nodes`.
+        approach: delta [m], shape broadcasting with ``gap[..., 0]``.
+        material: wheel and rail material.
+        nodes: [n] nodes x' [m].
+
+    Returns:
+        [*B] force [N] (>= 0).
+    """
+    c = jnp.asarray(approach)[..., None] - gap
+    return winkler_stiffness(material) * bedding_integral(c, nodes)
+
+
+@jax.jit
 def force_at_nodes(flat: Flat, approach, s, material: Material, wheel_radius, nodes):
     """Bedding contact force F [N] on fixed nodes: the time loop's kernel (no validation).
 
@@ -210,18 +249,29 @@ def force_at_nodes(flat: Flat, approach, s, material: Material, wheel_radius, no
     return winkler_stiffness(material) * bedding_integral(c, nodes)
 
 
-def force_and_stiffness_at_nodes(flat: Flat, approach, s, material: Material, wheel_radius,
-                                 nodes):
-    """(F [N], dF/d delta [N/m]) of :func:`force_at_nodes` in one forward-mode pass.
+def force_and_stiffness_from_gap(gap, approach, material: Material, nodes):
+    """(F [N], dF/d delta [N/m]) of :func:`force_from_gap` in one forward-mode pass.
 
-    For the Newton iteration on the approach. Shapes: both [*B].
+    For the Newton iteration on the approach at a fixed flat position. Shapes: both [*B].
     """
     approach = jnp.asarray(approach, dtype=jnp.result_type(float))
 
     def f(a):
-        return force_at_nodes(flat, a, s, material, wheel_radius, nodes)
+        return force_from_gap(gap, a, material, nodes)
 
     return jax.jvp(f, (approach,), (jnp.ones_like(approach),))
+
+
+def force_and_stiffness_at_nodes(flat: Flat, approach, s, material: Material, wheel_radius,
+                                 nodes):
+    """(F [N], dF/d delta [N/m]) of :func:`force_at_nodes` in one forward-mode pass.
+
+    Shapes: both [*B] (``approach`` and ``s`` broadcast).
+    """
+    approach = jnp.asarray(approach, dtype=jnp.result_type(float))
+    gap = gap_at_nodes(flat, s, wheel_radius, nodes)
+    approach = jnp.broadcast_to(approach, gap.shape[:-1])
+    return force_and_stiffness_from_gap(gap, approach, material, nodes)
 
 
 @jax.jit
@@ -231,8 +281,7 @@ def onset_at_nodes(flat: Flat, s, wheel_radius, nodes):
     F is zero for approaches at or below it and positive above (exactly, for the discretised
     bedding). Shape: ``s``'s shape.
     """
-    c = compression(flat, jnp.zeros_like(jnp.asarray(s, dtype=float)), s, wheel_radius, nodes)
-    return jnp.min(-c, axis=-1)
+    return jnp.min(gap_at_nodes(flat, s, wheel_radius, nodes), axis=-1)
 
 
 # -- validated wrappers ------------------------------------------------------------------------
