@@ -64,6 +64,7 @@ __all__ = [
 ]
 
 _DEFAULT_MATERIAL = Material()
+LOOSE_TOL = 1e-3  # CG tolerance while the active set is still changing
 MIN_ELEMENTS_ACROSS = 6  # elements across the contact required by the eager validation
 
 
@@ -370,13 +371,17 @@ class KalkerResult(NamedTuple):
 
 
 def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_iter: int):
-    """Outer active-set loop on q = p / E*. Returns (q, mask, delta, u, outer, cg, ok)."""
+    """Outer active-set loop on q = p / E*. Returns (q, mask, delta, u, outer, cg, ok).
+
+    Inexact-Newton flavour: while the active set still changes, CG stops at the loose
+    tolerance ``LOOSE_TOL`` (the set update only needs the sign pattern); once the set is
+    stable the CG tightens to ``cfg.tol`` and the set is checked again.
+    """
     op = cfg.op()
-    tol = cfg.tol
-    set_tol = 10.0 * tol
+    loose = max(cfg.tol, LOOSE_TOL)
     gmin = jnp.min(g)
 
-    def inner(q, mask, delta):
+    def inner(q, mask, delta, tol):
         if force_mode:
             q, delta, k, ok = _cg_fixed_sum(op, g, target, q, mask, tol, cfg.cg_max_iter)
         else:
@@ -387,24 +392,27 @@ def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_i
         return (~s["done"]) & (s["it"] < max_iter)
 
     def body(s):
-        q, delta, k, ok = inner(s["q"], s["mask"], s["delta"])
+        tol = jnp.where(s["tight"], cfg.tol, loose)
+        q, delta, k, ok = inner(s["q"], s["mask"], s["delta"], tol)
         u = op(q)
         h = g - delta + u
         qmax = jnp.max(q)
         href = jnp.maximum(delta - gmin, 0.0)
+        set_tol = 10.0 * tol
         active = s["mask"] > 0
         neg = active & (q < -set_tol * qmax)
         pen = (~active) & (h < -set_tol * href)
         new_active = (active & ~neg) | pen
         maskf = new_active.astype(q.dtype)
         changed = jnp.any(neg | pen)
+        done = ~changed & ok & s["tight"]
         return dict(q=q * maskf, mask=maskf, delta=delta, u=u, it=s["it"] + 1,
-                    cg=s["cg"] + k, ok=ok, done=~changed & ok)
+                    cg=s["cg"] + k, done=done, tight=~changed)
 
     delta0 = jnp.zeros((), g.dtype) if force_mode else jnp.asarray(target, g.dtype)
     state = dict(q=q0 * mask0, mask=mask0, delta=delta0, u=jnp.zeros_like(g),
-                 it=jnp.int32(0), cg=jnp.int32(0), ok=jnp.bool_(False),
-                 done=jnp.bool_(False))
+                 it=jnp.int32(0), cg=jnp.int32(0), done=jnp.bool_(False),
+                 tight=jnp.bool_(False))
     s = jax.lax.while_loop(cond, body, state)
     return s["q"], s["mask"], s["delta"], s["u"], s["it"], s["cg"], s["done"]
 
@@ -416,7 +424,11 @@ def _residual(q, h, delta, gmin):
 
 
 def _solve_impl(cfg: _Config, g, material, approach, force, p_init, max_iter, stiffness,
-                force_mode):
+                force_mode, z_init=None):
+    """The solver (traceable). Returns (KalkerResult, z) with z = C0_AA^-1 1 [1/m] (or zeros).
+
+    ``z_init`` warm-starts the stiffness solve (used by the table builder's sweeps).
+    """
     estar = combined_modulus(material)
     area = cfg.dx * cfg.dy
     g = jnp.asarray(g)
@@ -448,15 +460,18 @@ def _solve_impl(cfg: _Config, g, material, approach, force, p_init, max_iter, st
     pressure = estar * q
     force_out = area * jnp.sum(pressure)
     if stiffness:
-        z, k2, ok2 = _cg(cfg.op(), maskf, jnp.zeros_like(q), maskf, cfg.tol, cfg.cg_max_iter)
+        z0 = jnp.zeros_like(q) if z_init is None else jax.lax.stop_gradient(z_init)
+        z, k2, ok2 = _cg(cfg.op(), maskf, z0, maskf, cfg.tol, cfg.cg_max_iter)
         stiff = jax.lax.stop_gradient(area * estar * jnp.sum(z))
         cg_it = cg_it + k2
         conv = conv & ok2
     else:
+        z = jnp.zeros_like(q)
         stiff = jnp.full((), jnp.nan, dtype)
     diag = Diagnostics(iterations=it, cg_iterations=cg_it, residual=residual, converged=conv)
-    return KalkerResult(pressure=pressure, force=force_out, approach=delta,
-                        contact=maskf > 0, stiffness=stiff, diagnostics=diag)
+    result = KalkerResult(pressure=pressure, force=force_out, approach=delta,
+                          contact=maskf > 0, stiffness=stiff, diagnostics=diag)
+    return result, jax.lax.stop_gradient(z)
 
 
 # ----------------------------------------------------------------------------------------
@@ -579,7 +594,7 @@ def solve(gap, dx: float, dy: float, material: Material = _DEFAULT_MATERIAL, app
 @functools.partial(jax.jit, static_argnums=(0, 6, 7, 8))
 def _solve_jit(cfg, gap, material, approach, force, p_init, max_iter, stiffness, force_mode):
     return _solve_impl(cfg, gap, material, approach, force, p_init, max_iter, stiffness,
-                       force_mode)
+                       force_mode)[0]
 
 
 # ----------------------------------------------------------------------------------------

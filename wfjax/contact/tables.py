@@ -1,0 +1,267 @@
+"""Contact tables: the 3D contact force F3D(delta, s) tabulated once per flat geometry.
+
+With a smooth straight rail and the quasi-static half-space model, the 3D contact force depends
+only on the approach delta and on the wheel position s relative to the position where the flat
+centre is at the nominal contact point. A table of it, built once per flat, turns every time
+step of every simulation into a cheap interpolation.
+
+Parametrisation (chosen so that every column is smooth and Hertz-like):
+
+* compression c = delta - delta0(s), with delta0(s) = min over the grid of gap(., s), the rigid
+  contact onset (about -centre_trajectory(s)). F = 0 for c <= 0 exactly.
+* the compression axis is tabulated on t = sqrt(c / c_max), uniform in t: a Hertz column
+  F = k c^(3/2) is F = k c_max^(3/2) t^3, which the cubic Hermite interpolation in t
+  reproduces exactly, and the nodes cluster at small c, where the discrete contact starts
+  from a single element. Slopes dF/dt at the nodes come from the solver's contact stiffness
+  (dF/dt = 2 c_max t dF/ddelta), so the interpolant is C1 in delta with exact node
+  derivatives.
+* linear interpolation in s between columns (the onset delta0(s) has kinks, e.g. where a new
+  flat pivots about its edge; s = 0 is a node). Outside the tabulated s range the end columns
+  apply; the range is wide enough that they are the smooth wheel exactly (on the same grid).
+
+Build: one :func:`wfjax.contact.kalker.solve` per node, ``vmap`` over s and a warm-started
+``lax.scan`` over c. Symmetric flats (new, rounded) are solved for s >= 0 only and mirrored
+(the grid is symmetric, so this is exact). Gradients of the table values with respect to the
+flat's depth and length flow through the implicit-differentiated solves.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..params import Flat, Material
+from . import kalker
+
+__all__ = ["ContactTable", "TableSpec", "table_spec", "build_table_3d", "table_force",
+           "table_onset"]
+
+_DEFAULT_MATERIAL = Material()
+
+
+class TableSpec(NamedTuple):
+    """Static layout of a contact table (hashable; concrete numbers).
+
+    Attributes:
+        nx, ny: contact grid (odd; element centred on the nominal contact point).
+        element_size: square element side [m].
+        s_max: the table spans s in [-s_max, s_max] [m].
+        n_s: number of s nodes (odd; s = 0 is a node).
+        c_max: largest tabulated compression [m].
+        n_t: number of nodes along t = sqrt(c / c_max).
+        symmetric: solve s >= 0 only and mirror (symmetric flats).
+        wheel_radius, rail_head_radius: R_W, R_R [m].
+    """
+
+    nx: int
+    ny: int
+    element_size: float
+    s_max: float
+    n_s: int
+    c_max: float
+    n_t: int
+    symmetric: bool
+    wheel_radius: float
+    rail_head_radius: float
+
+    @property
+    def x(self) -> np.ndarray:
+        """[nx] element centres along x [m]."""
+        return (np.arange(self.nx) - (self.nx - 1) / 2) * self.element_size
+
+    @property
+    def y(self) -> np.ndarray:
+        """[ny] element centres along y [m]."""
+        return (np.arange(self.ny) - (self.ny - 1) / 2) * self.element_size
+
+    @property
+    def s(self) -> np.ndarray:
+        """[n_s] flat positions of the columns [m]."""
+        return np.linspace(-self.s_max, self.s_max, self.n_s)
+
+
+class ContactTable(NamedTuple):
+    """F3D(delta, s) table (a pytree of arrays; see the module docstring).
+
+    Attributes:
+        s_min: first column position [m] (scalar).
+        ds: column spacing [m] (scalar).
+        c_max: compression of the last t node [m] (scalar).
+        onset: [n_s] rigid contact onset delta0(s) [m].
+        force: [n_s, n_t] force [N] at c = c_max (j / (n_t - 1))^2.
+        slope: [n_s, n_t] dF/du [N] per node index u = t (n_t - 1).
+        converged: 1.0 when every solve of the build converged, else 0.0 (scalar).
+    """
+
+    s_min: Any
+    ds: Any
+    c_max: Any
+    onset: Any
+    force: Any
+    slope: Any
+    converged: Any
+
+
+def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
+               material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
+               max_force: float = 600e3, ds: float | None = None, n_t: int = 16,
+               max_compression: float | None = None) -> TableSpec:
+    """Choose the layout of a contact table for ``flat`` (concrete inputs).
+
+    Args:
+        flat: the flat (concrete depth and length).
+        wheel_radius, rail_head_radius: R_W, R_R [m].
+        material: wheel and rail material.
+        element_size: square contact element side [m].
+        max_force: largest force the table must cover [N]; the compression range is
+            1.6 x the Hertz approach at this force unless ``max_compression`` [m] is given.
+        ds: column spacing [m]; default ``element_size``.
+        n_t: nodes along the compression axis.
+
+    Returns:
+        :class:`TableSpec`.
+    """
+    h = float(element_size)
+    if not math.isfinite(h) or h <= 0:
+        raise ValueError(f"element_size must be > 0 m, got {element_size!r}")
+    ds = h if ds is None else float(ds)
+    if not math.isfinite(ds) or ds <= 0:
+        raise ValueError(f"ds must be > 0 m, got {ds!r}")
+    if int(n_t) < 4:
+        raise ValueError(f"n_t must be >= 4, got {n_t!r}")
+    _, _, d_hertz, _ = kalker.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
+                                             material)
+    c_max = 1.6 * d_hertz if max_compression is None else float(max_compression)
+    x, y = kalker.contact_grid(flat, wheel_radius, rail_head_radius, material,
+                               max_compression=c_max, max_force=max_force, element_size=h)
+    half = 0.0 if flat.kind == "none" else flat.half_extent
+    # Beyond |s| = half + sqrt(2 R_W c_max) the flat is outside the rigid overlap of every
+    # tabulated compression, so the column equals the smooth wheel exactly.
+    reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
+    n_half = max(1, math.ceil(reach / ds))
+    return TableSpec(nx=len(x), ny=len(y), element_size=h, s_max=n_half * ds,
+                     n_s=2 * n_half + 1, c_max=c_max, n_t=int(n_t),
+                     symmetric=flat.kind in ("new", "rounded", "none"),
+                     wheel_radius=float(wheel_radius), rail_head_radius=float(rail_head_radius))
+
+
+def _column(spec: TableSpec, flat: Flat, material: Material, s, tol: float):
+    """Forces, stiffnesses and convergence along the t axis for one flat position s."""
+    x, y = spec.x, spec.y
+    h = spec.element_size
+    gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
+    onset = jnp.min(gap)
+    t = np.linspace(0.0, 1.0, spec.n_t)[1:]
+    cs = spec.c_max * t**2
+
+    cfg = kalker._Config(spec.nx, spec.ny, h, h, "fft", tol, 1000)
+
+    def step(carry, c):
+        p_prev, z_prev = carry
+        r, z = kalker._solve_impl(cfg, gap, material, onset + c, None, p_prev, 50, True, False,
+                                  z_init=z_prev)
+        return (r.pressure, z), (r.force, r.stiffness, r.diagnostics.converged)
+
+    p0 = jnp.zeros((spec.nx, spec.ny), gap.dtype)
+    _, (f, k, ok) = jax.lax.scan(step, (p0, p0), jnp.asarray(cs))
+    zero = jnp.zeros((1,), f.dtype)
+    force = jnp.concatenate([zero, f])
+    slope = jnp.concatenate([zero, k * 2 * spec.c_max * t / (spec.n_t - 1)])
+    return onset, force, slope, jnp.all(ok)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3, 4))
+def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_size: int):
+    s_all = spec.s
+    if spec.symmetric:
+        s_solve = s_all[spec.n_s // 2:]
+    else:
+        s_solve = s_all
+    onset, force, slope, ok = jax.lax.map(
+        lambda s: _column(spec, flat, material, s, tol), jnp.asarray(s_solve),
+        batch_size=batch_size)
+    if spec.symmetric:
+        def mirror(a):
+            return jnp.concatenate([a[:0:-1], a], axis=0)
+
+        onset, force, slope = mirror(onset), mirror(force), mirror(slope)
+    return ContactTable(
+        s_min=jnp.asarray(-spec.s_max), ds=jnp.asarray(2 * spec.s_max / (spec.n_s - 1)),
+        c_max=jnp.asarray(spec.c_max), onset=onset, force=force, slope=slope,
+        converged=jnp.all(ok).astype(force.dtype))
+
+
+def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
+                   material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
+                   max_force: float = 600e3, ds: float | None = None, n_t: int = 16,
+                   spec: TableSpec | None = None, tol: float = 1e-8,
+                   batch_size: int = 1) -> ContactTable:
+    """Build the 3D contact table F3D(delta, s) of ``flat`` (see the module docstring).
+
+    Args:
+        flat: the flat. Its depth/length may be traced (``grad``) when ``spec`` is given.
+        wheel_radius, rail_head_radius: R_W, R_R [m] (the flat's transverse arcs use R_R).
+        material: wheel and rail material (may be traced).
+        element_size: square contact element side [m].
+        max_force: largest force to cover [N].
+        ds: column spacing [m] (default ``element_size``); n_t: nodes along the compression.
+        spec: a precomputed :func:`table_spec` (required when ``flat`` holds tracers).
+        tol: CG tolerance of the solves.
+
+    Returns:
+        :class:`ContactTable` with n_s columns of n_t nodes.
+    """
+    if spec is None:
+        spec = table_spec(flat, wheel_radius, rail_head_radius, material, element_size,
+                          max_force, ds, n_t)
+    return _build(spec, flat, material, float(tol), int(batch_size))
+
+
+def _locate_s(table: ContactTable, s):
+    n_s = table.onset.shape[0]
+    u = jnp.clip((s - table.s_min) / table.ds, 0.0, n_s - 1.0)
+    i = jnp.clip(jnp.floor(u), 0, n_s - 2).astype(jnp.int32)
+    return i, u - i
+
+
+def table_onset(table: ContactTable, s):
+    """Rigid contact onset delta0(s) [m] (linear in s). Scalar s [m] -> scalar."""
+    i, w = _locate_s(table, s)
+    return (1.0 - w) * table.onset[i] + w * table.onset[i + 1]
+
+
+def _hermite(f0, f1, m0, m1, w):
+    w2, w3 = w * w, w * w * w
+    return ((2 * w3 - 3 * w2 + 1) * f0 + (w3 - 2 * w2 + w) * m0 + (-2 * w3 + 3 * w2) * f1
+            + (w3 - w2) * m1)
+
+
+def table_force(table: ContactTable, delta, s):
+    """3D contact force F [N] at approach ``delta`` [m] and flat position ``s`` [m].
+
+    Cubic Hermite in t = sqrt(c / c_max), c = delta - delta0(s), linear in s; F = 0 for c <= 0
+    with a zero gradient there. Pure jnp and branch-free: ``jit``/``vmap``/``grad`` with respect
+    to delta, s and the table's arrays. Scalars in, scalar out (``vmap`` for batches). Beyond
+    c_max the last interval's cubic extrapolates.
+    """
+    i, w = _locate_s(table, s)
+    onset = (1.0 - w) * table.onset[i] + w * table.onset[i + 1]
+    c = delta - onset
+    pos = c > 0
+    c_safe = jnp.where(pos, c, 1.0)
+    n_t = table.force.shape[1]
+    u = jnp.sqrt(c_safe / table.c_max) * (n_t - 1)
+    j = jnp.clip(jnp.floor(u), 0, n_t - 2).astype(jnp.int32)
+    v = u - j
+
+    def col(k):
+        return _hermite(table.force[k, j], table.force[k, j + 1], table.slope[k, j],
+                        table.slope[k, j + 1], v)
+
+    f = (1.0 - w) * col(i) + w * col(i + 1)
+    return jnp.where(pos, jnp.maximum(f, 0.0), 0.0)
