@@ -15,8 +15,14 @@ import jax as _jax
 if _os.environ.get("WFJAX_PRECISION", "float64").lower() != "float32":
     _jax.config.update("jax_enable_x64", True)
 
+from . import contact as contact
 from . import geometry as geometry
 from . import params as params
+from . import track as track
+from . import wheel as wheel
+from .interaction import SimResult as SimResult
+from .interaction import impact_position_from_angle as impact_position_from_angle
+from .interaction import simulate as simulate
 from .params import Flat as Flat
 from .params import Material as Material
 from .params import SimConfig as SimConfig
@@ -24,5 +30,7 @@ from .params import Track as Track
 from .params import Wheel as Wheel
 from .params import kmh as kmh
 from .params import mm as mm
+from .sweep import SweepResult as SweepResult
+from .sweep import sweep as sweep
 
 __version__ = "0.1.0"

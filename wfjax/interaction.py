@@ -55,6 +55,7 @@ import numpy as np
 
 from . import geometry
 from . import track as track_mod
+from . import wheel as wheel_mod
 from ._modal import discrete_step_coefficients
 from .contact import hertz, winkler
 from .params import Flat, Material, SimConfig, Track, Wheel
@@ -317,7 +318,7 @@ class Structure(NamedTuple):
 
     track: Any  # track.ModalModel
     wheel_poles: Any  # complex [n_w] rad/s
-    wheel_residues: Any  # complex [n_w] m/(N s^2)... h_W(t) = Re sum residues exp(poles t)
+    wheel_residues: Any  # complex [n_w] m/(N s): h_W(t) = Re sum residues exp(poles t)
     preload: Any  # N
 
 
@@ -325,24 +326,9 @@ def structure(wheel: Wheel, track: Track, config: SimConfig, cache_dir=None) -> 
     """Modal models of wheel and track (the track's is cached on disk)."""
     model = track_mod.modal_model(track, max_frequency=config.track_max_frequency,
                                   cache_dir=cache_dir)
-    poles, residues = _wheel_point_modes(wheel)
-    return Structure(model, jnp.asarray(poles), jnp.asarray(residues),
+    wheel_modes = wheel_mod.modal_model(wheel)
+    return Structure(model, wheel_modes.poles, wheel_modes.residues,
                      jnp.asarray(wheel.preload, dtype=float))
-
-
-def _wheel_point_modes(wheel: Wheel):
-    """(poles [4] rad/s, residues [4]) with h_W(t) = Re sum residues exp(poles t) [m/(N s)]."""
-    m = np.diag([float(wheel.small_mass), float(wheel.wheelset_mass)])
-    kw, ks = float(wheel.contact_stiffness), float(wheel.suspension_stiffness)
-    cw, cs = float(wheel.contact_damping), float(wheel.suspension_damping)
-    k = np.array([[kw, -kw], [-kw, kw + ks]])
-    c = np.array([[cw, -cw], [-cw, cw + cs]])
-    minv = np.linalg.inv(m)
-    a = np.block([[np.zeros((2, 2)), np.eye(2)], [-minv @ k, -minv @ c]])
-    b = np.concatenate([np.zeros(2), minv[:, 0]])
-    lam, v = np.linalg.eig(a)
-    w = np.linalg.solve(v, b)
-    return lam, v[0] * w
 
 
 def _rail_terms(model, x):
