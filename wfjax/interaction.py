@@ -58,7 +58,7 @@ from . import track as track_mod
 from . import wheel as wheel_mod
 from ._modal import discrete_step_coefficients
 from .contact import hertz, winkler
-from .params import Flat, Material, SimConfig, Track, Wheel
+from .params import MAX_FLAT_DEPTH, Flat, Material, SimConfig, Track, Wheel, _is_concrete
 
 __all__ = [
     "CONTACT_MODELS",
@@ -224,7 +224,8 @@ def contact_spec(contact: str, flat: Flat, wheel: Wheel, track: Track, material:
         drop = -geometry.centre_trajectory(flat, grid)
         return ContactSpec("hertz-trajectory", {"c_h": c_h, "s_grid": grid, "drop": drop})
     if contact == "2d":
-        half = winkler.default_half_window(flat, wheel.radius)
+        deepest = None if _is_concrete(flat.depth) else MAX_FLAT_DEPTH + winkler.DEFAULT_APPROACH_MARGIN
+        half = winkler.default_half_window(flat, float(wheel.radius), deepest)
         nodes = jnp.asarray(winkler.bedding_nodes(half, config.contact_element))
         return ContactSpec("2d", {"flat": flat, "material": material,
                                   "radius": wheel.radius, "nodes": nodes})
@@ -260,7 +261,8 @@ def _hertz_law(c_h, compression):
 
 
 # -- the scalar contact equation --------------------------------------------------------------
-def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol: float = 1e-15):
+def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol: float = 1e-15,
+                       loop_force_fn=None):
     """Solve delta = delta_free - compliance * F(delta) for the approach delta [m].
 
     Bracketed Newton iteration on r(delta) = delta - delta_free + c F(delta) (increasing in
@@ -272,18 +274,23 @@ def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol
         force_fn: F(delta) [N], scalar -> scalar, jax-differentiable.
         delta_free: approach if F were zero [m]. compliance: c > 0 [m/N].
         max_iter: iteration cap (static). tol: absolute tolerance on r [m].
+        loop_force_fn: ``force_fn`` with its parameters under ``stop_gradient``, used inside
+            the ``while_loop`` so reverse-mode autodiff never has to enter the loop (default:
+            ``force_fn``; pass it whenever ``force_fn`` closes over differentiated values).
 
     Returns:
         (delta [m], F [N], |r| [m]).
     """
-    value_and_slope = jax.value_and_grad(force_fn)
-
-    def residual(delta):
-        f, df = value_and_slope(delta)
-        return delta - delta_free + compliance * f, 1.0 + compliance * df
-
+    loop_force_fn = loop_force_fn or force_fn
     d_free = jax.lax.stop_gradient(delta_free)
     c = jax.lax.stop_gradient(compliance)
+
+    def residual(delta, fn=force_fn, d_free=delta_free, c=compliance):
+        f, df = jax.value_and_grad(fn)(delta)
+        return delta - d_free + c * f, 1.0 + c * df
+
+    def loop_residual(delta):
+        return residual(delta, loop_force_fn, d_free, c)
 
     def cond(state):
         _, _, _, r, it = state
@@ -291,7 +298,7 @@ def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol
 
     def body(state):
         delta, lo, hi, _, it = state
-        r, dr = residual(delta)
+        r, dr = loop_residual(delta)
         lo = jnp.where(r < 0, delta, lo)
         hi = jnp.where(r >= 0, delta, hi)
         step = delta - r / dr
@@ -300,9 +307,9 @@ def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol
         new = jnp.where(jnp.abs(r) <= tol, delta, new)  # converged: keep the evaluated iterate
         return new, lo, hi, r, it + 1
 
-    f_free = jax.lax.stop_gradient(force_fn(d_free))
+    f_free = loop_force_fn(d_free)
     lo0 = d_free - c * f_free - 1e-12
-    r0, _ = jax.tree_util.tree_map(jax.lax.stop_gradient, residual(d_free))
+    r0, _ = loop_residual(d_free)
     state = (d_free, lo0, d_free, r0, 0)
     state = jax.lax.while_loop(cond, body, state)
     delta_star = jax.lax.stop_gradient(state[0])
@@ -357,6 +364,11 @@ def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impa
     def law(delta, s):
         return contact_force(spec_kind, params, delta, s)
 
+    params_ng = jax.lax.stop_gradient(params)
+
+    def law_ng(delta, s):
+        return contact_force(spec_kind, params_ng, delta, s)
+
     e_r, ap_r, an_r = discrete_step_coefficients(model.poles, dt)
     e_w, ap_w, an_w = discrete_step_coefficients(struct.wheel_poles, dt)
     c_wheel = jnp.real(jnp.sum(struct.wheel_residues * an_w))
@@ -382,7 +394,7 @@ def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impa
         xi_w_free = xi_w_ref - jnp.real(jnp.sum(struct.wheel_residues * p_hat)) + c_wheel * preload
         delta_free = xi_w_free - xi_r_free
         delta, f, r = solve_contact_step(lambda d: law(d, s), delta_free, c_wheel + c_rail,
-                                         max_iter)
+                                         max_iter, loop_force_fn=lambda d: law_ng(d, s))
         q_new = q_hat + an_r * phi * f
         p_new = p_hat + an_w * (f - preload)
         xi_w = xi_w_free - c_wheel * f
@@ -408,7 +420,7 @@ def _static_approach(law, s0, preload, max_iter):
         f, df = jax.value_and_grad(lambda a: law(a, s0))(d)
         return d - (f - preload) / jnp.where(df > 0, df, 1.0)
 
-    return jax.lax.fori_loop(0, max_iter, body, jnp.asarray(1e-3))
+    return jax.lax.fori_loop(0, max_iter, body, jnp.asarray(1e-3))  # fixed count: reverse-mode ok
 
 
 def summarise(hist: dict, speed, impact_position, dt, run_in_steps) -> SimResult:
