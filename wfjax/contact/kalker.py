@@ -636,8 +636,8 @@ def elliptic_hertz(force, radius_x, radius_y, material: Material = _DEFAULT_MATE
 
     Relative curvatures A = 1/(2 R_x), B = 1/(2 R_y). Johnson (1985) Sec. 4.2: with semi-axes
     a (along the smaller curvature), b and e^2 = 1 - b^2/a^2,
-    B/A = ((a/b)^2 E(e) - K(e)) / (K(e) - E(e)), a^3 = 3 F (K - E) / (2 E* e^2 A_min),
-    delta = 3 F K(e) / (2 a E*), p0 = 3 F / (2 pi a b).
+    B/A = ((a/b)^2 E(e) - K(e)) / (K(e) - E(e)), a^3 = 3 F (K - E) / (2 pi E* e^2 A_min),
+    delta = 3 F K(e) / (2 pi a E*), p0 = 3 F / (2 pi a b).
 
     Args:
         force: F [N]; radius_x, radius_y: relative radii of curvature [m] along x and y;
@@ -664,9 +664,9 @@ def elliptic_hertz(force, radius_x, radius_y, material: Material = _DEFAULT_MATE
 
     m = brentq(f, 1e-12, 1 - 1e-15, xtol=1e-15)
     k, e = ellipk(m), ellipe(m)
-    a = (3 * F * (k - e) / (2 * estar * m * lo)) ** (1 / 3)
+    a = (3 * F * (k - e) / (2 * math.pi * estar * m * lo)) ** (1 / 3)
     b = a * math.sqrt(1 - m)
-    delta = 3 * F * k / (2 * a * estar)
+    delta = 3 * F * k / (2 * math.pi * a * estar)
     p0 = 3 * F / (2 * math.pi * a * b)
     ax, ay = (a, b) if A <= B else (b, a)
     return ax, ay, delta, p0
@@ -697,7 +697,7 @@ def contact_grid(flat: Flat, wheel_radius: float, rail_head_radius: float,
 
     Raises:
         ValueError: non-positive element size, or fewer than 6 elements across the smooth
-            Hertz contact at ``max_force`` / 8 (too coarse to resolve the contact).
+            Hertz contact at ``max_force`` / 4 (too coarse to resolve the contact).
     """
     h = float(element_size)
     if not math.isfinite(h) or h <= 0:
@@ -707,7 +707,7 @@ def contact_grid(flat: Flat, wheel_radius: float, rail_head_radius: float,
     if 2 * min(ax8, ay8) / h < MIN_ELEMENTS_ACROSS:
         raise ValueError(
             f"element_size {h * 1e3:.3g} mm too coarse: the Hertz contact at "
-            f"{max_force / 8e3:.3g} kN is only {2 * min(ax8, ay8) * 1e3:.3g} mm wide; need "
+            f"{max_force / 4e3:.3g} kN is only {2 * min(ax8, ay8) * 1e3:.3g} mm wide; need "
             f"element_size <= {2 * min(ax8, ay8) / MIN_ELEMENTS_ACROSS * 1e3:.3g} mm"
         )
     c = 1.5 * dH if max_compression is None else float(max_compression)
