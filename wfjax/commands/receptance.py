@@ -1,0 +1,108 @@
+"""``wfjax receptance``: wheel and track receptances (CSV, JSON summary, PNG)."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from . import _common
+
+HELP = "Wheel and track receptances (dB re 1 m/N, phase) above a sleeper and at midspan."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options: output directory, frequency range and resolution, elements per bay."""
+    _common.add_out_argument(parser, "results/receptance")
+    parser.add_argument("--fmin-hz", type=float, default=20.0, help="lowest frequency [Hz]")
+    parser.add_argument("--fmax-hz", type=float, default=5000.0, help="highest frequency [Hz]")
+    parser.add_argument("--points", type=int, default=400,
+                        help="log-spaced frequencies (default 400)")
+    parser.add_argument("--elements-per-bay", type=int, default=None,
+                        help="rail elements per sleeper bay (default: Track's default)")
+
+
+def _db(h):
+    return 20 * np.log10(np.abs(h))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compute, write receptance.csv / receptance.json / receptance.png, print a summary."""
+    import wfjax
+    from wfjax import track as T
+    from wfjax import wheel as W
+
+    if not (np.isfinite(args.fmin_hz) and args.fmin_hz > 0):
+        raise ValueError(f"--fmin-hz must be > 0 Hz, got {args.fmin_hz}")
+    if not (np.isfinite(args.fmax_hz) and args.fmax_hz > args.fmin_hz):
+        raise ValueError(f"--fmax-hz must be > --fmin-hz ({args.fmin_hz} Hz), got {args.fmax_hz}")
+    if args.points < 2:
+        raise ValueError(f"--points must be >= 2, got {args.points}")
+    track = wfjax.Track() if args.elements_per_bay is None else wfjax.Track(
+        elements_per_bay=args.elements_per_bay)
+    wheel = wfjax.Wheel()
+    out = _common.prepare_out(args.out)
+    f = np.geomspace(args.fmin_hz, args.fmax_hz, args.points)
+    ls = float(track.sleeper_spacing)
+    curves = {
+        "wheel": W.receptance(wheel, f),
+        "track_sleeper": T.receptance(track, f, 0.0),
+        "track_midspan": T.receptance(track, f, ls / 2),
+    }
+    cols = ["frequency_hz"]
+    data = [f]
+    for name, h in curves.items():
+        cols += [f"{name}_db_re_1m_per_N", f"{name}_phase_deg", f"{name}_re_m_per_N",
+                 f"{name}_im_m_per_N"]
+        data += [_db(h), np.degrees(np.angle(h)), h.real, h.imag]
+    table = np.column_stack(data)
+    lines = [",".join(cols)] + [",".join(f"{v:.9g}" for v in row) for row in table]
+    _common.write_atomic(out / "receptance.csv", "\n".join(lines) + "\n")
+
+    def peak(h, lo, hi):
+        sel = (f >= lo) & (f <= hi)
+        if not np.any(sel):
+            return None
+        return float(f[sel][np.argmax(np.abs(h[sel]))])
+
+    summary = {
+        "elements_per_bay": int(track.elements_per_bay),
+        "n_bays": int(track.n_bays),
+        "static_deflection_118kN_mm": {
+            "sleeper": T.static_deflection(track, 118e3, 0.0) * 1e3,
+            "midspan": T.static_deflection(track, 118e3, ls / 2) * 1e3},
+        "track_resonance_hz": peak(curves["track_sleeper"], 50, 200),
+        "rail_on_pad_resonance_hz": peak(curves["track_sleeper"], 200, 500),
+        "pinned_pinned_hz": peak(curves["track_midspan"], 700, 1200),
+        "wheel_static_displacement_mm": W.static_displacement(wheel) * 1e3,
+    }
+    _common.write_json(out / "receptance.json", summary)
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    labels = {"wheel": "wheel (contact point)", "track_sleeper": "rail above a sleeper",
+              "track_midspan": "rail at midspan"}
+    for name, h in curves.items():
+        ax1.semilogx(f, _db(h), label=labels[name])
+        ax2.semilogx(f, np.degrees(np.angle(h)), label=labels[name])
+    ax1.set_ylabel("receptance [dB re 1 m/N]")
+    ax2.set_ylabel("phase [deg]")
+    ax2.set_xlabel("frequency [Hz]")
+    ax1.grid(True, which="both", alpha=0.3)
+    ax2.grid(True, which="both", alpha=0.3)
+    ax1.legend()
+    ax1.set_title(f"Receptances (track: {track.n_bays} bays, {track.elements_per_bay} el./bay)")
+    _common.save_figure(fig, out / "receptance.png")
+
+    s = summary
+    print(f"track: resonances {s['track_resonance_hz']:.0f} Hz (track on ballast), "
+          f"{s['rail_on_pad_resonance_hz']:.0f} Hz (rail on pads), "
+          f"pinned-pinned {s['pinned_pinned_hz']:.0f} Hz (midspan)")
+    print(f"static rail deflection at 118 kN: {s['static_deflection_118kN_mm']['sleeper']:.3f} mm "
+          f"above a sleeper, {s['static_deflection_118kN_mm']['midspan']:.3f} mm at midspan")
+    print(f"wrote {out / 'receptance.csv'}, receptance.json, receptance.png")
+    return 0
