@@ -48,3 +48,81 @@ def default_fig5_flats(depth: float = 0.9e-3, wheel_radius: float = 0.45) -> dic
             depth, 1.76, wheel_radius
         ),
     }
+
+
+def sweep_figure(result, title: str | None = None):
+    """Fig. 7 style: max and min contact force [kN] against speed [km/h] for every flat.
+
+    The band shows the spread over impact positions, the line the envelope (max of max,
+    min of min); filled markers where loss of contact occurs at some position.
+
+    Args:
+        result: a :class:`wfjax.sweep.SweepResult`.
+    """
+    v = np.asarray(result.speeds) * 3.6
+    fig, ax = plt.subplots(figsize=(8, 5))
+    markers = ["o", "s", "^", "D", "v", "P", "X", "*"]
+    for i, label in enumerate(result.flats):
+        color = f"C{i}"
+        mx = np.asarray(result.max_force[i]) / 1e3
+        mn = np.asarray(result.min_force[i]) / 1e3
+        lost = np.any(np.asarray(result.loss_of_contact[i]), axis=-1)
+        ax.fill_between(v, mx.min(-1), mx.max(-1), color=color, alpha=0.2, lw=0)
+        ax.fill_between(v, mn.min(-1), mn.max(-1), color=color, alpha=0.2, lw=0)
+        m = markers[i % len(markers)]
+        ax.plot(v, mx.max(-1), "-", marker=m, mfc="none", color=color, label=f"{label}: max")
+        ax.plot(v, mn.min(-1), "--", marker=m, mfc="none", color=color, label=f"{label}: min")
+        ax.plot(v[lost], mn.min(-1)[lost], m, color=color, ls="none")
+    ax.axhline(118.0, color="k", lw=0.8, ls=":")
+    ax.set_xlabel("train speed [km/h]")
+    ax.set_ylabel("contact force [kN]")
+    ax.set_title(title or f"Max/min contact force over {len(result.impact_positions)} impact "
+                 f"positions ({result.contact} contact); filled: loss of contact")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def force_history_figure(result, flat: Flat | None = None, preload: float = 118e3):
+    """Contact force [kN] against wheel position relative to the impact [mm].
+
+    Loss-of-contact spans are shaded; the static load is a dotted line; when ``flat`` is given
+    an inset shows its profile deviation and wheel-centre trajectory.
+
+    Args:
+        result: a :class:`wfjax.SimResult`.
+    """
+    s = np.asarray(result.s) * 1e3
+    f = np.asarray(result.force) / 1e3
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    ax.plot(s, f, color="C0", lw=1.2)
+    ax.axhline(preload / 1e3, color="k", ls=":", lw=0.8, label="static load P")
+    lost = f <= 0
+    if lost.any():
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], lost.astype(int), [0]])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            ax.axvspan(s[a], s[max(b - 1, a)], color="C3", alpha=0.25, lw=0)
+        ax.plot([], [], color="C3", alpha=0.4, lw=6, label="loss of contact")
+    ax.set_xlabel("wheel position relative to the impact s [mm]")
+    ax.set_ylabel("contact force [kN]")
+    ax.set_title(f"v = {float(result.speed) * 3.6:.0f} km/h, impact at "
+                 f"{float(result.impact_position) * 1e3:.0f} mm from a sleeper: "
+                 f"max {float(result.max_force) / 1e3:.1f} kN, min "
+                 f"{float(result.min_force) / 1e3:.1f} kN")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    if flat is not None and flat.kind != "none":
+        inset = ax.inset_axes([0.03, 0.58, 0.28, 0.36])
+        half = 1.2 * flat.half_extent
+        x = np.linspace(-half, half, 401)
+        inset.plot(x * 1e3, -np.asarray(geometry.profile_deviation(flat, x)) * 1e3, "--",
+                   lw=1, label="profile")
+        inset.plot(x * 1e3, np.asarray(geometry.centre_trajectory(flat, x)) * 1e3, lw=1,
+                   label="trajectory")
+        inset.set_xlabel("x [mm]", fontsize=7)
+        inset.set_ylabel("input [mm]", fontsize=7)
+        inset.tick_params(labelsize=6)
+        inset.legend(fontsize=6)
+    fig.tight_layout()
+    return fig
