@@ -703,7 +703,7 @@ def contact_grid(flat: Flat, wheel_radius: float, rail_head_radius: float,
     if not math.isfinite(h) or h <= 0:
         raise ValueError(f"element_size must be > 0 m, got {element_size!r}")
     ax, ay, dH, _ = elliptic_hertz(max_force, wheel_radius, rail_head_radius, material)
-    ax8, ay8, _, _ = elliptic_hertz(max_force / 8, wheel_radius, rail_head_radius, material)
+    ax8, ay8, _, _ = elliptic_hertz(max_force / 4, wheel_radius, rail_head_radius, material)
     if 2 * min(ax8, ay8) / h < MIN_ELEMENTS_ACROSS:
         raise ValueError(
             f"element_size {h * 1e3:.3g} mm too coarse: the Hertz contact at "

@@ -1,0 +1,149 @@
+"""Tests of the 3D contact table F3D(delta, s) (wfjax.contact.tables)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import wfjax as wf
+from wfjax.contact import kalker, tables
+
+MAT = wf.Material()
+R = 0.45
+FLAT = wf.Flat.rounded(0.9e-3, 0.1)
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    """A fast table: 1.5 mm elements and columns, up to 300 kN."""
+    spec = tables.table_spec(FLAT, R, R, MAT, element_size=1.5e-3, max_force=300e3, n_t=12)
+    return spec, tables.build_table_3d(FLAT, R, R, MAT, spec=spec)
+
+
+def direct(spec, flat, delta, s):
+    h = spec.element_size
+    g = kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius, spec.rail_head_radius)
+    return kalker.solve(g, h, h, MAT, approach=delta, validate=False)
+
+
+def test_table_covers_forces_and_converged(coarse):
+    spec, tab = coarse
+    assert float(tab.converged) == 1.0
+    assert float(tab.force[:, -1].min()) > 300e3
+    assert np.all(np.asarray(tab.force[:, 0]) == 0)
+    assert np.all(np.diff(np.asarray(tab.force), axis=1) >= 0)  # monotone in compression
+    np.testing.assert_allclose(tab.force, tab.force[::-1])  # symmetric flat
+
+
+def test_table_matches_direct_solves(coarse):
+    spec, tab = coarse
+    rng = np.random.default_rng(3)
+    for _ in range(6):
+        s = rng.uniform(-spec.s_max, spec.s_max)
+        delta = float(tables.table_onset(tab, s)) + spec.c_max * rng.uniform(0.1, 0.9)
+        f_dir = float(direct(spec, FLAT, delta, s).force)
+        f_tab = float(tables.table_force(tab, delta, s))
+        assert abs(f_tab - f_dir) <= 0.01 * max(f_dir, 50e3)
+
+
+def test_far_from_flat_is_smooth_wheel_and_hertz(coarse):
+    spec, tab = coarse
+    delta = 0.1093e-3
+    smooth = direct(spec, wf.Flat.none(), delta, 0.0)
+    for s in (-spec.s_max, -1.0, spec.s_max + 0.3):
+        assert float(tables.table_force(tab, delta, s)) == pytest.approx(
+            float(smooth.force), rel=2e-3)
+    assert float(tables.table_onset(tab, -1.0)) == pytest.approx(0.0, abs=1e-12)
+    assert float(smooth.force) == pytest.approx(118e3, rel=0.02)  # Hertz at 1.5 mm elements
+
+
+def test_continuous_in_s_and_zero_below_onset(coarse):
+    spec, tab = coarse
+    s = jnp.linspace(-spec.s_max, spec.s_max, 4001)
+    delta = 0.12e-3
+    f = jax.vmap(lambda si: tables.table_force(tab, delta, si))(s)
+    step = float(s[1] - s[0])
+    slope_bound = float(jnp.max(jnp.abs(jnp.diff(f)))) / step
+    assert slope_bound < 1e11  # N/m: no jumps (a jump of 1 kN would give 1.4e11)
+    onset = jax.vmap(lambda si: tables.table_onset(tab, si))(s)
+    below = jax.vmap(tables.table_force, in_axes=(None, 0, 0))(tab, onset - 1e-6, s)
+    assert float(jnp.max(below)) == 0.0
+
+
+def test_gradients_vmap_jit(coarse):
+    spec, tab = coarse
+    s, delta = -0.04, 0.15e-3
+    g = jax.grad(tables.table_force, argnums=1)(tab, delta, s)
+    eps = 1e-9
+    fd = (tables.table_force(tab, delta + eps, s) - tables.table_force(tab, delta - eps, s)) / (
+        2 * eps)
+    assert float(g) == pytest.approx(float(fd), rel=1e-5)
+    # zero force, zero (finite) gradient below the onset
+    g0 = jax.grad(tables.table_force, argnums=1)(tab, -1e-3, s)
+    assert float(g0) == 0.0
+    # stiffness at a node agrees with the solver's dF/d delta
+    j, i = 8, spec.n_s // 2 + 10
+    c = spec.c_max * (j / (spec.n_t - 1)) ** 2
+    si = float(spec.s[i])
+    d = float(tab.onset[i]) + c
+    k_tab = jax.grad(tables.table_force, argnums=1)(tab, d + 1e-12, si)
+    assert float(k_tab) == pytest.approx(float(direct(spec, FLAT, d, si).stiffness), rel=1e-3)
+    # vmap == loop, jit == eager, grad w.r.t. the table arrays exists
+    ds = jnp.linspace(0.05e-3, 0.3e-3, 5)
+    ss = jnp.linspace(-0.06, 0.01, 5)
+    fb = jax.jit(jax.vmap(tables.table_force, in_axes=(None, 0, 0)))(tab, ds, ss)
+    for k in range(5):
+        assert float(fb[k]) == pytest.approx(float(tables.table_force(tab, ds[k], ss[k])),
+                                             rel=1e-12)
+    gt = jax.grad(tables.table_force)(tab, delta, s)
+    assert float(jnp.abs(gt.force).sum()) > 0
+
+
+def test_gradient_to_flat_depth_through_build():
+    spec = tables.table_spec(FLAT, R, R, MAT, element_size=1.5e-3, max_force=300e3, n_t=6,
+                             ds=12e-3)
+
+    def f(depth):
+        flat = wf.Flat("rounded", depth=depth, length=0.1)
+        tab = tables.build_table_3d(flat, R, R, MAT, spec=spec)
+        return tables.table_force(tab, tables.table_onset(tab, -0.03) + 0.1e-3, -0.03)
+
+    g = jax.grad(f)(0.9e-3)
+    eps = 1e-8
+    fd = (f(0.9e-3 + eps) - f(0.9e-3 - eps)) / (2 * eps)
+    assert abs(float(fd)) > 1e6
+    assert float(g) == pytest.approx(float(fd), rel=1e-4)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="element_size"):
+        tables.table_spec(FLAT, R, R, MAT, element_size=-1e-3)
+    with pytest.raises(ValueError, match="ds"):
+        tables.table_spec(FLAT, R, R, MAT, ds=0.0)
+    with pytest.raises(ValueError, match="n_t"):
+        tables.table_spec(FLAT, R, R, MAT, n_t=2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("flat,rail_radius", [
+    (wf.Flat.rounded(0.9e-3, 0.1), 0.45),
+    (wf.Flat.new(0.9e-3), 0.30),
+])
+def test_full_resolution_table_accuracy(flat, rail_radius):
+    """1 mm table vs direct solves: <= 0.5 % of max(F, 50 kN) over s and c up to 600 kN."""
+    spec = tables.table_spec(flat, R, rail_radius, MAT)
+    tab = tables.build_table_3d(flat, R, rail_radius, MAT, spec=spec)
+    assert float(tab.converged) == 1.0
+    assert float(tab.force[:, -1].min()) > 600e3
+    rng = np.random.default_rng(0)
+    errs = []
+    for _ in range(30):
+        s = rng.uniform(-spec.s_max, spec.s_max)
+        delta = float(tables.table_onset(tab, s)) + spec.c_max * rng.uniform(0.02, 0.8)
+        f_dir = float(direct(spec, flat, delta, s).force)
+        f_tab = float(tables.table_force(tab, delta, s))
+        errs.append(abs(f_tab - f_dir) / max(f_dir, 50e3))
+    assert max(errs) <= 5e-3, f"max error {max(errs):.4f}"
+    assert math.isfinite(max(errs))
