@@ -127,7 +127,8 @@ def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float =
         material: wheel and rail material.
         element_size: square contact element side [m].
         max_force: largest force the table must cover [N]; the compression range is
-            1.4 x the Hertz approach (the sharp edge of a new flat is softer than Hertz: 1.25 x gave 593 kN) at this force unless ``max_compression`` [m] is given.
+            1.4 x the Hertz approach at this force unless ``max_compression`` [m] is given
+            (the sharp edges of a new flat are softer than Hertz: 1.25 x covered only 593 kN).
         ds: column spacing [m]; default ``element_size``.
         n_t: nodes along the compression axis.
 
