@@ -231,8 +231,6 @@ def contact_spec(contact: str, flat: Flat, wheel: Wheel, track: Track, material:
                                   "radius": wheel.radius, "nodes": nodes})
     from .contact import tables
 
-    if config.contact_mode_3d == "direct":
-        raise ValueError("contact_mode_3d='direct' is run by simulate_direct_3d")
     table = tables.build_table_3d(flat, float(wheel.radius), float(track.rail_head_radius),
                                   material, element_size=config.contact_element)
     return ContactSpec("3d", {"table": table})
@@ -261,14 +259,56 @@ def _hertz_law(c_h, compression):
 
 
 # -- the scalar contact equation --------------------------------------------------------------
+def bracketed_newton(evaluate, delta_free, compliance, aux0, max_iter: int = 30,
+                     tol: float = 1e-15):
+    """Root of r(delta) = delta - delta_free + c F(delta) (increasing), no gradients.
+
+    Newton iteration started from delta_free (where r >= 0), bisection whenever a step leaves
+    the bracket [delta_free - c F(delta_free), delta_free]. For a convex F the Newton iterates
+    decrease monotonically to the root.
+
+    Args:
+        evaluate: (delta, aux) -> (F [N], dF/d delta [N/m], aux); ``aux`` carries solver state
+            such as a warm start.
+        delta_free: approach if F were zero [m]. compliance: c > 0 [m/N].
+        aux0: initial ``aux``. max_iter: iteration cap (static). tol: tolerance on r [m].
+
+    Returns:
+        (delta [m], |r| [m], aux).
+    """
+    def residual(delta, aux):
+        f, df, aux = evaluate(delta, aux)
+        return delta - delta_free + compliance * f, 1.0 + compliance * df, aux
+
+    def cond(state):
+        return (jnp.abs(state[3]) > tol) & (state[4] < max_iter)
+
+    def body(state):
+        delta, lo, hi, _, it, aux = state
+        r, dr, aux = residual(delta, aux)
+        lo = jnp.where(r < 0, delta, lo)
+        hi = jnp.where(r >= 0, delta, hi)
+        step = delta - r / dr
+        inside = (step >= lo) & (step <= hi)
+        new = jnp.where(inside, step, 0.5 * (lo + hi))
+        new = jnp.where(jnp.abs(r) <= tol, delta, new)  # converged: keep the evaluated iterate
+        return new, lo, hi, r, it + 1, aux
+
+    f_free, _, aux = evaluate(delta_free, aux0)
+    r0 = compliance * f_free
+    lo0 = delta_free - r0 - 1e-12
+    state = (delta_free, lo0, delta_free, r0, 0, aux)
+    delta, _, _, r, _, aux = jax.lax.while_loop(cond, body, state)
+    return delta, jnp.abs(r), aux
+
+
 def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol: float = 1e-15,
                        loop_force_fn=None):
     """Solve delta = delta_free - compliance * F(delta) for the approach delta [m].
 
-    Bracketed Newton iteration on r(delta) = delta - delta_free + c F(delta) (increasing in
-    delta), started from delta_free where r >= 0; bisection whenever a Newton step leaves the
-    bracket. Differentiable by the implicit function theorem (one Newton step with the
-    converged iterate and slope held fixed).
+    :func:`bracketed_newton` on r(delta) = delta - delta_free + c F(delta), made
+    differentiable by the implicit function theorem: one Newton step from the converged
+    iterate with the iterate and the slope held fixed (exact first derivatives at the root).
 
     Args:
         force_fn: F(delta) [N], scalar -> scalar, jax-differentiable.
@@ -282,41 +322,19 @@ def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol
         (delta [m], F [N], |r| [m]).
     """
     loop_force_fn = loop_force_fn or force_fn
+
+    def evaluate(delta, aux):
+        f, df = jax.value_and_grad(loop_force_fn)(delta)
+        return f, df, aux
+
     d_free = jax.lax.stop_gradient(delta_free)
     c = jax.lax.stop_gradient(compliance)
-
-    def residual(delta, fn=force_fn, d_free=delta_free, c=compliance):
-        f, df = jax.value_and_grad(fn)(delta)
-        return delta - d_free + c * f, 1.0 + c * df
-
-    def loop_residual(delta):
-        return residual(delta, loop_force_fn, d_free, c)
-
-    def cond(state):
-        _, _, _, r, it = state
-        return (jnp.abs(r) > tol) & (it < max_iter)
-
-    def body(state):
-        delta, lo, hi, _, it = state
-        r, dr = loop_residual(delta)
-        lo = jnp.where(r < 0, delta, lo)
-        hi = jnp.where(r >= 0, delta, hi)
-        step = delta - r / dr
-        inside = (step >= lo) & (step <= hi)
-        new = jnp.where(inside, step, 0.5 * (lo + hi))
-        new = jnp.where(jnp.abs(r) <= tol, delta, new)  # converged: keep the evaluated iterate
-        return new, lo, hi, r, it + 1
-
-    f_free = loop_force_fn(d_free)
-    lo0 = d_free - c * f_free - 1e-12
-    r0, _ = loop_residual(d_free)
-    state = (d_free, lo0, d_free, r0, 0)
-    state = jax.lax.while_loop(cond, body, state)
-    delta_star = jax.lax.stop_gradient(state[0])
-    r_star, dr_star = residual(delta_star)
-    delta = delta_star - r_star / jax.lax.stop_gradient(dr_star)
-    force = force_fn(delta)
-    return delta, force, jnp.abs(jax.lax.stop_gradient(r_star))
+    delta_star, r_abs, _ = bracketed_newton(evaluate, d_free, c, None, max_iter, tol)
+    delta_star = jax.lax.stop_gradient(delta_star)
+    f_star, df_star = jax.value_and_grad(force_fn)(delta_star)
+    r_star = delta_star - delta_free + compliance * f_star
+    delta = delta_star - r_star / jax.lax.stop_gradient(1.0 + c * df_star)
+    return delta, force_fn(delta), jax.lax.stop_gradient(r_abs)
 
 
 # -- the time loop -----------------------------------------------------------------------------
@@ -343,13 +361,15 @@ def _rail_terms(model, x):
     return phi, track_mod.residual_compliance_at(model, x)
 
 
-@partial(jax.jit, static_argnames=("spec_kind", "n_steps", "max_iter"))
-def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impact_position,
-             n_steps: int, max_iter: int = 30):
-    """The compiled time loop (pure; vmap over speed, dt, x_start, impact_position, params).
+def time_loop(contact_step, static_law, aux0, struct: Structure, speed, dt, x_start,
+              impact_position, n_steps: int):
+    """The time loop under ``lax.scan`` with a pluggable per-step contact solve (pure).
 
     Args:
-        spec_kind, params: the prepared contact law (see :func:`contact_spec`).
+        contact_step: (delta_free [m], compliance [m/N], s [m], aux) -> (delta [m], F [N],
+            |r| [m], aux): solves the step's scalar contact equation.
+        static_law: (delta, s) -> F, used for the static equilibrium at the start.
+        aux0: initial contact-solver state (e.g. a pressure warm start; ``None``).
         struct: modal wheel and track (:func:`structure`).
         speed: v [m/s]; dt: time step [s]; x_start: rail coordinate at t = 0 [m];
         impact_position: rail coordinate where s = 0 [m]; n_steps: steps incl. t = 0 (static).
@@ -360,15 +380,6 @@ def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impa
     model = struct.track
     w_r = model.weights
     preload = struct.preload
-
-    def law(delta, s):
-        return contact_force(spec_kind, params, delta, s)
-
-    params_ng = jax.lax.stop_gradient(params)
-
-    def law_ng(delta, s):
-        return contact_force(spec_kind, params_ng, delta, s)
-
     e_r, ap_r, an_r = discrete_step_coefficients(model.poles, dt)
     e_w, ap_w, an_w = discrete_step_coefficients(struct.wheel_poles, dt)
     c_wheel = jnp.real(jnp.sum(struct.wheel_residues * an_w))
@@ -378,12 +389,12 @@ def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impa
     phi0, res0 = _rail_terms(model, x_start)
     q0 = -phi0 * preload / model.poles
     xi_r0 = jnp.real(jnp.sum(w_r * phi0 * q0)) + res0 * preload
-    delta0 = _static_approach(law, s0, preload, max_iter)
+    delta0 = _static_approach(static_law, s0, preload)
     xi_w_ref = xi_r0 + delta0
     p0 = jnp.zeros_like(struct.wheel_poles)
 
     def step(carry, n):
-        q, p, f_prev, phi_prev = carry
+        q, p, f_prev, phi_prev, aux = carry
         x = x_start + speed * dt * n
         s = x - impact_position
         phi, res = _rail_terms(model, x)
@@ -392,35 +403,59 @@ def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impa
         c_rail = jnp.real(jnp.sum(w_r * an_r * phi * phi)) + res
         p_hat = e_w * p + ap_w * (f_prev - preload)
         xi_w_free = xi_w_ref - jnp.real(jnp.sum(struct.wheel_residues * p_hat)) + c_wheel * preload
-        delta_free = xi_w_free - xi_r_free
-        delta, f, r = solve_contact_step(lambda d: law(d, s), delta_free, c_wheel + c_rail,
-                                         max_iter, loop_force_fn=lambda d: law_ng(d, s))
+        delta, f, r, aux = contact_step(xi_w_free - xi_r_free, c_wheel + c_rail, s, aux)
         q_new = q_hat + an_r * phi * f
         p_new = p_hat + an_w * (f - preload)
-        xi_w = xi_w_free - c_wheel * f
-        xi_r = xi_r_free + c_rail * f
-        out = (x, s, f, delta, xi_w, xi_r, r)
-        return (q_new, p_new, f, phi), out
+        out = (x, s, f, delta, xi_w_free - c_wheel * f, xi_r_free + c_rail * f, r)
+        return (q_new, p_new, f, phi, aux), out
 
-    carry0 = (q0, p0, preload, phi0)
+    carry0 = (q0, p0, preload, phi0, aux0)
     _, outs = jax.lax.scan(step, carry0, jnp.arange(1, n_steps))
-    x, s, f, delta, xi_w, xi_r, r = outs
     first = (x_start, s0, preload, delta0, xi_w_ref, xi_r0, 0.0)
-    cat = [jnp.concatenate([jnp.asarray(a0, dtype=a.dtype)[None], a]) for a0, a in
-           zip(first, (x, s, f, delta, xi_w, xi_r, r), strict=True)]
     keys = ("x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual")
-    result = dict(zip(keys, cat, strict=True))
+    result = {k: jnp.concatenate([jnp.asarray(a0, dtype=a.dtype)[None], a])
+              for k, a0, a in zip(keys, first, outs, strict=True)}
     result["t"] = dt * jnp.arange(n_steps)
     return result
 
 
-def _static_approach(law, s0, preload, max_iter):
+@partial(jax.jit, static_argnames=("spec_kind", "n_steps", "max_iter"))
+def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impact_position,
+             n_steps: int, max_iter: int = 30):
+    """:func:`time_loop` with a tabulated/closed-form contact law (vmap- and grad-able).
+
+    Args:
+        spec_kind, params: the prepared contact law (see :func:`contact_spec`).
+        other arguments: as :func:`time_loop`; ``max_iter`` caps the per-step Newton loop.
+
+    Returns:
+        dict of [n_steps] arrays (see :func:`time_loop`).
+    """
+    params_ng = jax.lax.stop_gradient(params)
+
+    def law(delta, s, params=params):
+        return contact_force(spec_kind, params, delta, s)
+
+    def contact_step(delta_free, compliance, s, aux):
+        delta, f, r = solve_contact_step(
+            lambda d: law(d, s), delta_free, compliance, max_iter,
+            loop_force_fn=lambda d: law(d, s, params_ng))
+        return delta, f, r, aux
+
+    return time_loop(contact_step, law, None, struct, speed, dt, x_start, impact_position,
+                     n_steps)
+
+
+def _static_approach(law, s0, preload, max_iter: int = 30):
     """Approach [m] with law(delta, s0) = preload (Newton from the right; law convex)."""
     def body(_, d):
         f, df = jax.value_and_grad(lambda a: law(a, s0))(d)
         return d - (f - preload) / jnp.where(df > 0, df, 1.0)
 
-    return jax.lax.fori_loop(0, max_iter, body, jnp.asarray(1e-3))  # fixed count: reverse-mode ok
+    # Start below the root (10 um: F < P for any realistic contact): the first Newton step on
+    # the convex law overshoots above the root, from where the iterates decrease monotonically.
+    # A fixed iteration count keeps reverse-mode differentiation possible.
+    return jax.lax.fori_loop(0, max_iter, body, jnp.asarray(1e-5))
 
 
 def summarise(hist: dict, speed, impact_position, dt, run_in_steps) -> SimResult:
@@ -445,7 +480,8 @@ def summarise(hist: dict, speed, impact_position, dt, run_in_steps) -> SimResult
 def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: float = 0.0,
              wheel: Wheel | None = None, track: Track | None = None,
              material: Material | None = None, config: SimConfig | None = None,
-             angle0: float | None = None, cache_dir=None) -> SimResult:
+             angle0: float | None = None, cache_dir=None,
+             n_steps: int | None = None) -> SimResult:
     """Simulate a wheel with ``flat`` rolling at ``speed`` over the discretely supported track.
 
     Args:
@@ -460,6 +496,8 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
             the contact at the start of the run; overrides ``impact_position`` (see module doc).
         cache_dir: where the track's modal model is cached (default: ``WFJAX_CACHE_DIR`` or
             ``~/.cache/wfjax``).
+        n_steps: number of time steps (default: from ``config``); the time step becomes the
+            window's duration / (n_steps - 1), as in :func:`wfjax.sweep`.
 
     Returns:
         :class:`SimResult` with time histories [n_steps] and summary values.
@@ -480,14 +518,25 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
         impact_position = float(impact_position_from_angle(
             angle0, s_start, float(wheel.radius), spacing))
     x_imp = _check_impact_position(impact_position, spacing)
-    n_steps, dt = n_steps_for(flat, v, config)
-    if contact == "3d" and config.contact_mode_3d == "direct":
-        from .direct3d import simulate_direct_3d
-
-        return simulate_direct_3d(flat, v, x_imp, wheel, track, material, config, cache_dir)
-    spec = contact_spec(contact, flat, wheel, track, material, config)
+    n_auto, dt = n_steps_for(flat, v, config)
+    if n_steps is None:
+        n_steps = n_auto
+    elif int(n_steps) < 2:
+        raise ValueError(f"n_steps must be >= 2, got {n_steps!r}")
+    else:
+        s0, s1 = simulation_window(flat, v, config)
+        dt = (s1 - s0) / v / (int(n_steps) - 1)
+    if contact not in CONTACT_MODELS:
+        raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     struct = structure(wheel, track, config, cache_dir)
-    hist = run_scan(spec.kind, spec.params, struct, v, dt, x_imp + s_start, x_imp, n_steps,
-                    config.newton_iterations)
+    if contact == "3d" and config.contact_mode_3d == "direct":
+        from .direct3d import run_direct_3d
+
+        hist = run_direct_3d(flat, struct, v, dt, x_imp + s_start, x_imp, int(n_steps),
+                             wheel, track, material, config)
+    else:
+        spec = contact_spec(contact, flat, wheel, track, material, config)
+        hist = run_scan(spec.kind, spec.params, struct, v, dt, x_imp + s_start, x_imp,
+                        int(n_steps), config.newton_iterations)
     run_in_steps = int(0.5 * RUN_IN_TIME / dt)
     return summarise(hist, v, x_imp, dt, run_in_steps)
