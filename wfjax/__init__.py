@@ -20,6 +20,7 @@ from . import geometry as geometry
 from . import params as params
 from . import track as track
 from . import wheel as wheel
+from ._cache import load_or_build as load_or_build
 from .interaction import SimResult as SimResult
 from .interaction import impact_position_from_angle as impact_position_from_angle
 from .interaction import simulate as simulate
@@ -31,6 +32,9 @@ from .params import Wheel as Wheel
 from .params import kmh as kmh
 from .params import mm as mm
 from .sweep import SweepResult as SweepResult
+from .track import ModalModel as ModalModel
+from .track import MovingGreens as MovingGreens
+from .wheel import WheelModal as WheelModal
 from .sweep import sweep as sweep
 
 __version__ = "0.1.0"
