@@ -75,7 +75,7 @@ def depth_family_figure(result, depths_mm=None, title: str | None = None):
     ax.set_title(title or f"Rounded flats, l = 1.76 l0: max over {len(result.impact_positions)} "
                  f"impact positions ({result.contact} contact)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
+    ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
     return fig
 

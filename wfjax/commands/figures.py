@@ -1,0 +1,143 @@
+"""``wfjax figures``: regenerate every reproduced figure of the paper (Figs. 5, 7, 8, 9, 10).
+
+* Fig. 5: profile deviation and wheel-centre trajectory of a new and a rounded 0.9 mm flat.
+* Fig. 7: 0.9 mm rounded (l = 100 mm) and new flat, 3D contact, max and min force against
+  speed over 10 impact positions (spread shown, loss of contact marked), R_R = 0.30 m.
+* Fig. 8: rounded flats of depth 0.25-2.00 mm, l = 1.76 l0, 3D contact, max over 8 impact
+  positions with loss-of-contact markers, R_R = 0.30 m.
+* Figs. 9 and 10: the contact-model comparison of ``wfjax compare`` (R_R = 0.45 m).
+
+``--fast`` shrinks every sweep (3 speeds, 2 positions, fewer depths) for smoke tests.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from ..params import Flat, Track
+from ._common import add_out_argument, prepare_out, save_figure, write_atomic, write_json
+from .compare import (
+    COMPARISON_DEPTHS_MM,
+    comparison_flat,
+    comparison_flats,
+    run_comparison,
+    write_comparison,
+)
+from .sweep import parse_range_kmh
+
+HELP = "regenerate the paper's Figs. 5, 7, 8, 9 and 10 (PNG, CSV, NPZ, JSON)"
+
+FIGURES = ("5", "7", "8", "9")  # "9" makes Figs. 9 and 10 (one comparison run)
+FIG8_DEPTHS_MM = tuple(0.25 * k for k in range(1, 9))  # 0.25 ... 2.00 mm
+FAST = {"speeds_kmh": "40,100,160", "positions": 2, "fig8_depths_mm": (0.5, 2.0),
+        "compare_depths_mm": (0.9,)}
+
+
+def fig7_flats() -> list[Flat]:
+    """The flats of Fig. 7: rounded 0.9 mm with l = 100 mm, and new 0.9 mm."""
+    return [comparison_flat("rounded", 0.9), comparison_flat("new", 0.9)]
+
+
+def fig8_flats(depths_mm=FIG8_DEPTHS_MM) -> list[Flat]:
+    """The rounded flats of Fig. 8: depth d [mm] each, l = 1.76 l0."""
+    return [Flat.rounded_relative(d * 1e-3, 1.76) for d in depths_mm]
+
+
+def _write_sweep(out, name: str, result, elapsed: float) -> dict:
+    write_atomic(out / f"{name}.csv", result.to_csv())
+    result.save_npz(out / f"{name}.npz")
+    summary = {**result.summary(), "wall_time_s": elapsed}
+    write_json(out / f"{name}.json", summary)
+    return summary
+
+
+def parse_figures(text: str) -> tuple[str, ...]:
+    """Figure numbers from ``"5,7,8,9"`` ("9" and "10" both mean the comparison run)."""
+    wanted = [p.strip() for p in text.split(",") if p.strip()]
+    bad = [p for p in wanted if p not in (*FIGURES, "10")]
+    if bad or not wanted:
+        raise ValueError(f"--only must be a comma-separated subset of 5,7,8,9,10, got {text!r}")
+    return tuple(f for f in FIGURES if f in wanted or (f == "9" and "10" in wanted))
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--fast", action="store_true",
+                        help="tiny sweeps (3 speeds, 2 positions, fewer depths) for smoke tests")
+    parser.add_argument("--speeds-kmh", default=None,
+                        help="speeds in km/h, 'start:stop:step' or 'v1,v2' (default 20:300:10; "
+                             "--fast: 40,100,160)")
+    parser.add_argument("--only", default=",".join(FIGURES),
+                        help="figures to make, comma separated (default 5,7,8,9; 9 = Figs. 9+10)")
+    add_out_argument(parser, "out/figures")
+
+
+def run(args) -> int:
+    from ..plotting import default_fig5_flats, flat_inputs_figure, sweep_figure
+    from ..plotting_paper import depth_family_figure
+    from ..sweep import sweep
+
+    wanted = parse_figures(args.only)
+    speeds = parse_range_kmh(args.speeds_kmh or (FAST["speeds_kmh"] if args.fast
+                                                 else "20:300:10"))
+    pos7, pos8 = (FAST["positions"],) * 2 if args.fast else (10, 8)
+    depths8 = FAST["fig8_depths_mm"] if args.fast else FIG8_DEPTHS_MM
+    depths9 = FAST["compare_depths_mm"] if args.fast else COMPARISON_DEPTHS_MM
+    out = prepare_out(args.out)
+    print(f"wfjax figures: Figs. {', '.join(wanted)}{' (fast)' if args.fast else ''}, "
+          f"{speeds.size} speeds {speeds[0] * 3.6:g}-{speeds[-1] * 3.6:g} km/h -> {out}")
+    report: dict = {"fast": bool(args.fast), "speeds_kmh": [float(s * 3.6) for s in speeds]}
+    written = []
+    t_all = time.perf_counter()
+
+    if "5" in wanted:
+        save_figure(flat_inputs_figure(default_fig5_flats()), out / "fig5_inputs.png")
+        written.append("fig5_inputs.png")
+
+    if "7" in wanted:
+        print("Fig. 7: 0.9 mm rounded and new flats, 3D, R_R = 0.30 m", file=sys.stderr)
+        t0 = time.perf_counter()
+        res = sweep(fig7_flats(), speeds, pos7, contact="3d", track=Track())
+        report["fig7"] = _write_sweep(out, "fig7", res, time.perf_counter() - t0)
+        save_figure(sweep_figure(res, title=f"Fig. 7: 0.9 mm flats, 3D contact, max/min over "
+                                            f"{pos7} impact positions; filled: loss of contact"),
+                    out / "fig7_speed_sweep.png")
+        written += ["fig7.csv", "fig7.json", "fig7.npz", "fig7_speed_sweep.png"]
+
+    if "8" in wanted:
+        print(f"Fig. 8: {len(depths8)} rounded flats (l = 1.76 l0), 3D, R_R = 0.30 m",
+              file=sys.stderr)
+        t0 = time.perf_counter()
+        res = sweep(fig8_flats(depths8), speeds, pos8, contact="3d", track=Track())
+        report["fig8"] = _write_sweep(out, "fig8", res, time.perf_counter() - t0)
+        save_figure(depth_family_figure(res, depths_mm=np.asarray(depths8)),
+                    out / "fig8_depths.png")
+        written += ["fig8.csv", "fig8.json", "fig8.npz", "fig8_depths.png"]
+
+    if "9" in wanted:
+        print("Figs. 9/10: four contact models, R_R = 0.45 m", file=sys.stderr)
+        t0 = time.perf_counter()
+        track = Track.comparison()
+        results = run_comparison(comparison_flats(depths9), speeds, pos8, track=track)
+        summary = write_comparison(out, results, float(track.rail_head_radius),
+                                   extra={"wall_time_s": time.perf_counter() - t0})
+        report["fig9_10"] = summary["per_kind"]
+        written += ["compare.csv", "compare.json", "compare_<model>.npz", "fig9_forces.png",
+                    "fig10_deviation.png"]
+
+    report["wall_time_s"] = time.perf_counter() - t_all
+    write_json(out / "figures.json", report)
+    for key in ("fig7", "fig8"):
+        for label, s in report.get(key, {}).get("flats", {}).items():
+            loss = s["first_loss_of_contact_kmh"]
+            print(f"  Fig. {key[-1]} {label}: peak {s['peak_max_force_kN']:.1f} kN at "
+                  f"{s['at_speed_kmh']:.0f} km/h, loss of contact "
+                  f"{f'from {loss:.0f} km/h' if loss is not None else 'none'}")
+    for model, per in report.get("fig9_10", {}).items():
+        cells = ", ".join(f"{k} {v['min_percent']:+.1f}..{v['max_percent']:+.1f} %"
+                          for k, v in per.items())
+        print(f"  Figs. 9/10 {model} vs 3D: {cells}")
+    print(f"  {report['wall_time_s']:.1f} s; wrote {out}/" + ", ".join(written + ["figures.json"]))
+    return 0
