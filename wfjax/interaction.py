@@ -69,7 +69,7 @@ __all__ = [
 ]
 
 CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
-RUN_IN_TIME = 0.03  # s of travel before the flat's window, from static equilibrium
+RUN_IN_TIME = 0.02  # s of travel before the flat's window, from static equilibrium
 RUN_OUT_TIME = 0.03  # s after the flat's window: loss of contact and re-impacts
 FLAT_MARGIN = 0.02  # m added to the flat's half extent on either side of the window
 

@@ -379,8 +379,10 @@ class SimConfig:
 
     Attributes:
         time_step: time step [s]; ``None`` picks ``min(max_time_step, max_travel_step / v)``.
-        max_time_step: upper bound of the automatic time step [s].
-        max_travel_step: upper bound of the distance travelled per step [m].
+        max_time_step: upper bound of the automatic time step [s] (25 us).
+        max_travel_step: upper bound of the distance travelled per step [m] (1 mm). Measured
+            (Hertz-trajectory, 0.9 mm flats, 60 and 250 km/h): max force changes by <= 0.3 %
+            from 1 mm to 0.25 mm, and by < 1 % on halving the 25 us step (tests).
         run_in: distance travelled before the flat reaches the contact [m] (from static
             equilibrium; long enough for the sleeper-passing transient to settle).
         run_out: distance travelled after the flat centre passed the contact [m].
@@ -394,9 +396,9 @@ class SimConfig:
 
     time_step: float | None = None
     max_time_step: float = 2.5e-5
-    max_travel_step: float = 0.5e-3
-    run_in: float = 0.4
-    run_out: float = 0.4
+    max_travel_step: float = 1e-3
+    run_in: float = 0.2
+    run_out: float = 0.2
     contact_element: float = 1e-3
     contact_mode_3d: str = "table"
     track_max_frequency: float = 20e3
