@@ -15,7 +15,7 @@ import jax as _jax
 if _os.environ.get("WFJAX_PRECISION", "float64").lower() != "float32":
     _jax.config.update("jax_enable_x64", True)
 
-from . import contact as contact
+from . import contact as contact  # noqa: E402  (after the precision switch)
 from . import geometry as geometry
 from . import params as params
 from . import track as track
@@ -32,9 +32,9 @@ from .params import Wheel as Wheel
 from .params import kmh as kmh
 from .params import mm as mm
 from .sweep import SweepResult as SweepResult
+from .sweep import sweep as sweep
 from .track import ModalModel as ModalModel
 from .track import MovingGreens as MovingGreens
 from .wheel import WheelModal as WheelModal
-from .sweep import sweep as sweep
 
 __version__ = "0.1.0"

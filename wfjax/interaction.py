@@ -183,7 +183,8 @@ def _check_impact_position(position, spacing: float) -> float:
     p = float(position)
     if not math.isfinite(p) or p < 0 or p >= spacing:
         raise ValueError(
-            f"impact_position must be in [0, {spacing:g}) m (within one sleeper bay), got {position!r}"
+            f"impact_position must be in [0, {spacing:g}) m (within one sleeper bay), "
+            f"got {position!r}"
         )
     return p
 
@@ -224,7 +225,8 @@ def contact_spec(contact: str, flat: Flat, wheel: Wheel, track: Track, material:
         drop = -geometry.centre_trajectory(flat, grid)
         return ContactSpec("hertz-trajectory", {"c_h": c_h, "s_grid": grid, "drop": drop})
     if contact == "2d":
-        deepest = None if _is_concrete(flat.depth) else MAX_FLAT_DEPTH + winkler.DEFAULT_APPROACH_MARGIN
+        deepest = (None if _is_concrete(flat.depth)
+                   else MAX_FLAT_DEPTH + winkler.DEFAULT_APPROACH_MARGIN)
         half = winkler.default_half_window(flat, float(wheel.radius), deepest)
         nodes = jnp.asarray(winkler.bedding_nodes(half, config.contact_element))
         return ContactSpec("2d", {"flat": flat, "material": material,

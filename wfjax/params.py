@@ -288,7 +288,8 @@ class Flat:
         if float(np.min(np.asarray(length) - l_min)) < -1e-12:
             raise ValueError(
                 f"Flat.length of a rounded flat must be >= pi/2 * l0 = {l_min * 1e3:.2f} mm "
-                f"for depth {float(np.max(depth)) * 1e3:.3f} mm, got {float(np.min(length)) * 1e3:.2f} mm"
+                f"for depth {float(np.max(depth)) * 1e3:.3f} mm, "
+                f"got {float(np.min(length)) * 1e3:.2f} mm"
             )
         return cls("rounded", depth=depth, length=length, wheel_radius=wheel_radius)
 
@@ -417,7 +418,8 @@ class SimConfig:
                 raise ValueError(f"SimConfig.{name} must be >= 0 m, got {v!r}")
         if self.contact_mode_3d not in ("table", "direct"):
             raise ValueError(
-                f"SimConfig.contact_mode_3d must be 'table' or 'direct', got {self.contact_mode_3d!r}"
+                "SimConfig.contact_mode_3d must be 'table' or 'direct', "
+                f"got {self.contact_mode_3d!r}"
             )
         if self.newton_iterations < 1:
             raise ValueError(

@@ -43,7 +43,8 @@ def default_fig5_flats(depth: float = 0.9e-3, wheel_radius: float = 0.45) -> dic
     """The flats of Fig. 5: new (depth d, length l0) and rounded (l = 1.76 l0)."""
     l0 = new_flat_length(depth, wheel_radius)
     return {
-        f"(a) new flat, d = {depth * 1e3:g} mm, l0 = {l0 * 1e3:.1f} mm": Flat.new(depth, wheel_radius),
+        f"(a) new flat, d = {depth * 1e3:g} mm, l0 = {l0 * 1e3:.1f} mm": Flat.new(
+            depth, wheel_radius),
         f"(b) rounded flat, d = {depth * 1e3:g} mm, l = 1.76 l0": Flat.rounded_relative(
             depth, 1.76, wheel_radius
         ),

@@ -47,7 +47,8 @@ def run(args) -> int:
     x = np.linspace(-half, half, 481)
     z = np.asarray(geometry.profile_deviation(flat, x))
     traj = np.asarray(geometry.centre_trajectory(flat, x))
-    rows = "\n".join(f"{a * 1e3:.4f},{b * 1e3:.6f},{c * 1e3:.6f}" for a, b, c in zip(x, z, traj))
+    rows = "\n".join(f"{a * 1e3:.4f},{b * 1e3:.6f},{c * 1e3:.6f}"
+                     for a, b, c in zip(x, z, traj, strict=True))
     write_atomic(out / "geometry.csv",
                  "x_mm,profile_deviation_mm,centre_trajectory_mm\n" + rows + "\n")
     l0 = new_flat_length(flat.depth, flat.wheel_radius)
