@@ -61,6 +61,28 @@ def _check_positive(cls_name: str, name: str, value: Any, unit: str) -> None:
         )
 
 
+def concrete_positive_numbers(obj, fields: tuple[str, ...]) -> dict[str, float]:
+    """``{name: float}`` of ``obj``'s fields, each checked to be a concrete finite number > 0.
+
+    For code that leaves JAX (NumPy/SciPy assembly of the wheel and track models). Raises
+    ``ValueError`` naming the class, the field and the allowed range otherwise.
+    """
+    cls_name = type(obj).__name__
+    out = {}
+    for name in fields:
+        raw = getattr(obj, name)
+        try:
+            value = float(np.asarray(raw))
+        except (TypeError, jax.errors.ConcretizationTypeError) as exc:
+            raise ValueError(f"{cls_name}.{name} must be a concrete scalar here, got "
+                             f"{raw!r}") from exc
+        if not math.isfinite(value) or value <= 0:
+            raise ValueError(f"{cls_name}.{name} must be finite and > 0, got {value!r} "
+                             "(allowed range: (0, inf))")
+        out[name] = value
+    return out
+
+
 def _pytree(cls=None, *, static: tuple[str, ...] = ()):
     """Register a frozen dataclass as a pytree; fields named in ``static`` are metadata."""
 

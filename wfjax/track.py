@@ -40,7 +40,7 @@ import scipy.sparse.linalg
 
 from . import _cache
 from ._modal import complex_modes, discrete_step_coefficients
-from .params import Track
+from .params import Track, concrete_positive_numbers
 
 __all__ = [
     "ModalModel",
@@ -71,17 +71,7 @@ _TRACK_FIELDS = (
 def _track_numbers(track: Track) -> dict[str, float]:
     if not isinstance(track, Track):
         raise ValueError(f"track must be a wfjax.Track, got {type(track).__name__}")
-    out = {}
-    for name in _TRACK_FIELDS:
-        try:
-            value = float(np.asarray(getattr(track, name)))
-        except (TypeError, jax.errors.ConcretizationTypeError) as exc:
-            raise ValueError(f"Track.{name} must be a concrete scalar here, got "
-                             f"{getattr(track, name)!r}") from exc
-        if not math.isfinite(value) or value <= 0:
-            raise ValueError(f"Track.{name} must be finite and > 0, got {value!r} "
-                             "(allowed range: (0, inf))")
-        out[name] = value
+    out = concrete_positive_numbers(track, _TRACK_FIELDS)
     for name, low in (("n_bays", 4), ("elements_per_bay", 1)):
         value = getattr(track, name)
         if not isinstance(value, (int, np.integer)) or value < low:

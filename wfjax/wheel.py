@@ -18,7 +18,6 @@ conjugate pairs, or real poles when overdamped) and residues at the contact poin
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import jax
@@ -27,7 +26,7 @@ import numpy as np
 import scipy.linalg
 
 from ._modal import complex_modes, discrete_step_coefficients
-from .params import Wheel
+from .params import Wheel, concrete_positive_numbers
 
 __all__ = [
     "WheelModal",
@@ -47,18 +46,7 @@ _WHEEL_FIELDS = ("wheelset_mass", "suspension_stiffness", "suspension_damping", 
 def _numbers(wheel: Wheel) -> dict[str, float]:
     if not isinstance(wheel, Wheel):
         raise ValueError(f"wheel must be a wfjax.Wheel, got {type(wheel).__name__}")
-    out = {}
-    for name in _WHEEL_FIELDS:
-        try:
-            value = float(np.asarray(getattr(wheel, name)))
-        except (TypeError, jax.errors.ConcretizationTypeError) as exc:
-            raise ValueError(f"Wheel.{name} must be a concrete scalar here, got "
-                             f"{getattr(wheel, name)!r}") from exc
-        if not math.isfinite(value) or value <= 0:
-            raise ValueError(f"Wheel.{name} must be finite and > 0, got {value!r} "
-                             "(allowed range: (0, inf))")
-        out[name] = value
-    return out
+    return concrete_positive_numbers(wheel, _WHEEL_FIELDS)
 
 
 def system_matrices(wheel: Wheel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
