@@ -1,0 +1,220 @@
+"""``wfjax fit``: fit a flat's depth and length (or profile) to measured impact forces.
+
+Data (``--data FILE.csv``, one header row, comma separated), one of:
+
+* maximum force against speed (a wheel impact load detector): columns ``speed_kmh`` [km/h]
+  and ``max_force_kN`` [kN]; at least 3 rows;
+* a force time history at one speed (``--speed-kmh`` required): columns ``t_s`` [s, 0 when
+  the flat centre is over the contact point] and ``force_kN`` [kN]; at least 10 rows.
+
+``--example`` fits an embedded synthetic max-force dataset instead (rounded flat, depth
+0.9 mm, length 100 mm, hertz-trajectory model, max over 3 impact positions, 3 % noise).
+
+Writes ``fit.json`` (fitted parameters in mm with Gauss-Newton standard deviations and
+convergence diagnostics), ``fit.csv`` (data and fitted forces), ``fit.png`` (data against fit)
+and ``loss.png`` (loss curve) into ``--out``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..interaction import CONTACT_MODELS
+from ._common import add_out_argument, prepare_out, save_figure, write_atomic, write_json
+from .geometry import add_flat_arguments, flat_from_args
+
+HELP = "fit a flat's geometry to measured max forces vs speed or a force history (JSON, PNG)"
+
+MAX_FORCE_COLUMNS = ("speed_kmh", "max_force_kN")
+HISTORY_COLUMNS = ("t_s", "force_kN")
+MAX_PLAUSIBLE_KN = 5000.0  # a larger "kN" value is almost surely in N
+
+EXAMPLE_CSV = """speed_kmh,max_force_kN
+40.0,210.77
+54.3,202.23
+68.6,197.08
+82.9,183.33
+97.1,199.10
+111.4,229.73
+125.7,260.43
+140.0,282.47
+"""
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--data", help="measured CSV: columns speed_kmh,max_force_kN or "
+                        "t_s,force_kN (with --speed-kmh)")
+    parser.add_argument("--example", action="store_true",
+                        help="fit the embedded synthetic dataset (no --data needed)")
+    add_flat_arguments(parser, default_kind="rounded", default_depth_mm=1.2,
+                       default_length_mm=130.0)
+    parser.add_argument("--profile-basis", type=int, default=0,
+                        help="fit a measured-like profile of this many smooth non-negative "
+                        "bumps, started from --flat (default 0: fit --flat's depth/length)")
+    parser.add_argument("--contact", choices=CONTACT_MODELS, default="hertz-trajectory",
+                        help="contact model (default: hertz-trajectory)")
+    parser.add_argument("--speed-kmh", type=float,
+                        help="train speed in km/h of a force-history dataset")
+    parser.add_argument("--impact-position-mm", type=float, default=0.0,
+                        help="impact position in mm from a sleeper (history data; default 0)")
+    parser.add_argument("--impact-positions", type=int, default=3,
+                        help="impact positions per speed, max-force data (default 3)")
+    parser.add_argument("--temperature-kN", type=float, default=1.0,
+                        help="smooth-max temperature over impact positions in kN (0: hard max)")
+    parser.add_argument("--method", choices=("lbfgs", "adam"), default="lbfgs")
+    parser.add_argument("--max-iter", type=int, default=40, help="iteration cap (default 40)")
+    add_out_argument(parser, "out/fit")
+
+
+def _read_columns(text: str, source: str) -> dict[str, np.ndarray]:
+    rows = list(csv.reader(io.StringIO(text)))
+    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    if not rows:
+        raise ValueError(f"{source}: empty file")
+    header = [c.strip() for c in rows[0]]
+    cols: dict[str, list[float]] = {h: [] for h in header}
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise ValueError(f"{source}: line {i} has {len(row)} fields, header has "
+                             f"{len(header)}")
+        for h, c in zip(header, row, strict=True):
+            try:
+                value = float(c)
+            except ValueError:
+                raise ValueError(f"{source}: line {i}, column {h}: not a number: {c!r}") from None
+            if not math.isfinite(value):
+                raise ValueError(f"{source}: line {i}, column {h}: NaN or infinite value")
+            cols[h].append(value)
+    return {h: np.asarray(v) for h, v in cols.items()}
+
+
+def parse_data(text: str, source: str = "data", speed_kmh: float | None = None,
+               impact_position_mm: float = 0.0):
+    """Measured data in SI units from CSV text (see the module docstring for the columns).
+
+    Returns:
+        :class:`wfjax.fit.MaxForceData` or :class:`wfjax.fit.HistoryData`.
+    """
+    from ..fit import HistoryData, MaxForceData
+
+    cols = _read_columns(text, source)
+    if all(c in cols for c in MAX_FORCE_COLUMNS):
+        v, f = cols["speed_kmh"], cols["max_force_kN"]
+        _check_kn(f, "max_force_kN", source)
+        if np.any(v <= 0) or np.any(v > 540):
+            raise ValueError(f"{source}: speed_kmh must be in (0, 540] km/h, got "
+                             f"[{v.min():g}, {v.max():g}]")
+        if v.size < 3:
+            raise ValueError(f"{source}: need at least 3 rows of speed_kmh,max_force_kN, got "
+                             f"{v.size}")
+        return MaxForceData(v / 3.6, f * 1e3)
+    if all(c in cols for c in HISTORY_COLUMNS):
+        t, f = cols["t_s"], cols["force_kN"]
+        _check_kn(f, "force_kN", source)
+        if speed_kmh is None:
+            raise ValueError(f"{source}: a force history (t_s,force_kN) needs --speed-kmh")
+        if np.ptp(t) > 5.0:
+            raise ValueError(f"{source}: t_s spans {np.ptp(t):g} s; an impact lasts "
+                             "milliseconds: are the times in ms instead of s?")
+        if t.size < 10:
+            raise ValueError(f"{source}: need at least 10 rows of t_s,force_kN, got {t.size}")
+        return HistoryData(t, f * 1e3, speed_kmh / 3.6, impact_position_mm * 1e-3)
+    hint = ""
+    if any(c.endswith("_N") for c in cols):
+        hint = " (forces must be given in kN: rename and divide by 1000)"
+    raise ValueError(f"{source}: need columns {','.join(MAX_FORCE_COLUMNS)} (max force vs "
+                     f"speed) or {','.join(HISTORY_COLUMNS)} (time history); got "
+                     f"{','.join(cols)}{hint}")
+
+
+def _check_kn(force_kn: np.ndarray, name: str, source: str) -> None:
+    if force_kn.size and np.median(np.abs(force_kn)) > MAX_PLAUSIBLE_KN:
+        raise ValueError(f"{source}: {name} values around {np.median(force_kn):.3g} look like "
+                         "N, not kN: divide by 1000")
+
+
+def _initial_flat(args):
+    from ..fit import parametrisation_for
+
+    flat = flat_from_args(args)
+    if args.profile_basis > 0:
+        start = _profile_start(flat)
+        return start, parametrisation_for(start, n_basis=args.profile_basis)
+    return flat, None
+
+
+def _profile_start(flat):
+    from ..geometry import profile_deviation
+    from ..params import Flat
+
+    half = 1.25 * flat.half_extent
+    x = np.linspace(-half, half, 121)
+    z = np.maximum(np.asarray(profile_deviation(flat, x)), 1e-7)
+    return Flat.from_profile(x, z, float(flat.wheel_radius))
+
+
+def run(args) -> int:
+    from .. import fit
+
+    if args.example:
+        text, source = EXAMPLE_CSV, "example"
+    elif args.data:
+        path = Path(args.data)
+        if not path.is_file():
+            raise ValueError(f"--data {args.data}: no such file")
+        text, source = path.read_text(), str(path)
+    else:
+        raise ValueError("give --data FILE.csv or --example")
+    data = parse_data(text, source, args.speed_kmh, args.impact_position_mm)
+    flat, par = _initial_flat(args)
+    out = prepare_out(args.out)
+    if args.example:
+        write_atomic(out / "example_data.csv", EXAMPLE_CSV)
+    print(f"fitting a {flat.kind} flat ({args.contact}) to {len(data[0])} points ...")
+
+    def progress(i, loss, _flat):
+        print(f"  iteration {i}: loss {loss:.4g}", flush=True)
+
+    res = fit.fit_flat(data, flat, contact=args.contact, parametrisation=par,
+                       impact_positions=args.impact_positions,
+                       temperature=args.temperature_kN * 1e3 or None, method=args.method,
+                       max_iter=args.max_iter, callback=progress)
+    summary = res.summary()
+    write_json(out / "fit.json", summary)
+    x_name = "speed_kmh" if res.kind == "max_force" else "t_s"
+    x = res.x * 3.6 if res.kind == "max_force" else res.x
+    rows = "".join(f"{a:.6g},{b / 1e3:.6f},{c / 1e3:.6f}\n"
+                   for a, b, c in zip(x, res.measured, res.prediction, strict=True))
+    write_atomic(out / "fit.csv", f"{x_name},measured_kN,fitted_kN\n" + rows)
+    _figures(res, x, out)
+    for name, value in res.params.items():
+        print(f"{name}: {value * 1e3:.4f} +- {res.std[name] * 1e3:.4f} mm")
+    print(f"residual rms {res.residual_rms / 1e3:.2f} kN; {res.n_iterations} iterations, "
+          f"{res.message} ({res.wall_time:.0f} s)")
+    print(f"wrote {out}/fit.json, fit.csv, fit.png, loss.png")
+    return 0 if res.converged else 1
+
+
+def _figures(res, x, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    style = "o" if res.kind == "max_force" else "."
+    ax.plot(x, res.measured / 1e3, style, label="measured")
+    ax.plot(x, res.prediction / 1e3, "-", label=f"fit ({res.contact})")
+    ax.set(xlabel="speed [km/h]" if res.kind == "max_force" else "time [s]",
+           ylabel="max contact force [kN]" if res.kind == "max_force" else "contact force [kN]")
+    ax.legend()
+    save_figure(fig, out / "fit.png")
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.semilogy(np.arange(len(res.loss_history)), res.loss_history, "o-")
+    ax.set(xlabel="iteration", ylabel="loss (mean squared relative residual)")
+    save_figure(fig, out / "loss.png")
