@@ -3,6 +3,16 @@
 All runs of one flat share one compiled program: every speed uses the same number of steps
 (the largest any speed needs) with its own time step, so the batch is rectangular. The batch
 is cut into chunks (memory) and progress with an ETA is printed per chunk.
+
+Devices: each chunk is sharded over every JAX device (``jax.devices()``) along the flattened
+run axis with a one-axis :class:`jax.sharding.Mesh` (axis ``"runs"``) and a
+:class:`jax.sharding.NamedSharding`; the model parameters are replicated. A chunk is padded to
+a multiple of the device count (padding repeats the last run and is dropped afterwards).
+Runs are independent, so the results equal the single-device ones. On a CPU,
+``XLA_FLAGS=--xla_force_host_platform_device_count=N`` exposes N devices. Multi-host: call
+:func:`jax.distributed.initialize` in every process before the sweep and run the same sweep
+everywhere; ``jax.devices()`` then spans all hosts and every process receives the full result
+(``benchmarks/multihost_example.py``).
 """
 
 from __future__ import annotations
@@ -20,6 +30,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .interaction import (
     RUN_IN_TIME,
@@ -60,7 +72,7 @@ class SweepResult(NamedTuple):
     contact: str
 
     def envelope(self) -> dict[str, np.ndarray]:
-        """Max over positions of max_force and min over positions of min_force, [n_flats, n_speeds]."""
+        """Max over positions of max_force, min over positions of min_force: [n_flats, n_speeds]."""
         return {
             "max_force": np.max(self.max_force, axis=-1),
             "min_force": np.min(self.min_force, axis=-1),
@@ -154,6 +166,40 @@ _batched = jax.jit(
 )
 
 
+def _device_mesh() -> Mesh:
+    """A one-axis mesh ``("runs",)`` over every JAX device (all hosts)."""
+    return Mesh(np.array(jax.devices()), ("runs",))
+
+
+def _shard_runs(a: np.ndarray, mesh: Mesh) -> jax.Array:
+    """Global array of the [n] per-run values ``a``, split along ``"runs"`` (n % devices == 0).
+
+    Every process holds the same ``a`` and contributes the shards of its own devices.
+    """
+    sharding = NamedSharding(mesh, PartitionSpec("runs"))
+    return jax.make_array_from_callback(a.shape, sharding, lambda idx: a[idx])
+
+
+def _replicate(tree, mesh: Mesh):
+    """Array leaves of ``tree`` replicated on every device of ``mesh`` (other leaves unchanged)."""
+    sharding = NamedSharding(mesh, PartitionSpec())
+
+    def put(x):
+        if not isinstance(x, (jax.Array, np.ndarray)):
+            return x
+        host = np.asarray(x)
+        return jax.make_array_from_callback(host.shape, sharding, lambda idx: host[idx])
+
+    return jax.tree.map(put, tree)
+
+
+def _gather(arrays) -> list[np.ndarray]:
+    """Sharded results as host NumPy arrays (an all-gather across processes on multi-host)."""
+    if jax.process_count() > 1:
+        return [np.asarray(a) for a in multihost_utils.process_allgather(arrays, tiled=True)]
+    return [np.asarray(a) for a in arrays]
+
+
 class _Progress:
     def __init__(self, total: int, label: str, stream=sys.stderr, enabled: bool = True):
         self.total, self.label, self.stream, self.enabled = total, label, stream, enabled
@@ -192,7 +238,8 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             (:func:`impact_positions_grid`) or an array of positions [m] in [0, L_S).
         contact: ``"3d"``, ``"2d"``, ``"hertz-trajectory"`` or ``"hertz-profile"``.
         wheel, track, material, config: model parameters (defaults as in :func:`simulate`).
-        chunk_size: simulations per vmapped batch (memory bound).
+        chunk_size: simulations per vmapped batch (memory bound), over all devices; each chunk
+            is padded to a multiple of the device count and sharded across the devices.
         progress: print progress with ETA to stderr.
 
     Returns:
@@ -216,11 +263,14 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             raise ValueError(f"impact_positions must lie in [0, {spacing}) m, got {pos!r}")
     if chunk_size < 1:
         raise ValueError(f"chunk_size must be >= 1, got {chunk_size!r}")
-    struct = structure(wheel, track, config, cache_dir)
+    mesh = _device_mesh()
+    n_dev = mesh.devices.size
+    struct = _replicate(structure(wheel, track, config, cache_dir), mesh)
     shape = (len(flat_list), v.size, pos.size)
     out = {k: np.zeros(shape) for k in ("max", "min", "lost", "lost_t", "res")}
     for i, flat in enumerate(flat_list):
         spec = contact_spec(contact, flat, wheel, track, material, config)
+        spec_params = _replicate(spec.params, mesh)
         n_steps = max(n_steps_for(flat, float(s), config)[0] for s in v)
         vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
         s_start = np.array([simulation_window(flat, float(s), config)[0] for s in vv])
@@ -229,18 +279,19 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         run_in = np.floor(0.5 * RUN_IN_TIME / dt).astype(int)
         bar = _Progress(vv.size, flat_label(flat), enabled=progress)
         results = []
+        # one compiled shape: every chunk has the same length, a multiple of the device count
+        width = -(-min(chunk_size, vv.size) // n_dev) * n_dev
         for lo in range(0, vv.size, chunk_size):
             sl = slice(lo, lo + chunk_size)
             n = vv[sl].size
-            pad = chunk_size - n if vv.size > chunk_size else 0  # one compiled shape
 
-            def padded(a, pad=pad):
-                return jnp.asarray(np.concatenate([a, np.repeat(a[-1:], pad)]))
+            def padded(a, pad=width - n):
+                return _shard_runs(np.concatenate([a, np.repeat(a[-1:], pad)]), mesh)
 
-            batch = _batched(spec.kind, n_steps, config.newton_iterations, spec.params, struct,
+            batch = _batched(spec.kind, n_steps, config.newton_iterations, spec_params, struct,
                              padded(vv[sl]), padded(dt[sl]), padded(pp[sl] + s_start[sl]),
                              padded(pp[sl]), padded(run_in[sl]))
-            results.append([np.asarray(b)[:n] for b in batch])
+            results.append([b[:n] for b in _gather(batch)])
             bar.update(n)
         cols = [np.concatenate(c).reshape(v.size, pos.size) for c in zip(*results, strict=True)]
         for key, col in zip(("max", "min", "lost", "lost_t", "res"), cols, strict=True):

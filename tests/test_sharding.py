@@ -1,0 +1,51 @@
+"""Sharded sweeps: two forced host devices give the single-device result."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+
+SCRIPT = textwrap.dedent("""
+    import sys
+    import jax
+    import numpy as np
+    import wfjax as wf
+
+    assert len(jax.devices()) == int(sys.argv[2]), jax.devices()
+    flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
+    out = []
+    for chunk in (64, 3):  # one chunk (4 runs), and 3 + 1 runs padded to 4 + 4
+        sw = wf.sweep(flat, np.array([50.0, 100.0]) / 3.6, impact_positions=2,
+                      contact="hertz-profile", progress=False, chunk_size=chunk)
+        out.append(np.stack([sw.max_force, sw.min_force, sw.loss_of_contact_duration,
+                             sw.loss_of_contact]))
+    np.save(sys.argv[1], np.stack(out))
+""")
+
+
+def _start(tmp_path, n_devices: int):
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={n_devices}"
+    env["JAX_PLATFORMS"] = "cpu"
+    path = tmp_path / f"dev{n_devices}.npy"
+    proc = subprocess.Popen([sys.executable, "-c", SCRIPT, str(path), str(n_devices)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return proc, path
+
+
+def test_two_devices_equal_one(tmp_path):
+    runs = [_start(tmp_path, n) for n in (1, 2)]
+    results = []
+    for proc, path in runs:
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err[-2000:]
+        results.append(np.load(path))
+    one, two = results
+    assert one.shape == (2, 4, 1, 2, 2)
+    assert np.all(np.isfinite(one)) and np.all(one[:, 0] > 1e5)  # max forces ~ 190-220 kN
+    np.testing.assert_allclose(two, one, rtol=1e-12, atol=1e-12 * np.max(one[:, 0]))
+    np.testing.assert_allclose(one[1], one[0], rtol=1e-12)  # chunking does not matter
