@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -60,6 +61,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--positions", type=int, default=10,
                         help="impact positions evenly covering one sleeper bay (default 10)")
     add_model_arguments(parser)
+    parser.add_argument("--precision", choices=["float64", "float32"], default="float64",
+                        help="floating-point precision of the computation (default float64; "
+                             "float32 for GPUs, see benchmarks/README.md 'Precision')")
     add_out_argument(parser, "out/sweep")
 
 
@@ -69,7 +73,23 @@ def argparse_hide():
     return argparse.SUPPRESS
 
 
+def set_precision(precision: str) -> None:
+    """Select float64 or float32 for everything computed afterwards (the one place the CLI does).
+
+    Sets ``WFJAX_PRECISION`` (read by ``import wfjax`` in child processes) and
+    ``jax_enable_x64`` (this process). Must run before any array of the computation is made;
+    ``run`` calls it first.
+    """
+    import jax
+
+    if precision not in ("float64", "float32"):
+        raise ValueError(f"--precision must be float64 or float32, got {precision!r}")
+    os.environ["WFJAX_PRECISION"] = precision
+    jax.config.update("jax_enable_x64", precision == "float64")
+
+
 def run(args) -> int:
+    set_precision(getattr(args, "precision", "float64"))
     from ..plotting import sweep_figure
     from ..sweep import sweep
 
@@ -81,7 +101,8 @@ def run(args) -> int:
     wheel, track, material, config = model_from_args(args)
     out = prepare_out(args.out)
     print(f"wfjax sweep: {len(flats)} flat(s) x {speeds.size} speeds x {args.positions} "
-          f"positions, {args.contact} contact, R_R = {args.rail_head_radius_m} m")
+          f"positions, {args.contact} contact, R_R = {args.rail_head_radius_m} m, "
+          f"{getattr(args, 'precision', 'float64')}")
     t0 = time.perf_counter()
     result = sweep(flats, speeds, args.positions, contact=args.contact, wheel=wheel,
                    track=track, material=material, config=config)
@@ -90,6 +111,7 @@ def run(args) -> int:
     result.save_npz(out / "sweep.npz")
     summary = result.summary()
     summary["wall_time_s"] = elapsed
+    summary["precision"] = getattr(args, "precision", "float64")
     write_json(out / "sweep.json", summary)
     save_figure(sweep_figure(result), out / "sweep.png")
     for label, s in summary["flats"].items():
