@@ -70,6 +70,7 @@ def test_max_force_gradient_matches_finite_differences(contact):
         assert _min_force(model, 0, ref) > 0.0
 
 
+@pytest.mark.slow
 def test_reverse_mode_history_misfit_gradient():
     """jax.grad (reverse mode) of a force-history misfit w.r.t. depth and length."""
     v = 100 / 3.6
@@ -142,8 +143,10 @@ def test_reparametrisations_keep_constraints():
     assert float(prof.penalty(jnp.asarray(rough))) > float(prof.penalty(jnp.asarray(smooth)))
 
 
+@pytest.mark.slow
 def test_fit_new_flat_recovers_truth_from_noisy_data():
-    """Reduced fit: data from a 0.7 mm new flat (2 % noise), start 50 % off (1.05 mm)."""
+    """Data from a 0.7 mm new flat (2 % noise), start 50 % off (1.05 mm): within 5 % and
+    within 3 standard deviations (the notebook test is the fast rounded-flat version)."""
     speeds = np.array([40.0, 80.0, 120.0, 140.0]) / 3.6
     truth = wf.Flat.new(0.7e-3)
     start = wf.Flat.new(1.05e-3)
@@ -155,8 +158,9 @@ def test_fit_new_flat_recovers_truth_from_noisy_data():
     res = fit.fit_flat(fit.MaxForceData(speeds, data), start, impact_positions=[0.1],
                        config=COARSE, parametrisation=par)
     assert res.converged, res.message
-    assert abs(res.params["depth"] / 0.7e-3 - 1) < 0.03, res.params
+    assert abs(res.params["depth"] / 0.7e-3 - 1) < 0.05, res.params
     assert 0 < res.std["depth"] < 0.1e-3
+    assert abs(res.params["depth"] - 0.7e-3) < 3 * res.std["depth"], res.std
     assert res.loss_history[-1] < res.loss_history[0] / 10
     assert res.residual_rms < 0.05 * np.mean(data)
 
@@ -225,7 +229,8 @@ def test_cli_example_end_to_end(tmp_path):
 
 # -- notebook ------------------------------------------------------------------------------
 def test_notebook_fast_mode(monkeypatch):
-    """Executes notebooks/fit_flat.ipynb with WFJAX_FAST=1; it asserts recovery within 5 %."""
+    """Executes notebooks/fit_flat.ipynb with WFJAX_FAST=1: the reduced fit (4 speeds, rounded
+    flat, 3 % noise, start 50 % off) asserts it recovers depth and length within 5 %."""
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     monkeypatch.setenv("WFJAX_FAST", "1")
