@@ -1,0 +1,101 @@
+"""Simulation benchmark: time steps per second of each contact model and the 3D direct mode.
+
+Rounded flat d = 0.9 mm, l = 100 mm, 100 km/h, impact above a sleeper, default ``SimConfig``
+(1 mm of travel per step). The prepared contact law (tables, node sets) and the modal models
+are built once and timed apart; the time loop (:func:`wfjax.interaction.run_scan`, the 3D
+direct mode through :func:`wfjax.direct3d.run_direct_3d`) is timed with ``block_until_ready``:
+compile time from ``jax.monitoring`` compile events, run time the median of repeats (the
+direct mode: its first call minus compilation, one repeat). Peak memory is the process's
+``ru_maxrss`` after each model (monotone: a model's own peak is at most that).
+
+Run: ``python benchmarks/bench_simulate.py [--no-direct] [--repeats 3]``. Prints Markdown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import statistics
+import time
+
+import jax
+
+import wfjax as wf
+from wfjax import interaction as I  # noqa: N812
+
+COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
+                  "/jax/core/compile/jaxpr_to_mlir_module_duration",
+                  "/jax/core/compile/backend_compile_duration")
+_clock = {"compile": 0.0}
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, duration, **_: _clock.__setitem__(
+        "compile", _clock["compile"] + (duration if event in COMPILE_EVENTS else 0.0)))
+
+
+def timed(fn):
+    """(wall [s], compile [s]) of ``fn()`` with its outputs blocked on."""
+    c0 = _clock["compile"]
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn())
+    return time.perf_counter() - t0, _clock["compile"] - c0
+
+
+def peak_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--no-direct", action="store_true", help="skip the 3D per-step direct mode")
+    p.add_argument("--repeats", type=int, default=3)
+    a = p.parse_args()
+    flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
+    wheel, track, material, config = wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig()
+    v, imp = 100 / 3.6, 0.0
+    n, dt = I.n_steps_for(flat, v, config)
+    s0, s1 = I.simulation_window(flat, v, config)
+    travel = s1 - s0
+    t_struct, _ = timed(lambda: I.structure(wheel, track, config))
+    struct = I.structure(wheel, track, config)
+    print(f"devices {jax.devices()}, x64 {jax.config.jax_enable_x64}; {n} steps, dt = "
+          f"{dt * 1e6:.1f} us, {travel:.3f} m of travel at 100 km/h; modal models "
+          f"{t_struct:.2f} s (from the disk cache if warm)\n")
+    print("| contact | prepare law [s] | compile [s] | run [s] | steps/s | run per 1 m travel [s] "
+          "| max force [kN] | peak RSS [MiB] |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for contact in ("3d", "2d", "hertz-trajectory", "hertz-profile"):
+        t0 = time.perf_counter()
+        spec = I.contact_spec(contact, flat, wheel, track, material, config)
+        jax.block_until_ready(spec.params)
+        t_prep = time.perf_counter() - t0
+
+        def run(spec=spec):
+            return I.run_scan(spec.kind, spec.params, struct, v, dt, imp + s0, imp, n,
+                              config.newton_iterations)
+
+        first, comp = timed(run)
+        t_run = statistics.median(timed(run)[0] for _ in range(a.repeats))
+        fmax = float(run()["force"].max())
+        print(f"| {contact} (table)" if contact == "3d" else f"| {contact}", end="")
+        print(f" | {t_prep:.2f} | {comp:.2f} | {t_run:.3f} | {n / t_run:.3g} | "
+              f"{t_run / travel:.3f} | {fmax / 1e3:.1f} | {peak_mib():.0f} |")
+    if not a.no_direct:
+        from wfjax.direct3d import run_direct_3d
+
+        cfg = wf.SimConfig(contact_mode_3d="direct")
+        out = {}
+
+        def direct():
+            out["h"] = run_direct_3d(flat, struct, v, dt, imp + s0, imp, n, wheel, track,
+                                     material, cfg)
+            return out["h"]
+
+        first, comp = timed(direct)
+        t_run = first - comp
+        print(f"| 3d (direct, per step) | - | {comp:.2f} | {t_run:.2f} | {n / t_run:.3g} | "
+              f"{t_run / travel:.2f} | {float(out['h']['force'].max()) / 1e3:.1f} | "
+              f"{peak_mib():.0f} |")
+
+
+if __name__ == "__main__":
+    main()
