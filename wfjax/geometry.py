@@ -16,10 +16,15 @@ Every function is differentiable with respect to the flat's depth, length and pr
 
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .params import Flat, new_flat_length
+from .params import Flat, _is_concrete, new_flat_length
+
+MIN_WHEEL_RADIUS = 0.3  # m; sizes the trajectory's search window when the radius is traced
 
 __all__ = [
     "new_flat_length",
@@ -147,7 +152,9 @@ def _trajectory_window(flat: Flat) -> float:
     The contact point lies on the flat or at its edges while the flat passes, so it is within
     twice the flat's half angle of phi; a margin is added.
     """
-    return 2.5 * flat.half_extent / float(flat.wheel_radius) + 1e-3
+    radius = flat.wheel_radius
+    radius = float(np.min(np.asarray(radius))) if _is_concrete(radius) else MIN_WHEEL_RADIUS
+    return 2.5 * flat.half_extent / radius + 1e-3
 
 
 def centre_trajectory(flat: Flat, x, n_coarse: int = 1024, n_fine: int = 256):
@@ -175,8 +182,12 @@ def centre_trajectory(flat: Flat, x, n_coarse: int = 1024, n_fine: int = 256):
     x = jnp.asarray(x, dtype=jnp.result_type(float))
     if flat.kind == "none":
         return jnp.zeros_like(x)
+    return _centre_trajectory(flat, x, _trajectory_window(flat), n_coarse, n_fine)
+
+
+@partial(jax.jit, static_argnames=("window", "n_coarse", "n_fine"))
+def _centre_trajectory(flat: Flat, x, window: float, n_coarse: int, n_fine: int):
     R = flat.wheel_radius
-    window = _trajectory_window(flat)
     kinks = _kink_angles(flat)
 
     def height(theta, phi):
