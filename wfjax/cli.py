@@ -35,9 +35,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def enable_compilation_cache() -> None:
+    """Persist XLA compilations in ``<wfjax cache dir>/xla`` so a new process reuses them.
+
+    Set here, in the command-line entry point, not on ``import wfjax`` (library users choose
+    their own JAX configuration).
+    """
+    import jax
+
+    from ._cache import cache_directory
+
+    jax.config.update("jax_compilation_cache_dir", str(cache_directory() / "xla"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``wfjax`` command line; returns the exit status."""
     args = build_parser().parse_args(argv)
+    enable_compilation_cache()
     try:
         return int(args._run(args) or 0)
     except ValueError as exc:

@@ -20,7 +20,13 @@ import jax
 import jax.numpy as jnp
 
 from .contact import kalker, tables
-from .interaction import Structure, bracketed_newton, solve_contact_step, time_loop
+from .interaction import (
+    Structure,
+    bracketed_newton,
+    cached_table_3d,
+    solve_contact_step,
+    time_loop,
+)
 from .params import Flat, Material, SimConfig, Track, Wheel
 
 __all__ = ["run_direct_3d"]
@@ -80,7 +86,7 @@ def run_direct_3d(flat: Flat, struct: Structure, speed: float, dt: float, x_star
     """
     layout = tables.table_spec(flat, float(wheel.radius), float(track.rail_head_radius),
                                material, element_size=config.contact_element)
-    table = tables.build_table_3d(flat, float(wheel.radius), float(track.rail_head_radius),
-                                  material, element_size=config.contact_element)
+    table = cached_table_3d(flat, float(wheel.radius), float(track.rail_head_radius), material,
+                            config.contact_element)
     return _run(layout, flat, table, material, struct, speed, dt, x_start, impact_position,
                 n_steps, config.newton_iterations)

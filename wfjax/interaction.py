@@ -212,8 +212,11 @@ def _hertz_radius(wheel: Wheel, track: Track):
 
 
 def contact_spec(contact: str, flat: Flat, wheel: Wheel, track: Track, material: Material,
-                 config: SimConfig) -> ContactSpec:
-    """Prepare the contact law (concrete: builds node sets, trajectory grids or 3D tables)."""
+                 config: SimConfig, cache_dir=None) -> ContactSpec:
+    """Prepare the contact law (concrete: builds node sets, trajectory grids or 3D tables).
+
+    3D tables of concrete flats are cached on disk (see :func:`cached_table_3d`).
+    """
     if contact not in CONTACT_MODELS:
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     c_h = hertz.hertz_constant(material, _hertz_radius(wheel, track))
@@ -231,11 +234,35 @@ def contact_spec(contact: str, flat: Flat, wheel: Wheel, track: Track, material:
         nodes = jnp.asarray(winkler.bedding_nodes(half, config.contact_element))
         return ContactSpec("2d", {"flat": flat, "material": material,
                                   "radius": wheel.radius, "nodes": nodes})
+
+    table = cached_table_3d(flat, float(wheel.radius), float(track.rail_head_radius), material,
+                            config.contact_element, cache_dir)
+    return ContactSpec("3d", {"table": table})
+
+
+def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
+                    material: Material, element_size: float, cache_dir=None):
+    """:func:`wfjax.contact.tables.build_table_3d` through the on-disk cache.
+
+    The key holds every input of the table (flat kind and geometry, radii, material, element
+    size, and the builder's defaults through the wfjax version). Flats with traced geometry
+    (``grad``, ``vmap``) are built directly, so gradients flow through the solves.
+    """
+    from ._cache import load_or_build
     from .contact import tables
 
-    table = tables.build_table_3d(flat, float(wheel.radius), float(track.rail_head_radius),
-                                  material, element_size=config.contact_element)
-    return ContactSpec("3d", {"table": table})
+    def build():
+        return tables.build_table_3d(flat, wheel_radius, rail_head_radius, material,
+                                     element_size=element_size)
+
+    leaves = jax.tree_util.tree_leaves((flat, material))
+    if not all(_is_concrete(leaf) for leaf in leaves):
+        return build()
+    key = {"flat_kind": flat.kind, "flat": [np.asarray(v) for v in leaves],
+           "wheel_radius": wheel_radius, "rail_head_radius": rail_head_radius,
+           "element_size": element_size}
+    arrays = load_or_build("table3d", key, lambda: build()._asdict(), cache_dir)
+    return tables.ContactTable(**{k: jnp.asarray(v) for k, v in arrays.items()})
 
 
 def contact_force(spec_kind: str, params, delta, s):
@@ -537,7 +564,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
         hist = run_direct_3d(flat, struct, v, dt, x_imp + s_start, x_imp, int(n_steps),
                              wheel, track, material, config)
     else:
-        spec = contact_spec(contact, flat, wheel, track, material, config)
+        spec = contact_spec(contact, flat, wheel, track, material, config, cache_dir)
         hist = run_scan(spec.kind, spec.params, struct, v, dt, x_imp + s_start, x_imp,
                         int(n_steps), config.newton_iterations)
     run_in_steps = int(0.5 * RUN_IN_TIME / dt)

@@ -269,7 +269,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     shape = (len(flat_list), v.size, pos.size)
     out = {k: np.zeros(shape) for k in ("max", "min", "lost", "lost_t", "res")}
     for i, flat in enumerate(flat_list):
-        spec = contact_spec(contact, flat, wheel, track, material, config)
+        spec = contact_spec(contact, flat, wheel, track, material, config, cache_dir)
         spec_params = _replicate(spec.params, mesh)
         n_steps = max(n_steps_for(flat, float(s), config)[0] for s in v)
         vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
