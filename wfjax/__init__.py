@@ -16,6 +16,7 @@ if _os.environ.get("WFJAX_PRECISION", "float64").lower() != "float32":
     _jax.config.update("jax_enable_x64", True)
 
 from . import contact as contact  # noqa: E402  (after the precision switch)
+from . import fit as fit
 from . import geometry as geometry
 from . import params as params
 from . import track as track

@@ -391,7 +391,7 @@ def _rail_terms(model, x):
 
 
 def time_loop(contact_step, static_law, aux0, struct: Structure, speed, dt, x_start,
-              impact_position, n_steps: int):
+              impact_position, n_steps: int, checkpoint: bool = False):
     """The time loop under ``lax.scan`` with a pluggable per-step contact solve (pure).
 
     Args:
@@ -402,6 +402,8 @@ def time_loop(contact_step, static_law, aux0, struct: Structure, speed, dt, x_st
         struct: modal wheel and track (:func:`structure`).
         speed: v [m/s]; dt: time step [s]; x_start: rail coordinate at t = 0 [m];
         impact_position: rail coordinate where s = 0 [m]; n_steps: steps incl. t = 0 (static).
+        checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``): memory of
+            the backward pass drops to the carry per step at the cost of recomputing steps.
 
     Returns:
         dict of [n_steps] arrays: t, x, s, force, approach, wheel_disp, rail_disp, residual.
@@ -439,7 +441,8 @@ def time_loop(contact_step, static_law, aux0, struct: Structure, speed, dt, x_st
         return (q_new, p_new, f, phi, aux), out
 
     carry0 = (q0, p0, preload, phi0, aux0)
-    _, outs = jax.lax.scan(step, carry0, jnp.arange(1, n_steps))
+    _, outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
+                           jnp.arange(1, n_steps))
     first = (x_start, s0, preload, delta0, xi_w_ref, xi_r0, 0.0)
     keys = ("x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual")
     result = {k: jnp.concatenate([jnp.asarray(a0, dtype=a.dtype)[None], a])
@@ -448,14 +451,15 @@ def time_loop(contact_step, static_law, aux0, struct: Structure, speed, dt, x_st
     return result
 
 
-@partial(jax.jit, static_argnames=("spec_kind", "n_steps", "max_iter"))
+@partial(jax.jit, static_argnames=("spec_kind", "n_steps", "max_iter", "checkpoint"))
 def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impact_position,
-             n_steps: int, max_iter: int = 30):
+             n_steps: int, max_iter: int = 30, checkpoint: bool = False):
     """:func:`time_loop` with a tabulated/closed-form contact law (vmap- and grad-able).
 
     Args:
         spec_kind, params: the prepared contact law (see :func:`contact_spec`).
-        other arguments: as :func:`time_loop`; ``max_iter`` caps the per-step Newton loop.
+        other arguments: as :func:`time_loop`; ``max_iter`` caps the per-step Newton loop;
+        ``checkpoint`` rematerialises steps in reverse mode (memory).
 
     Returns:
         dict of [n_steps] arrays (see :func:`time_loop`).
@@ -472,7 +476,7 @@ def run_scan(spec_kind: str, params, struct: Structure, speed, dt, x_start, impa
         return delta, f, r, aux
 
     return time_loop(contact_step, law, None, struct, speed, dt, x_start, impact_position,
-                     n_steps)
+                     n_steps, checkpoint)
 
 
 def _static_approach(law, s0, preload, max_iter: int = 30):
