@@ -164,3 +164,13 @@ def test_contact_element_convergence_3d():
                                 config=wf.SimConfig(contact_element=h)).max_force)
               for h in (1e-3, 0.5e-3)]
     assert abs(values[0] - values[1]) / values[1] < 0.01
+
+
+def test_loop_mode_shapes_equal_track_interpolation():
+    model = wf.track.modal_model(wf.Track(), max_frequency=wf.SimConfig().track_max_frequency)
+    node_major = it._node_major_shapes(model)
+    for x in (-0.9, -0.0001, 0.0, 0.123, 0.325, 1.7):
+        phi, res = it._rail_terms(model, node_major, x)
+        np.testing.assert_allclose(phi, wf.track.mode_shapes_at(model, x), rtol=1e-13,
+                                   atol=1e-13 * float(jnp.max(jnp.abs(phi))))
+        assert float(res) == float(wf.track.residual_compliance_at(model, x))

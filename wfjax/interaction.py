@@ -385,8 +385,24 @@ def structure(wheel: Wheel, track: Track, config: SimConfig, cache_dir=None) -> 
                      jnp.asarray(wheel.preload, dtype=float))
 
 
-def _rail_terms(model, x):
-    phi = track_mod.mode_shapes_at(model, x)
+def _node_major_shapes(model):
+    """Mode shapes as [n_nodes, 2, n_modes]: each step gathers two contiguous rows."""
+    return jnp.transpose(model.shapes, (1, 2, 0))
+
+
+def _rail_terms(model, node_major, x):
+    """(phi_r(x) [n_modes], residual compliance [m/N]) at rail position ``x`` [m].
+
+    Same interpolation as :func:`wfjax.track.mode_shapes_at` (tested equal), on node-major
+    shapes so the per-step gather reads contiguous memory.
+    """
+    node_x = model.node_x
+    le = node_x[1] - node_x[0]
+    xc = jnp.clip(x, node_x[0], node_x[-1])
+    e = jnp.clip(jnp.floor((xc - node_x[0]) / le).astype(jnp.int32), 0, node_x.shape[0] - 2)
+    n1, n2, n3, n4 = track_mod.shape_functions((xc - node_x[e]) / le, model.element_phi, le)
+    a, b = node_major[e], node_major[e + 1]
+    phi = n1 * a[0] + n2 * a[1] + n3 * b[0] + n4 * b[1]
     return phi, track_mod.residual_compliance_at(model, x)
 
 
@@ -417,7 +433,8 @@ def time_loop(contact_step, static_law, aux0, struct: Structure, speed, dt, x_st
 
     # static equilibrium at the start: F = P, rail in its static deflected shape
     s0 = x_start - impact_position
-    phi0, res0 = _rail_terms(model, x_start)
+    node_major = _node_major_shapes(model)
+    phi0, res0 = _rail_terms(model, node_major, x_start)
     q0 = -phi0 * preload / model.poles
     xi_r0 = jnp.real(jnp.sum(w_r * phi0 * q0)) + res0 * preload
     delta0 = _static_approach(static_law, s0, preload)
@@ -428,7 +445,7 @@ def time_loop(contact_step, static_law, aux0, struct: Structure, speed, dt, x_st
         q, p, f_prev, phi_prev, aux = carry
         x = x_start + speed * dt * n
         s = x - impact_position
-        phi, res = _rail_terms(model, x)
+        phi, res = _rail_terms(model, node_major, x)
         q_hat = e_r * q + ap_r * phi_prev * f_prev
         xi_r_free = jnp.real(jnp.sum(w_r * phi * q_hat))
         c_rail = jnp.real(jnp.sum(w_r * an_r * phi * phi)) + res
