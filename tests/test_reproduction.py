@@ -14,7 +14,7 @@ import pytest
 
 import wfjax as wf
 from wfjax.cli import main
-from wfjax.commands.compare import comparison_flat, comparison_flats
+from wfjax.commands.compare import comparison_flat, comparison_flats, run_comparison
 from wfjax.commands.figures import fig7_flats, fig8_flats
 from wfjax.sweep import loss_of_contact_speed
 
