@@ -88,7 +88,7 @@ def scaling(png: str) -> None:
         series.setdefault("positions (x 2 speeds)", []).append((2 * n, run))
         print(f"| positions | {2 * n} | {comp:.2f} | {run:.3f} |")
     for n in (1, 2, 4, 8):
-        flats = [wf.Flat.rounded(depth=d, length=0.1) for d in np.linspace(0.5e-3, 1.2e-3, n)]
+        flats = [wf.Flat.rounded(depth=d, length=0.1) for d in np.linspace(0.5e-3, 0.9e-3, n)]
         comp, run = median_run((flats, speeds(4), 4), dict(contact=contact, chunk_size=chunk))
         series.setdefault("flats (x 16 runs)", []).append((16 * n, run))
         print(f"| flats | {16 * n} | {comp:.2f} | {run:.3f} |")

@@ -228,20 +228,19 @@ def test_force_continuous_in_s_through_flat_edge():
 # --------------------------------------------------------------------------- JAX
 
 
-def _flat_force(depth, s, delta, h=1e-3):
+def _flat_gap(depth, s, h):
+    """Gap [m] of a rounded flat (l = 100 mm) on a 41 x 25 grid of h-sized elements."""
     x = np.arange(-20, 21) * h
     y = np.arange(-12, 13) * h
-    flat = wf.Flat("rounded", depth=depth, length=0.1)
-    g = kalker.gap_3d(flat, s, x, y, R, 0.30)
-    return kalker.solve(g, h, h, MAT, approach=delta, stiffness=False).force
+    return kalker.gap_3d(wf.Flat("rounded", depth=depth, length=0.1), s, x, y, R, 0.30)
+
+
+def _flat_force(depth, s, delta, h=1e-3):
+    return kalker.solve(_flat_gap(depth, s, h), h, h, MAT, approach=delta, stiffness=False).force
 
 
 def _flat_approach(depth, s, force, h=1e-3):
-    x = np.arange(-20, 21) * h
-    y = np.arange(-12, 13) * h
-    flat = wf.Flat("rounded", depth=depth, length=0.1)
-    g = kalker.gap_3d(flat, s, x, y, R, 0.30)
-    return kalker.solve(g, h, h, MAT, force=force, stiffness=False).approach
+    return kalker.solve(_flat_gap(depth, s, h), h, h, MAT, force=force, stiffness=False).approach
 
 
 @pytest.mark.parametrize("fun,args,steps", [

@@ -18,8 +18,8 @@ SCRIPT = textwrap.dedent("""
     assert len(jax.devices()) == int(sys.argv[2]), jax.devices()
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
     out = []
-    for chunk in (64, 3):  # one chunk (4 runs), and 3 + 1 runs padded to 4 + 4
-        sw = wf.sweep(flat, np.array([50.0, 100.0]) / 3.6, impact_positions=2,
+    for chunk in (64, 4):  # one chunk of 6 runs; 3 + 3 runs (padded to 4 + 4 on 2 devices)
+        sw = wf.sweep(flat, np.array([50.0, 100.0]) / 3.6, impact_positions=3,
                       contact="hertz-profile", progress=False, chunk_size=chunk)
         out.append(np.stack([sw.max_force, sw.min_force, sw.loss_of_contact_duration,
                              sw.loss_of_contact]))
@@ -45,7 +45,7 @@ def test_two_devices_equal_one(tmp_path):
         assert proc.returncode == 0, err[-2000:]
         results.append(np.load(path))
     one, two = results
-    assert one.shape == (2, 4, 1, 2, 2)
+    assert one.shape == (2, 4, 1, 2, 3)
     assert np.all(np.isfinite(one)) and np.all(one[:, 0] > 1e5)  # max forces ~ 190-220 kN
     np.testing.assert_allclose(two, one, rtol=1e-12, atol=1e-12 * np.max(one[:, 0]))
     np.testing.assert_allclose(one[1], one[0], rtol=1e-12)  # chunking does not matter

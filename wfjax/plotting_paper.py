@@ -86,7 +86,19 @@ def _panel_grid(n_flats: int, n_cols: int):
                              squeeze=False, sharex=True)
     for ax in axes.flat[n_flats:]:
         ax.set_visible(False)
-    return fig, axes.flat
+    return fig, list(axes.flat)
+
+
+def _label_panels(axes, flat_labels, n_cols: int, y_label: str) -> None:
+    """Title each panel (a), (b), ... with its flat, label the y axes and the bottom x axes."""
+    n = len(flat_labels)
+    for i, (ax, label) in enumerate(zip(axes, flat_labels, strict=False)):
+        ax.set_title(f"({chr(97 + i)}) {label}", fontsize=9)
+        ax.set_ylabel(y_label)
+        ax.grid(alpha=0.3)
+    for ax in list(axes)[max(0, n - n_cols):n]:
+        ax.set_xlabel("train speed [km/h]")
+    axes[0].legend(fontsize=7)
 
 
 def model_forces_figure(results: dict, n_cols: int = 2):
@@ -99,16 +111,11 @@ def model_forces_figure(results: dict, n_cols: int = 2):
     first = next(iter(results.values()))
     v = np.asarray(first.speeds) * 3.6
     fig, axes = _panel_grid(len(first.flats), n_cols)
-    for i, (ax, label) in enumerate(zip(axes, first.flats, strict=False)):
+    for i, ax in enumerate(axes[:len(first.flats)]):
         for model, res in results.items():
             ax.plot(v, res.envelope()["max_force"][i] / 1e3, MODEL_STYLES.get(model, "-"),
                     color="k" if model == "3d" else None, label=MODEL_LABELS.get(model, model))
-        ax.set_title(f"({chr(97 + i)}) {label}", fontsize=9)
-        ax.set_ylabel("max. force [kN]")
-        ax.grid(alpha=0.3)
-    for ax in list(axes)[max(0, len(first.flats) - n_cols):len(first.flats)]:
-        ax.set_xlabel("train speed [km/h]")
-    axes[0].legend(fontsize=7)
+    _label_panels(axes, first.flats, n_cols, "max. force [kN]")
     fig.suptitle(f"Maximum impact force, max over {len(first.impact_positions)} impact positions")
     fig.tight_layout()
     return fig
@@ -124,18 +131,13 @@ def model_deviation_figure(results: dict, n_cols: int = 2):
     first = results["3d"]
     v = np.asarray(first.speeds) * 3.6
     fig, axes = _panel_grid(len(first.flats), n_cols)
-    for i, (ax, label) in enumerate(zip(axes, first.flats, strict=False)):
+    for i, ax in enumerate(axes[:len(first.flats)]):
         for model, d in dev.items():
             ax.plot(v, 100 * d[i], MODEL_STYLES.get(model, "-"),
                     color=f"C{list(MODEL_STYLES).index(model)}" if model in MODEL_STYLES
                     else None, label=MODEL_LABELS.get(model, model))
         ax.axhline(0.0, color="k", lw=0.8)
-        ax.set_title(f"({chr(97 + i)}) {label}", fontsize=9)
-        ax.set_ylabel(r"$\Delta_F$ [%]")
-        ax.grid(alpha=0.3)
-    for ax in list(axes)[max(0, len(first.flats) - n_cols):len(first.flats)]:
-        ax.set_xlabel("train speed [km/h]")
-    axes[0].legend(fontsize=7)
+    _label_panels(axes, first.flats, n_cols, r"$\Delta_F$ [%]")
     fig.suptitle(r"Relative difference to the 3D model $\Delta_F = (F - F_{3D}) / F_{3D}$")
     fig.tight_layout()
     return fig

@@ -279,10 +279,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         run_in = np.floor(0.5 * RUN_IN_TIME / dt).astype(int)
         bar = _Progress(vv.size, flat_label(flat), enabled=progress)
         results = []
-        # one compiled shape: every chunk has the same length, a multiple of the device count
-        width = -(-min(chunk_size, vv.size) // n_dev) * n_dev
-        for lo in range(0, vv.size, chunk_size):
-            sl = slice(lo, lo + chunk_size)
+        step, width = _chunk_layout(vv.size, chunk_size, n_dev)
+        for lo in range(0, vv.size, step):
+            sl = slice(lo, lo + step)
             n = vv[sl].size
 
             def padded(a, pad=width - n):
@@ -301,6 +300,18 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         loss_of_contact=out["lost"].astype(bool), loss_of_contact_duration=out["lost_t"],
         max_residual=out["res"], flats=tuple(flat_label(f) for f in flat_list), contact=contact,
     )
+
+
+def _chunk_layout(n_runs: int, chunk_size: int, n_devices: int) -> tuple[int, int]:
+    """(runs per chunk, compiled chunk width) for ``n_runs`` runs.
+
+    One compiled shape serves every chunk, so the last chunk is padded to the width; the runs
+    are spread evenly over the fewest chunks of at most ``chunk_size`` (80 runs at 64 become
+    2 x 40, not 64 + 16 padded to 64), and the width is a multiple of the device count.
+    """
+    n_chunks = -(-n_runs // chunk_size)
+    step = -(-n_runs // n_chunks)
+    return step, -(-step // n_devices) * n_devices
 
 
 def loss_of_contact_speed(result: SweepResult, flat_index: int = 0) -> float:
