@@ -75,12 +75,12 @@ def test_comparison_flats_lengths():
     assert comparison_flat("rounded", 0.9).length == fig7_flats()[0].length
 
 
-# -- slow: Section 4.2, Fig. 7 (3D, R_R = 0.30 m, 10 impact positions) -----------------------
+# -- slow: Section 4.2, Fig. 7 (3D, R_R = 0.45 m, 10 impact positions) -----------------------
 @pytest.fixture(scope="module", name="fig7_sweep")
 def _fig7_sweep():
     """Fig. 7 at 5 km/h steps, 20-300 km/h: [rounded 0.9 mm l = 100 mm, new 0.9 mm]."""
     return wf.sweep(fig7_flats(), np.arange(20.0, 301.0, 5.0) / 3.6, 10, contact="3d",
-                    track=wf.Track(), progress=False)
+                    track=wf.Track.comparison(), progress=False)
 
 
 @pytest.mark.slow
@@ -125,11 +125,11 @@ def test_fig7_spread_over_positions(fig7_sweep):
 @pytest.mark.slow
 def test_fig8_loss_of_contact_deepest_and_shallowest():
     """Paper: loss of contact already at 30 km/h for d = 2.00 mm, not below 240 km/h for 0.25 mm."""
-    deep = wf.sweep(fig8_flats((2.0,)), _kmh(30), 8, contact="3d", track=wf.Track(),
+    deep = wf.sweep(fig8_flats((2.0,)), _kmh(30), 8, contact="3d", track=wf.Track.comparison(),
                     progress=False)
     assert deep.loss_of_contact.any()
     shallow = wf.sweep(fig8_flats((0.25,)), _kmh(160, 200, 230), 8, contact="3d",
-                       track=wf.Track(), progress=False)
+                       track=wf.Track.comparison(), progress=False)
     assert not shallow.loss_of_contact.any()
 
 

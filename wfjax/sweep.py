@@ -213,8 +213,9 @@ class _Progress:
         elapsed = time.perf_counter() - self.start
         eta = elapsed / self.done * (self.total - self.done) if self.done else float("nan")
         end = "\n" if self.done >= self.total else "\r"
-        print(f"  {self.label}: {self.done}/{self.total} runs, {elapsed:5.1f} s elapsed, "
-              f"ETA {eta:5.1f} s", end=end, file=self.stream, flush=True)
+        line = (f"  {self.label}: {self.done}/{self.total} runs, {elapsed:5.1f} s elapsed, "
+                f"ETA {eta:5.1f} s")
+        print(line.ljust(len(self.label) + 40), end=end, file=self.stream, flush=True)
 
 
 def _check_speeds(speeds) -> np.ndarray:
@@ -269,6 +270,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     shape = (len(flat_list), v.size, pos.size)
     out = {k: np.zeros(shape) for k in ("max", "min", "lost", "lost_t", "res")}
     for i, flat in enumerate(flat_list):
+        if progress:  # the 3D table build takes seconds to a minute on a cold cache
+            print(f"  {flat_label(flat)}: preparing the {contact} contact law ...", end="\r",
+                  file=sys.stderr, flush=True)
         spec = contact_spec(contact, flat, wheel, track, material, config, cache_dir)
         spec_params = _replicate(spec.params, mesh)
         n_steps = max(n_steps_for(flat, float(s), config)[0] for s in v)
