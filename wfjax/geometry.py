@@ -157,7 +157,7 @@ def _trajectory_window(flat: Flat) -> float:
     return 2.5 * flat.half_extent / radius + 1e-3
 
 
-def centre_trajectory(flat: Flat, x, n_coarse: int = 1024, n_fine: int = 256):
+def centre_trajectory(flat: Flat, x, n_coarse: int = 256, n_fine: int = 64):
     """Vertical wheel-centre trajectory [m] of a rigid wheel on a rigid rail (Wu & Thompson).
 
     With r(theta) the deviated radius, the centre height at rolling angle phi = X / R is

@@ -18,6 +18,7 @@ everywhere; ``jax.devices()`` then spans all hosts and every process receives th
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import math
@@ -160,10 +161,21 @@ def _reduce(spec_kind, n_steps, max_iter, params, struct, speed, dt, x_start, im
             jnp.max(res.residual))
 
 
-_batched = jax.jit(
-    jax.vmap(_reduce, in_axes=(None, None, None, None, None, 0, 0, 0, 0, 0)),
-    static_argnums=(0, 1, 2),
-)
+@functools.cache
+def _batched(mesh: Mesh, spec_kind: str, n_steps: int, max_iter: int):
+    """Compiled (params, struct, speed, dt, x_start, impact_position, run_in) -> summaries.
+
+    ``shard_map`` gives every device its own ``vmap``-ed loop over its runs: the batched
+    Newton ``while_loop`` then stops on the device's own runs, with no cross-device reduction
+    of its condition at every step (what a plain ``jit`` over sharded inputs would compile).
+    """
+    def local(params, struct, *runs):
+        return jax.vmap(functools.partial(_reduce, spec_kind, n_steps, max_iter, params,
+                                          struct))(*runs)
+
+    by_run = PartitionSpec("runs")
+    return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
+                                 in_specs=(PartitionSpec(), PartitionSpec()) + (by_run,) * 5))
 
 
 def _device_mesh() -> Mesh:
@@ -291,9 +303,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             def padded(a, pad=width - n):
                 return _shard_runs(np.concatenate([a, np.repeat(a[-1:], pad)]), mesh)
 
-            batch = _batched(spec.kind, n_steps, config.newton_iterations, spec_params, struct,
-                             padded(vv[sl]), padded(dt[sl]), padded(pp[sl] + s_start[sl]),
-                             padded(pp[sl]), padded(run_in[sl]))
+            program = _batched(mesh, spec.kind, n_steps, config.newton_iterations)
+            batch = program(spec_params, struct, padded(vv[sl]), padded(dt[sl]),
+                            padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]))
             results.append([b[:n] for b in _gather(batch)])
             bar.update(n)
         cols = [np.concatenate(c).reshape(v.size, pos.size) for c in zip(*results, strict=True)]
