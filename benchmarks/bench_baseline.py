@@ -7,15 +7,19 @@ positions, the same wheel-centre trajectory, time step and step count as :func:`
 The script runs both on the same case and prints the largest relative difference of the
 maximum and minimum forces and the speed ratio (wfjax compiled; compile time apart).
 
-Run: ``python benchmarks/bench_baseline.py [--speeds-kmh 40,80,120,160] [--positions 3]``.
+Run: ``python benchmarks/bench_baseline.py [--speeds-kmh 40,80,120,160] [--positions 3]
+[--host-devices N]``. wfjax runs on N CPU devices (default: one per core, as the ``wfjax``
+command does; ``--host-devices 1`` for one), the baseline on one core as NumPy does.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
+import jax
 import numpy as np
 import scipy.optimize
 
@@ -107,7 +111,10 @@ def main() -> None:
     p.add_argument("--speeds-kmh", default="40,80,120,160")
     p.add_argument("--positions", type=int, default=3)
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--host-devices", type=int, default=os.cpu_count() or 1)
     a = p.parse_args()
+    os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} "
+                               f"--xla_force_host_platform_device_count={a.host_devices}")
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
     speeds = np.array([float(s) for s in a.speeds_kmh.split(",")]) / 3.6
     from wfjax.sweep import impact_positions_grid
@@ -134,7 +141,8 @@ def main() -> None:
     d_max = np.max(np.abs(fmax - ref.max_force[0]) / ref.max_force[0])
     d_min = np.max(np.abs(fmin - ref.min_force[0]) / ref.max_force[0])
     print(f"Hertz-trajectory sweep, rounded 0.9 mm/100 mm flat, {speeds.size} speeds x "
-          f"{positions.size} positions = {n_runs} runs of {n_steps} steps\n")
+          f"{positions.size} positions = {n_runs} runs of {n_steps} steps; wfjax on "
+          f"{len(jax.devices())} {jax.devices()[0].platform} device(s)\n")
     print("| implementation | wall [s] | per run [ms] | steps/s |")
     print("| --- | --- | --- | --- |")
     print(f"| NumPy/SciPy baseline (Python loop, brentq) | {t_np:.2f} | {1e3 * t_np / n_runs:.0f}"

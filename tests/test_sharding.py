@@ -49,3 +49,15 @@ def test_two_devices_equal_one(tmp_path):
     assert np.all(np.isfinite(one)) and np.all(one[:, 0] > 1e5)  # max forces ~ 190-220 kN
     np.testing.assert_allclose(two, one, rtol=1e-12, atol=1e-12 * np.max(one[:, 0]))
     np.testing.assert_allclose(one[1], one[0], rtol=1e-12)  # chunking does not matter
+
+
+def test_cli_exposes_one_device_per_core_unless_told(monkeypatch):
+    from wfjax.cli import expose_cpu_cores
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
+    expose_cpu_cores()
+    assert os.environ["XLA_FLAGS"] == (
+        f"--xla_dump_to=/tmp/x --xla_force_host_platform_device_count={os.cpu_count()}")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=3")
+    expose_cpu_cores()
+    assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=3"

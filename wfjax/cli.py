@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 SUBCOMMANDS = ("sweep", "simulate", "compare", "figures", "fit", "receptance", "geometry")
@@ -49,8 +50,23 @@ def enable_compilation_cache() -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
+def expose_cpu_cores() -> None:
+    """On a CPU, one JAX device per core, so ``sweep`` shards its runs over every core.
+
+    XLA's CPU backend runs one batched time loop on one core; as separate devices the cores
+    each run a share of the runs (``benchmarks/README.md``, "Scale-out"). Only effective before
+    JAX initialises its backends; a device count the user put in ``XLA_FLAGS`` wins, and GPU
+    or TPU devices, when present, are used instead of these.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" not in flags:
+        count = f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"
+        os.environ["XLA_FLAGS"] = f"{flags} {count}".strip()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``wfjax`` command line; returns the exit status."""
+    expose_cpu_cores()
     args = build_parser().parse_args(argv)
     enable_compilation_cache()
     try:
