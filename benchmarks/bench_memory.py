@@ -48,6 +48,7 @@ STEPS = {
                 "np.arange(20.0, 301.0, 10.0) / 3.6, 10, progress=False)"),
     "forward: max force of 10 speeds, hertz-trajectory": ("warm", "FORWARD"),
     "reverse-mode gradient of the same (jax.grad)": ("warm", "REVERSE"),
+    "reverse-mode gradient, checkpoint=True": ("warm", "REVERSE_CHECKPOINT"),
 }
 
 GRADIENT = """
@@ -56,7 +57,8 @@ speeds = np.linspace(30.0, 140.0, 10) / 3.6
 par = fit.RoundedFlatParam(extent_bound=0.075)
 theta = jnp.asarray(par.from_flat(wf.Flat.rounded(0.9e-3, 0.1)))
 ref = jax.tree_util.tree_map(np.asarray, par.to_flat(theta))
-model = fit.max_force_model(speeds, ref, "hertz-trajectory", impact_positions=[0.1])
+model = fit.max_force_model(speeds, ref, "hertz-trajectory", impact_positions=[0.1],
+                            checkpoint=CHECKPOINT)
 def loss(th):
     return jnp.sum(model(par.to_flat(th)) ** 2)
 """
@@ -67,10 +69,11 @@ SETUP = ("I.structure(wf.Wheel(), wf.Track(), wf.SimConfig()); jax.block_until_r
 
 
 def _code(body: str) -> str:
+    gradient = GRADIENT.replace("CHECKPOINT", str(body == "REVERSE_CHECKPOINT"))
     if body == "FORWARD":
-        body = GRADIENT + "jax.block_until_ready(jax.jit(loss)(theta))"
-    elif body == "REVERSE":
-        body = GRADIENT + "jax.block_until_ready(jax.jit(jax.grad(loss))(theta))"
+        body = gradient + "jax.block_until_ready(jax.jit(loss)(theta))"
+    elif body.startswith("REVERSE"):
+        body = gradient + "jax.block_until_ready(jax.jit(jax.grad(loss))(theta))"
     return PRELUDE + textwrap.dedent(body) + "\n" + REPORT
 
 
