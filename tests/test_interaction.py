@@ -176,20 +176,6 @@ def test_loop_mode_shapes_equal_track_interpolation():
         assert float(res) == float(wf.track.residual_compliance_at(model, x))
 
 
-def test_uniform_interpolation_equals_jnp_interp():
-    from wfjax._interp import interp_uniform
-
-    grid = jnp.linspace(-0.07, 0.07, 7001)
-    y = jnp.sin(40.0 * grid) ** 2
-    x = jnp.concatenate([jnp.linspace(-0.08, 0.08, 997), grid[:5], grid[-3:]])
-    np.testing.assert_allclose(interp_uniform(x, grid[0], grid[-1], y),
-                               jnp.interp(x, grid, y), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(interp_uniform(x, grid[0], grid[-1], y, outside=0.0),
-                               jnp.interp(x, grid, y, left=0.0, right=0.0), rtol=0, atol=1e-12)
-    slope = jax.grad(lambda s: interp_uniform(s, grid[0], grid[-1], y))(0.01234)
-    np.testing.assert_allclose(slope, 40.0 * np.sin(2 * 40.0 * 0.01234), rtol=1e-3)
-
-
 @pytest.mark.parametrize(("n_runs", "chunk", "n_dev", "layout"),
                          [(80, 64, 1, (40, 40)), (290, 64, 1, (58, 58)), (64, 64, 1, (64, 64)),
                           (6, 4, 2, (3, 4)), (5, 64, 2, (5, 6)), (1, 64, 1, (1, 1))])

@@ -56,7 +56,6 @@ import numpy as np
 from . import geometry
 from . import track as track_mod
 from . import wheel as wheel_mod
-from ._interp import interp_uniform
 from ._modal import discrete_step_coefficients
 from .contact import hertz, winkler
 from .params import MAX_FLAT_DEPTH, Flat, Material, SimConfig, Track, Wheel, _is_concrete
@@ -272,8 +271,7 @@ def contact_force(spec_kind: str, params, delta, s):
         z = geometry.profile_deviation(params["flat"], s)
         return _hertz_law(params["c_h"], delta - z)
     if spec_kind == "hertz-trajectory":
-        grid = params["s_grid"]  # uniform (contact_spec)
-        drop = interp_uniform(s, grid[0], grid[-1], params["drop"], outside=0.0)
+        drop = jnp.interp(s, params["s_grid"], params["drop"], left=0.0, right=0.0)
         return _hertz_law(params["c_h"], delta - drop)
     if spec_kind == "2d":
         return winkler.force_at_nodes(params["flat"], delta, s, params["material"],

@@ -39,7 +39,6 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from . import _cache
-from ._interp import interp_uniform
 from ._modal import complex_modes, discrete_step_coefficients
 from .params import Track, concrete_positive_numbers
 
@@ -339,7 +338,7 @@ def residual_compliance_at(model: ModalModel, x) -> jax.Array:
     """
     x = jnp.asarray(x, dtype=jnp.result_type(float))
     s = jnp.mod(x, model.sleeper_spacing)
-    return interp_uniform(s, model.residual_x[0], model.residual_x[-1], model.residual)
+    return jnp.interp(s, model.residual_x, model.residual)
 
 
 def modal_receptance(model: ModalModel, freqs, x: float = 0.0) -> np.ndarray:
