@@ -17,7 +17,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import textwrap
 
 PRELUDE = """
 import resource, time
@@ -32,57 +31,55 @@ jax.effects_barrier()
 print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 """
 
-STEPS = {
-    "import only": ("cold", "pass"),
-    "track modal model, cold build (8 el./bay, <= 10 kHz kept)": (
-        "cold", "I.structure(wf.Wheel(), wf.Track(), wf.SimConfig())"),
-    "track modal model, load from the disk cache": (
-        "warm", "I.structure(wf.Wheel(), wf.Track(), wf.SimConfig())"),
-    "3D contact table build (rounded 0.9 mm / 100 mm, R_R = 0.30 m)": (
-        "warm", "jax.block_until_ready(I.contact_spec('3d', wf.Flat.rounded(0.9e-3, 0.1), "
-                "wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig()).params)"),
-    "simulate, 3D table, 100 km/h (table cached)": (
-        "warm", "wf.simulate(wf.Flat.rounded(0.9e-3, 0.1), 100 / 3.6, contact='3d')"),
-    "default sweep, 580 runs, 3D (tables cached)": (
-        "warm", "wf.sweep([wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)], "
-                "np.arange(20.0, 301.0, 10.0) / 3.6, 10, progress=False)"),
-    "forward: max force of 10 speeds, hertz-trajectory": ("warm", "FORWARD"),
-    "reverse-mode gradient of the same (jax.grad)": ("warm", "REVERSE"),
-    "reverse-mode gradient, checkpoint=True": ("warm", "REVERSE_CHECKPOINT"),
-}
+STRUCTURE = "I.structure(wf.Wheel(), wf.Track(), wf.SimConfig())"
 
-GRADIENT = """
+
+def _table(flat: str) -> str:
+    return (f"jax.block_until_ready(I.contact_spec('3d', {flat}, wf.Wheel(), wf.Track(), "
+            "wf.Material(), wf.SimConfig()).params)")
+
+
+def _misfit(checkpoint: bool, evaluate: str) -> str:
+    """Max force of 10 speeds (hertz-trajectory) and ``evaluate`` of its squared sum."""
+    return f"""
 from wfjax import fit
 speeds = np.linspace(30.0, 140.0, 10) / 3.6
 par = fit.RoundedFlatParam(extent_bound=0.075)
 theta = jnp.asarray(par.from_flat(wf.Flat.rounded(0.9e-3, 0.1)))
 ref = jax.tree_util.tree_map(np.asarray, par.to_flat(theta))
 model = fit.max_force_model(speeds, ref, "hertz-trajectory", impact_positions=[0.1],
-                            checkpoint=CHECKPOINT)
+                            checkpoint={checkpoint})
 def loss(th):
     return jnp.sum(model(par.to_flat(th)) ** 2)
+jax.block_until_ready(jax.jit({evaluate})(theta))
 """
 
-SETUP = ("I.structure(wf.Wheel(), wf.Track(), wf.SimConfig()); jax.block_until_ready("
-         "I.contact_spec('3d', wf.Flat.new(0.9e-3), wf.Wheel(), wf.Track(), wf.Material(), "
-         "wf.SimConfig()).params)")
 
-
-def _code(body: str) -> str:
-    gradient = GRADIENT.replace("CHECKPOINT", str(body == "REVERSE_CHECKPOINT"))
-    if body == "FORWARD":
-        body = gradient + "jax.block_until_ready(jax.jit(loss)(theta))"
-    elif body.startswith("REVERSE"):
-        body = gradient + "jax.block_until_ready(jax.jit(jax.grad(loss))(theta))"
-    return PRELUDE + textwrap.dedent(body) + "\n" + REPORT
+ROUNDED = "wf.Flat.rounded(0.9e-3, 0.1)"
+SETUP = f"{STRUCTURE}; {_table('wf.Flat.new(0.9e-3)')}"
+STEPS = {
+    "import only": ("cold", "pass"),
+    "track modal model, cold build (8 el./bay, <= 10 kHz kept)": ("cold", STRUCTURE),
+    "track modal model, load from the disk cache": ("warm", STRUCTURE),
+    "3D contact table build (rounded 0.9 mm / 100 mm, R_R = 0.30 m)": ("warm", _table(ROUNDED)),
+    "simulate, 3D table, 100 km/h (table cached)": (
+        "warm", f"wf.simulate({ROUNDED}, 100 / 3.6, contact='3d')"),
+    "default sweep, 580 runs, 3D (tables cached)": (
+        "warm", f"wf.sweep([{ROUNDED}, wf.Flat.new(0.9e-3)], "
+                "np.arange(20.0, 301.0, 10.0) / 3.6, 10, progress=False)"),
+    "forward: max force of 10 speeds, hertz-trajectory": ("warm", _misfit(False, "loss")),
+    "reverse-mode gradient of the same (jax.grad)": ("warm", _misfit(False, "jax.grad(loss)")),
+    "reverse-mode gradient, checkpoint=True": ("warm", _misfit(True, "jax.grad(loss)")),
+}
 
 
 def run_step(body: str, cache_dir: str) -> tuple[float, float]:
     """(wall [s], peak RSS [MiB]) of ``body`` in a fresh process."""
     env = dict(os.environ, WFJAX_CACHE_DIR=cache_dir, JAX_PLATFORMS="cpu",
                XLA_FLAGS="--xla_force_host_platform_device_count=1")
-    out = subprocess.run([sys.executable, "-c", _code(body)], env=env, capture_output=True,
-                         text=True, check=False)
+    code = PRELUDE + body + "\n" + REPORT
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=False)
     if out.returncode != 0:
         raise RuntimeError(out.stderr[-2000:])
     wall, rss = out.stdout.split()[-2:]

@@ -5,14 +5,10 @@ core (``cli.expose_cpu_cores``), and which test first initialises JAX's backend 
 the device count of the whole session (tests/test_sharding.py runs its own processes).
 """
 
-import os
+from wfjax.cli import expose_cpu_cores
 
-if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
-                               + " --xla_force_host_platform_device_count=1").strip()
+expose_cpu_cores(1)  # before anything initialises JAX's backend
 
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
-
-import wfjax  # noqa: E402,F401  (import after the config update)

@@ -58,6 +58,9 @@ def test_cli_exposes_one_device_per_core_unless_told(monkeypatch):
     expose_cpu_cores()
     assert os.environ["XLA_FLAGS"] == (
         f"--xla_dump_to=/tmp/x --xla_force_host_platform_device_count={os.cpu_count()}")
+    monkeypatch.setenv("XLA_FLAGS", "")
+    expose_cpu_cores(1)
+    assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=1"
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=3")
     expose_cpu_cores()
     assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=3"

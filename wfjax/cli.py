@@ -50,8 +50,8 @@ def enable_compilation_cache() -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
-def expose_cpu_cores() -> None:
-    """On a CPU, one JAX device per core, so ``sweep`` shards its runs over every core.
+def expose_cpu_cores(count: int | None = None) -> None:
+    """On a CPU, ``count`` JAX devices (default: one per core), so ``sweep`` shards over them.
 
     XLA's CPU backend runs one batched time loop on one core; as separate devices the cores
     each run a share of the runs (``benchmarks/README.md``, "Scale-out"). Only effective before
@@ -60,8 +60,8 @@ def expose_cpu_cores() -> None:
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
-        count = f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"
-        os.environ["XLA_FLAGS"] = f"{flags} {count}".strip()
+        device_count = f"--xla_force_host_platform_device_count={count or os.cpu_count() or 1}"
+        os.environ["XLA_FLAGS"] = f"{flags} {device_count}".strip()
 
 
 def main(argv: list[str] | None = None) -> int:

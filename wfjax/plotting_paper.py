@@ -89,14 +89,14 @@ def _panel_grid(n_flats: int, n_cols: int):
     return fig, list(axes.flat)
 
 
-def _label_panels(axes, flat_labels, n_cols: int, y_label: str) -> None:
+def _label_panels(axes: list, flat_labels, n_cols: int, y_label: str) -> None:
     """Title each panel (a), (b), ... with its flat, label the y axes and the bottom x axes."""
     n = len(flat_labels)
     for i, (ax, label) in enumerate(zip(axes, flat_labels, strict=False)):
         ax.set_title(f"({chr(97 + i)}) {label}", fontsize=9)
         ax.set_ylabel(y_label)
         ax.grid(alpha=0.3)
-    for ax in list(axes)[max(0, n - n_cols):n]:
+    for ax in axes[max(0, n - n_cols):n]:
         ax.set_xlabel("train speed [km/h]")
     axes[0].legend(fontsize=7)
 
