@@ -150,3 +150,24 @@ def test_full_resolution_table_accuracy(flat, rail_radius, limit):
         errs.append(abs(f_tab - f_dir) / max(f_dir, 50e3))
     assert max(errs) <= limit, f"max error {max(errs):.4f}"
     assert math.isfinite(max(errs))
+
+
+def test_column_two_stage_equals_table_force(coarse):
+    """table_column + column_force is table_force; the column is differentiable in delta."""
+    spec, tab = coarse
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        s = rng.uniform(-spec.s_max, spec.s_max)
+        col = tables.table_column(tab, s)
+        assert float(col.onset) == float(tables.table_onset(tab, s))
+        for c in (-1e-5, 0.0, 0.3 * spec.c_max, 0.9 * spec.c_max):
+            delta = float(col.onset) + c
+            f2 = float(tables.column_force(col, delta))
+            assert f2 == float(tables.table_force(tab, delta, s))
+            assert f2 >= 0.0
+        g = jax.grad(tables.column_force, argnums=1)(col, float(col.onset) + 0.5 * spec.c_max)
+        eps = 1e-9
+        d0 = float(col.onset) + 0.5 * spec.c_max
+        fd = (tables.column_force(col, d0 + eps) - tables.column_force(col, d0 - eps)) / (2 * eps)
+        assert float(g) == pytest.approx(float(fd), rel=1e-5)
+        assert float(jax.grad(tables.column_force, argnums=1)(col, float(col.onset) - 1e-6)) == 0

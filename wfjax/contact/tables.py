@@ -46,8 +46,8 @@ import numpy as np
 from ..params import Flat, Material
 from . import kalker
 
-__all__ = ["ContactTable", "TableSpec", "table_spec", "build_table_3d", "table_force",
-           "table_onset"]
+__all__ = ["ContactTable", "Column", "TableSpec", "table_spec", "build_table_3d", "table_force",
+           "table_onset", "table_column", "column_force"]
 
 _DEFAULT_MATERIAL = Material()
 
@@ -277,24 +277,66 @@ def _hermite(f0, f1, m0, m1, w):
             + (w3 - w2) * m1)
 
 
-def table_force(table: ContactTable, delta, s):
-    """3D contact force F [N] at approach ``delta`` [m] and flat position ``s`` [m].
+class Column(NamedTuple):
+    """One compression column F(c) of a contact law at a fixed flat position (a pytree).
 
-    Cubic Hermite in t = sqrt(c / c_max), c = delta - delta0(s), Catmull-Rom cubic in s
-    (4 columns); F = 0 for c <= 0 with a zero gradient there. Pure jnp and branch-free:
-    ``jit``/``vmap``/``grad`` with respect to delta, s and the table's arrays. Scalars in,
-    scalar out (``vmap`` for batches). Beyond c_max the last interval's cubic extrapolates;
-    beyond the s range the end columns (smooth wheel) apply.
+    The s-dependent half of a force evaluation (:func:`table_column`,
+    :func:`wfjax.contact.family.family_column`); :func:`column_force` is the cheap
+    delta-dependent half, so a time step interpolates in s once and iterates Newton on delta.
+
+    Attributes:
+        onset: rigid contact onset delta0 [m] (scalar); compression c = delta - onset.
+        c_max: compression of the last t node [m] (scalar).
+        force: [n_t] force [N] at c = c_max (j / (n_t - 1))^2.
+        slope: [n_t] dF/du [N] per node index u = t (n_t - 1), t = sqrt(c / c_max).
+    """
+
+    onset: Any
+    c_max: Any
+    force: Any
+    slope: Any
+
+
+def table_column(table: ContactTable, s) -> Column:
+    """The column of ``table`` at flat position ``s`` [m] (Catmull-Rom cubic in s, 4 columns).
+
+    Pure jnp; differentiable with respect to s and the table's arrays. Beyond the s range the
+    end columns (smooth wheel) apply.
     """
     cols, weights = _locate_s(table, s)
     onset = jnp.sum(weights * table.onset[cols])
-    c = delta - onset
+    force = jnp.tensordot(weights, table.force[cols], axes=1)
+    slope = jnp.tensordot(weights, table.slope[cols], axes=1)
+    return Column(onset=onset, c_max=jnp.asarray(table.c_max), force=force, slope=slope)
+
+
+def column_force(column: Column, delta):
+    """Force F [N] of ``column`` at approach ``delta`` [m].
+
+    Cubic Hermite in t = sqrt(c / c_max), c = delta - onset; F = 0 for c <= 0 with a zero
+    gradient there (and F >= 0). Pure jnp and branch-free: ``jit``/``vmap``/``grad`` with
+    respect to delta and the column's arrays. Beyond c_max the last interval's cubic
+    extrapolates.
+    """
+    c = delta - column.onset
     pos = c > 0
     c_safe = jnp.where(pos, c, 1.0)
-    n_t = table.force.shape[1]
-    u = jnp.sqrt(c_safe / table.c_max) * (n_t - 1)
+    n_t = column.force.shape[-1]
+    u = jnp.sqrt(c_safe / column.c_max) * (n_t - 1)
     j = jnp.clip(jnp.floor(u), 0, n_t - 2).astype(jnp.int32)
     v = u - j
-    f = _hermite(table.force[cols, j], table.force[cols, j + 1], table.slope[cols, j],
-                 table.slope[cols, j + 1], v)
-    return jnp.where(pos, jnp.maximum(jnp.sum(weights * f), 0.0), 0.0)
+    f = _hermite(column.force[j], column.force[j + 1], column.slope[j], column.slope[j + 1], v)
+    return jnp.where(pos, jnp.maximum(f, 0.0), 0.0)
+
+
+def table_force(table: ContactTable, delta, s):
+    """3D contact force F [N] at approach ``delta`` [m] and flat position ``s`` [m].
+
+    ``column_force(table_column(table, s), delta)``: cubic Hermite in t = sqrt(c / c_max),
+    c = delta - delta0(s), Catmull-Rom cubic in s (4 columns); F = 0 for c <= 0 with a zero
+    gradient there. Pure jnp and branch-free: ``jit``/``vmap``/``grad`` with respect to delta,
+    s and the table's arrays. Scalars in, scalar out (``vmap`` for batches). Beyond c_max the
+    last interval's cubic extrapolates; beyond the s range the end columns (smooth wheel)
+    apply.
+    """
+    return column_force(table_column(table, s), delta)
