@@ -18,6 +18,7 @@ import pytest
 import wfjax as wf
 from wfjax import fit
 from wfjax import interaction as it
+from wfjax.contact import laws
 from wfjax.cli import main
 from wfjax.commands.fit import parse_data
 
@@ -48,12 +49,12 @@ def _assert_matches_fd(f, jac, x0, steps):
 
 def _min_force(model, speed_index, flat, position=0.1):
     setup, info = model.setup, model.info
-    spec = it.contact_spec(setup.contact, flat, setup.wheel, setup.track, setup.material,
-                           setup.config)
+    law = laws.prepare(setup.contact, flat, setup.wheel, setup.track, setup.material,
+                       setup.config)
     v = info["speeds"][speed_index]
     s0 = it.simulation_window(flat, v, setup.config)[0]
-    hist = it.run_scan(spec.kind, spec.params, setup.struct, v, info["time_steps"][speed_index],
-                       position + s0, position, info["n_steps"])
+    hist = it.run_scan(law, setup.struct, v, info["time_steps"][speed_index], position + s0,
+                       position, info["n_steps"])
     return float(jnp.min(hist["force"][info["n_steps"] // 4:]))
 
 

@@ -7,6 +7,7 @@ import pytest
 
 import wfjax as wf
 from wfjax import interaction as it
+from wfjax.contact import laws
 
 ROUNDED = wf.Flat.rounded(0.9e-3, 0.1)
 NEW = wf.Flat.new(0.9e-3)
@@ -81,8 +82,8 @@ def _max_force_fn(contact, speed, position=0.1):
 
     def max_force(depth):
         flat = wf.Flat("rounded", depth, 0.1, extent_bound=0.05)
-        spec = it.contact_spec(contact, flat, wheel, track, mat, cfg)
-        hist = it.run_scan(spec.kind, spec.params, struct, speed, dt, position + s0, position, n)
+        law = laws.prepare(contact, flat, wheel, track, mat, cfg)
+        hist = it.run_scan(law, struct, speed, dt, position + s0, position, n)
         return jnp.max(hist["force"])
 
     return max_force

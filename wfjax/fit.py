@@ -60,7 +60,7 @@ import numpy as np
 import optax
 
 from . import interaction as it
-from .interaction import CONTACT_MODELS
+from .contact.laws import CONTACT_MODELS, ContactLaw, TableLaw, prepare, prepare_family
 from .params import Flat, Material, SimConfig, Track, Wheel, new_flat_length
 from .sweep import impact_positions_grid
 
@@ -331,6 +331,10 @@ def smooth_max(x, temperature=None, axis=-1):
 
 
 # -- differentiable force models ------------------------------------------------------------
+FIT_DEPTH_FACTOR = 2.5  # the 3D family of a fit covers depths in [d0 / 2.5, 2.5 d0]
+FIT_LENGTH_FACTOR = 2.5  # ... and rounded lengths up to 2.5 x the starting l / l0
+
+
 @dataclasses.dataclass(frozen=True)
 class _Setup:
     """Concrete model data shared by every evaluation (built once, outside ``jit``)."""
@@ -341,7 +345,27 @@ class _Setup:
     material: Material
     config: SimConfig
     struct: Any
-    table_spec: Any  # TableSpec for "3d", else None
+    table_spec: Any  # TableSpec for "3d" with a measured profile, else None
+    family: Any  # FlatFamily for "3d" with a new or rounded flat, else None
+
+
+def fit_range_flats(reference: Flat, wheel_radius: float, depth_factor: float = FIT_DEPTH_FACTOR,
+                    length_factor: float = FIT_LENGTH_FACTOR) -> list[Flat]:
+    """Corner flats of the geometry range a 3D fit may visit (sizes its parametric family).
+
+    Depths from d0 / ``depth_factor`` to d0 x ``depth_factor`` (within the model's 0-5 mm);
+    rounded flats from the shortest allowed length (pi/2 l0) to ``length_factor`` x their
+    starting l / l0.
+    """
+    from .params import MAX_FLAT_DEPTH
+
+    d0 = float(reference.depth)
+    depths = (d0 / depth_factor, min(d0 * depth_factor, MAX_FLAT_DEPTH))
+    if reference.kind == "new":
+        return [Flat.new(d, wheel_radius) for d in depths]
+    factor = float(reference.length) / float(new_flat_length(d0, wheel_radius))
+    factors = (math.pi / 2, max(factor, math.pi / 2) * length_factor)
+    return [Flat.rounded_relative(d, f, wheel_radius) for d in depths for f in factors]
 
 
 def _setup(contact: str, reference: Flat, wheel, track, material, config, cache_dir=None):
@@ -351,28 +375,29 @@ def _setup(contact: str, reference: Flat, wheel, track, material, config, cache_
     track = track or Track.comparison()
     material = material or Material()
     config = config or SimConfig()
-    spec3d = None
-    if contact == "3d":
+    spec3d = family = None
+    if contact == "3d" and reference.kind == "profile":
         from .contact import tables
 
         spec3d = tables.table_spec(reference, float(wheel.radius), float(track.rail_head_radius),
                                    material, element_size=config.contact_element)
+    elif contact == "3d":
+        corners = fit_range_flats(reference, float(wheel.radius))
+        family = prepare_family(corners, wheel, track, material, config, cache_dir)
     return _Setup(contact, wheel, track, material, config,
-                  it.structure(wheel, track, config, cache_dir), spec3d)
+                  it.structure(wheel, track, config, cache_dir), spec3d, family)
 
 
-def _contact(setup: _Setup, flat: Flat) -> it.ContactSpec:
+def _contact(setup: _Setup, flat: Flat) -> ContactLaw:
     """The contact law of ``flat`` (depth, length, profile may be traced)."""
-    if setup.contact != "3d":
-        return it.contact_spec(setup.contact, flat, setup.wheel, setup.track, setup.material,
-                               setup.config)
-    from .contact import tables
+    if setup.table_spec is not None:  # a measured profile: its exact table, built traced
+        from .contact import tables
 
-    table = tables.build_table_3d(flat, float(setup.wheel.radius),
-                                  float(setup.track.rail_head_radius), setup.material,
-                                  element_size=setup.config.contact_element,
-                                  spec=setup.table_spec)
-    return it.ContactSpec("3d", {"table": table})
+        return TableLaw(tables.build_table_3d(
+            flat, float(setup.wheel.radius), float(setup.track.rail_head_radius),
+            setup.material, element_size=setup.config.contact_element, spec=setup.table_spec))
+    return prepare(setup.contact, flat, setup.wheel, setup.track, setup.material,
+                   setup.config, family=setup.family)
 
 
 class ForceModel(NamedTuple):
@@ -406,14 +431,13 @@ def _windows(ref: Flat, speeds, config: SimConfig):
     return n_steps, dt, s0, run_in
 
 
-def _batch_runs(setup: _Setup, spec, n_steps, speeds, dt, x_start, impact, checkpoint: bool):
+def _batch_runs(setup: _Setup, law, n_steps, speeds, dt, x_start, impact, checkpoint: bool):
     """Force histories [batch, n_steps] of runs batched over (speed, dt, x_start, impact)."""
     max_iter = setup.config.newton_iterations
 
     def one(args):
         v, d, xs, xi = args
-        return it.run_scan(spec.kind, spec.params, setup.struct, v, d, xs, xi, n_steps,
-                           max_iter)["force"]
+        return it.run_scan(law, setup.struct, v, d, xs, xi, n_steps, max_iter)["force"]
 
     args = tuple(jnp.asarray(a, dtype=float) for a in (speeds, dt, x_start, impact))
     if checkpoint:
@@ -461,8 +485,8 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
     after = jnp.asarray(np.arange(n_steps)[None, :] >= rr[:, None])
 
     def fn(flat: Flat):
-        spec = _contact(setup, flat)
-        force = _batch_runs(setup, spec, n_steps, vv, dd, pp + ss, pp, checkpoint)
+        law = _contact(setup, flat)
+        force = _batch_runs(setup, law, n_steps, vv, dd, pp + ss, pp, checkpoint)
         peak = smooth_max(jnp.where(after, force, 0.0), time_temperature, axis=-1)
         return smooth_max(peak.reshape(v.size, pos.size), temperature, axis=-1)
 
@@ -497,8 +521,8 @@ def history_model(t, speed: float, reference: Flat, contact: str = "hertz-trajec
     t_sim = jnp.asarray(t_first + dt[0] * np.arange(n_steps))
 
     def fn(flat: Flat):
-        spec = _contact(setup, flat)
-        force = _batch_runs(setup, spec, n_steps, [speed], dt, [pos + s0[0]], [pos], False)[0]
+        law = _contact(setup, flat)
+        force = _batch_runs(setup, law, n_steps, [speed], dt, [pos + s0[0]], [pos], False)[0]
         return jnp.interp(jnp.asarray(t), t_sim, force)
 
     info = {"kind": "history", "speed": float(speed), "impact_position": pos,

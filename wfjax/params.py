@@ -25,6 +25,7 @@ __all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT
 
 MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (half-space, Eq. 1)
 FLAT_KINDS = ("new", "rounded", "profile", "none")
+CONTACT_MODES_3D = ("auto", "table", "parametric", "direct")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
 
 
@@ -410,8 +411,12 @@ class SimConfig:
             equilibrium; long enough for the sleeper-passing transient to settle).
         run_out: distance travelled after the flat centre passed the contact [m].
         contact_element: side of the square 3D contact elements and 2D bedding elements [m].
-        contact_mode_3d: ``"table"`` (F(delta, s) table, fast) or ``"direct"`` (a Kalker solve
-            every step, the reference).
+        contact_mode_3d: how the 3D contact is evaluated: ``"table"`` (the exact F(delta, s)
+            table of each flat), ``"parametric"`` (the family F(delta, s; depth, length) of
+            :mod:`wfjax.contact.family`: geometry traced, batched and differentiable),
+            ``"direct"`` (a Kalker solve every step, the reference) or ``"auto"`` (default:
+            the table for a single flat of a kind, the family for a batch of geometries of
+            one kind and for fits).
         track_max_frequency: modes of the track model above this frequency [Hz] are replaced
             by their static contribution (10 kHz: 599 modes; measured max-force change against
             keeping all 1187 modes <= 0.1 % for 0.9 mm new and rounded flats at 60 and
@@ -425,7 +430,7 @@ class SimConfig:
     run_in: float = 0.2
     run_out: float = 0.2
     contact_element: float = 1e-3
-    contact_mode_3d: str = "table"
+    contact_mode_3d: str = "auto"
     track_max_frequency: float = 10e3
     newton_iterations: int = 30
 
@@ -440,9 +445,9 @@ class SimConfig:
             _check_finite("SimConfig", name, v)
             if v < 0:
                 raise ValueError(f"SimConfig.{name} must be >= 0 m, got {v!r}")
-        if self.contact_mode_3d not in ("table", "direct"):
+        if self.contact_mode_3d not in CONTACT_MODES_3D:
             raise ValueError(
-                "SimConfig.contact_mode_3d must be 'table' or 'direct', "
+                f"SimConfig.contact_mode_3d must be one of {CONTACT_MODES_3D}, "
                 f"got {self.contact_mode_3d!r}"
             )
         if self.newton_iterations < 1:

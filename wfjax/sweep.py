@@ -18,6 +18,7 @@ everywhere; ``jax.devices()`` then spans all hosts and every process receives th
 from __future__ import annotations
 
 import csv
+import dataclasses
 import functools
 import io
 import json
@@ -34,16 +35,10 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .interaction import (
-    RUN_IN_TIME,
-    contact_spec,
-    n_steps_for,
-    run_scan,
-    simulation_window,
-    structure,
-    summarise,
-)
+from .contact.laws import CONTACT_MODELS, prepare, prepare_family, resolve_mode_3d
+from .interaction import RUN_IN_TIME, n_steps_for, run_scan, simulation_window, structure
 from .params import Flat, Material, SimConfig, Track, Wheel
+from .results import summarise
 
 __all__ = ["SweepResult", "sweep", "impact_positions_grid"]
 
@@ -60,6 +55,8 @@ class SweepResult(NamedTuple):
         max_residual: largest per-step contact-equation residual [m] (solver diagnostic).
         flats: labels of the flats (e.g. ``"rounded d=0.90mm l=100.0mm"``).
         contact: the contact model.
+        depths, lengths: [n_flats] flat depth and length [m] (length: l of a rounded flat,
+            the chord l0 of a new one, the support of a measured profile).
     """
 
     speeds: Any
@@ -71,6 +68,8 @@ class SweepResult(NamedTuple):
     max_residual: Any
     flats: tuple
     contact: str
+    depths: Any = None
+    lengths: Any = None
 
     def envelope(self) -> dict[str, np.ndarray]:
         """Max over positions of max_force, min over positions of min_force: [n_flats, n_speeds]."""
@@ -85,7 +84,10 @@ class SweepResult(NamedTuple):
         buf = io.StringIO()
         w = csv.writer(buf)
         w.writerow(["flat", "contact", "speed_kmh", "impact_position_mm", "max_force_kN",
-                    "min_force_kN", "loss_of_contact", "loss_of_contact_ms"])
+                    "min_force_kN", "loss_of_contact", "loss_of_contact_ms", "depth_mm",
+                    "length_mm"])
+        depths = np.full(len(self.flats), np.nan) if self.depths is None else self.depths
+        lengths = np.full(len(self.flats), np.nan) if self.lengths is None else self.lengths
         for i, label in enumerate(self.flats):
             for j, v in enumerate(np.asarray(self.speeds)):
                 for k, p in enumerate(np.asarray(self.impact_positions)):
@@ -93,7 +95,8 @@ class SweepResult(NamedTuple):
                                 f"{self.max_force[i, j, k] / 1e3:.6f}",
                                 f"{self.min_force[i, j, k] / 1e3:.6f}",
                                 int(self.loss_of_contact[i, j, k]),
-                                f"{self.loss_of_contact_duration[i, j, k] * 1e3:.6g}"])
+                                f"{self.loss_of_contact_duration[i, j, k] * 1e3:.6g}",
+                                f"{depths[i] * 1e3:.6g}", f"{lengths[i] * 1e3:.6g}"])
         return buf.getvalue()
 
     def save_npz(self, path) -> None:
@@ -101,7 +104,7 @@ class SweepResult(NamedTuple):
         path = Path(path)
         tmp = path.with_name(f".{path.name}.tmp.npz")
         arrays = {k: np.asarray(getattr(self, k)) for k in self._fields
-                  if k not in ("flats", "contact")}
+                  if k not in ("flats", "contact") and getattr(self, k) is not None}
         np.savez(tmp, flats=np.array(self.flats), contact=np.array(self.contact), **arrays)
         tmp.replace(path)
 
@@ -109,7 +112,8 @@ class SweepResult(NamedTuple):
     def load_npz(cls, path) -> SweepResult:
         """Load a result written by :meth:`save_npz`."""
         with np.load(path) as data:
-            fields = {k: data[k] for k in cls._fields if k not in ("flats", "contact")}
+            fields = {k: data[k] for k in cls._fields
+                      if k not in ("flats", "contact") and k in data}
             return cls(flats=tuple(str(s) for s in data["flats"]),
                        contact=str(data["contact"]), **fields)
 
@@ -152,30 +156,30 @@ def flat_label(flat: Flat) -> str:
     return f"{flat.kind} d={d:.2f}mm"
 
 
-def _reduce(spec_kind, n_steps, max_iter, params, struct, speed, dt, x_start, impact_position,
+def _reduce(n_steps, max_iter, laws, struct, flat_index, speed, dt, x_start, impact_position,
             run_in_steps):
-    hist = run_scan(spec_kind, params, struct, speed, dt, x_start, impact_position, n_steps,
-                    max_iter)
+    law = jax.tree.map(lambda a: a[flat_index], laws)
+    hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter)
     res = summarise(hist, speed, impact_position, dt, run_in_steps)
     return (res.max_force, res.min_force, res.loss_of_contact, res.loss_of_contact_duration,
             jnp.max(res.residual))
 
 
 @functools.cache
-def _batched(mesh: Mesh, spec_kind: str, n_steps: int, max_iter: int):
-    """Compiled (params, struct, speed, dt, x_start, impact_position, run_in) -> summaries.
+def _batched(mesh: Mesh, n_steps: int, max_iter: int):
+    """Compiled (laws, struct, flat_index, speed, dt, x_start, impact_position, run_in) ->
+    summaries, for laws stacked along a leading flat axis (one program per law class).
 
     ``shard_map`` gives every device its own ``vmap``-ed loop over its runs: the batched
     Newton ``while_loop`` then stops on the device's own runs, with no cross-device reduction
     of its condition at every step (what a plain ``jit`` over sharded inputs would compile).
     """
-    def local(params, struct, *runs):
-        return jax.vmap(functools.partial(_reduce, spec_kind, n_steps, max_iter, params,
-                                          struct))(*runs)
+    def local(laws, struct, *runs):
+        return jax.vmap(functools.partial(_reduce, n_steps, max_iter, laws, struct))(*runs)
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
-                                 in_specs=(PartitionSpec(), PartitionSpec()) + (by_run,) * 5))
+                                 in_specs=(PartitionSpec(), PartitionSpec()) + (by_run,) * 6))
 
 
 def _device_mesh() -> Mesh:
@@ -276,46 +280,110 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             raise ValueError(f"impact_positions must lie in [0, {spacing}) m, got {pos!r}")
     if chunk_size < 1:
         raise ValueError(f"chunk_size must be >= 1, got {chunk_size!r}")
+    if contact not in CONTACT_MODELS:
+        raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     mesh = _device_mesh()
-    n_dev = mesh.devices.size
     struct = _replicate(structure(wheel, track, config, cache_dir), mesh)
     shape = (len(flat_list), v.size, pos.size)
     out = {k: np.zeros(shape) for k in ("max", "min", "lost", "lost_t", "res")}
-    for i, flat in enumerate(flat_list):
-        if progress:  # the 3D table build takes seconds to a minute on a cold cache
-            print(f"  {flat_label(flat)}: preparing the {contact} contact law ...", end="\r",
+    for group in batch_groups(flat_list, contact, config):
+        members = [flat_list[i] for i in group]
+        label = (flat_label(members[0]) if len(members) == 1
+                 else f"{len(members)} {members[0].kind} flats")
+        if progress:  # a 3D table or family build takes seconds to a minute on a cold cache
+            print(f"  {label}: preparing the {contact} contact law ...", end="\r",
                   file=sys.stderr, flush=True)
-        spec = contact_spec(contact, flat, wheel, track, material, config, cache_dir)
-        spec_params = _replicate(spec.params, mesh)
-        n_steps = max(n_steps_for(flat, float(s), config)[0] for s in v)
-        vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
-        s_start = np.array([simulation_window(flat, float(s), config)[0] for s in vv])
-        s_end = np.array([simulation_window(flat, float(s), config)[1] for s in vv])
-        dt = (s_end - s_start) / vv / (n_steps - 1)
-        run_in = np.floor(0.5 * RUN_IN_TIME / dt).astype(int)
-        bar = _Progress(vv.size, flat_label(flat), enabled=progress)
-        results = []
-        step, width = _chunk_layout(vv.size, chunk_size, n_dev)
-        for lo in range(0, vv.size, step):
-            sl = slice(lo, lo + step)
-            n = vv[sl].size
-
-            def padded(a, pad=width - n):
-                return _shard_runs(np.concatenate([a, np.repeat(a[-1:], pad)]), mesh)
-
-            program = _batched(mesh, spec.kind, n_steps, config.newton_iterations)
-            batch = program(spec_params, struct, padded(vv[sl]), padded(dt[sl]),
-                            padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]))
-            results.append([b[:n] for b in _gather(batch)])
-            bar.update(n)
-        cols = [np.concatenate(c).reshape(v.size, pos.size) for c in zip(*results, strict=True)]
+        laws, window_flat = prepare_batch(contact, members, wheel, track, material, config,
+                                          cache_dir, progress)
+        cols = _run_group(_replicate(laws, mesh), struct, window_flat, len(members), v, pos,
+                          config, mesh, chunk_size, _Progress(len(members) * v.size * pos.size,
+                                                              label, enabled=progress))
         for key, col in zip(("max", "min", "lost", "lost_t", "res"), cols, strict=True):
-            out[key][i] = col
+            out[key][group] = col
     return SweepResult(
         speeds=v, impact_positions=pos, max_force=out["max"], min_force=out["min"],
         loss_of_contact=out["lost"].astype(bool), loss_of_contact_duration=out["lost_t"],
         max_residual=out["res"], flats=tuple(flat_label(f) for f in flat_list), contact=contact,
+        depths=np.array([float(np.asarray(f.depth)) for f in flat_list]),
+        lengths=np.array([float(np.asarray(f.length)) for f in flat_list]),
     )
+
+
+def batch_groups(flats: Sequence[Flat], contact: str, config: SimConfig) -> list[list[int]]:
+    """Indices of the flats that share one compiled program.
+
+    Laws whose geometry is a traced leaf (Hertz, 2D bedding, the parametric 3D family) batch
+    every new or rounded flat of one kind; the exact 3D table and the direct 3D mode (their
+    grids depend on the flat), measured profiles and smooth wheels run one flat per program.
+    Under ``contact_mode_3d="auto"`` a kind with several geometries uses the parametric
+    family, a kind with one geometry its exact table.
+    """
+    per_flat_3d = contact == "3d" and config.contact_mode_3d in ("table", "direct")
+    kinds: dict[str, list[int]] = {}
+    singles = []
+    for i, flat in enumerate(flats):
+        if flat.kind in ("new", "rounded") and not per_flat_3d:
+            kinds.setdefault(flat.kind, []).append(i)
+        else:
+            singles.append([i])
+    return list(kinds.values()) + singles
+
+
+def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Track,
+                  material: Material, config: SimConfig, cache_dir=None,
+                  progress: bool = False):
+    """Contact laws of ``flats`` (one kind) stacked along a leading flat axis.
+
+    The concrete work (node sets, trajectory grids, the 3D family) is done once for the whole
+    batch; the geometry enters through ``jax.vmap`` over the stacked flats, so the laws'
+    geometry leaves are traced and one compiled program serves every flat. Windows are sized
+    by the largest flat of the batch (``extent_bound``).
+
+    Returns:
+        (laws with leaves [n_flats, ...], the flat that sizes the simulation windows).
+    """
+    bound = max(f.half_extent for f in flats)
+    sized = [dataclasses.replace(f, extent_bound=bound) for f in flats]
+    family = None
+    if contact == "3d":
+        if resolve_mode_3d(config, batched=len(flats) > 1) != "parametric":
+            (flat,) = flats  # per-flat grids: batch_groups gives one flat per group
+            law = prepare(contact, flat, wheel, track, material, config, cache_dir)
+            return jax.tree.map(lambda a: jnp.asarray(a)[None], law), flat
+        family = prepare_family(flats, wheel, track, material, config, cache_dir, progress)
+    max_depth = max(float(np.max(np.asarray(f.depth))) for f in flats)
+    stacked = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *sized)
+    laws = jax.vmap(lambda f: prepare(contact, f, wheel, track, material, config, cache_dir,
+                                      family=family, max_depth=max_depth))(stacked)
+    return laws, sized[0]
+
+
+def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: SimConfig,
+               mesh: Mesh, chunk_size: int, bar: _Progress) -> list[np.ndarray]:
+    """Summaries [n_flats, n_speeds, n_positions] of one batch of laws, chunked and sharded."""
+    n_steps = max(n_steps_for(window_flat, float(s), config)[0] for s in v)
+    ff, vv, pp = (a.ravel() for a in np.meshgrid(np.arange(n_flats), v, pos, indexing="ij"))
+    windows = {float(s): simulation_window(window_flat, float(s), config) for s in v}
+    s_start = np.array([windows[float(s)][0] for s in vv])
+    s_end = np.array([windows[float(s)][1] for s in vv])
+    dt = (s_end - s_start) / vv / (n_steps - 1)
+    run_in = np.floor(0.5 * RUN_IN_TIME / dt).astype(int)
+    program = _batched(mesh, n_steps, config.newton_iterations)
+    results = []
+    step, width = _chunk_layout(vv.size, chunk_size, mesh.devices.size)
+    for lo in range(0, vv.size, step):
+        sl = slice(lo, lo + step)
+        n = vv[sl].size
+
+        def padded(a, pad=width - n):
+            return _shard_runs(np.concatenate([a, np.repeat(a[-1:], pad)]), mesh)
+
+        batch = program(laws, struct, padded(ff[sl]), padded(vv[sl]), padded(dt[sl]),
+                        padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]))
+        results.append([b[:n] for b in _gather(batch)])
+        bar.update(n)
+    return [np.concatenate(c).reshape(n_flats, v.size, pos.size)
+            for c in zip(*results, strict=True)]
 
 
 def _chunk_layout(n_runs: int, chunk_size: int, n_devices: int) -> tuple[int, int]:

@@ -1,0 +1,334 @@
+"""Contact laws behind one interface: what the time loop needs from a contact model.
+
+Every contact model is a pytree built once by :func:`prepare` (the concrete work: node sets,
+trajectory grids, 3D tables) and evaluated inside the compiled time step through one small
+protocol (:class:`ContactLaw`):
+
+* ``law.point(s)``: the work that depends only on the flat position s [m] (a gap at the
+  bedding nodes, an interpolated 3D table column, the trajectory's drop), done once per step;
+* ``law.point_force(point, delta)``: the force F [N] at approach delta [m], evaluated at every
+  Newton iterate of the step;
+* ``law.force(delta, s)``: both at once (static equilibrium, plots, tests);
+* ``law.init_state()`` and ``law.step(delta_free, compliance, s, state, max_iter)``: the
+  step's scalar contact equation (:mod:`wfjax.contact.newton`); only the per-step direct 3D
+  solve, which warm-starts Kalker's solver from the previous pressures, overrides them.
+
+The flat's geometry enters every law as traced leaves (the flat itself, or arrays computed
+from it by traced code), never as static Python values: the same compiled program serves a
+batch of flats (``jax.vmap`` over :func:`prepare`'s traced part) and ``jax.grad`` reaches depth,
+length and profile samples. The law's class and its static fields (grid shapes) select the
+compiled program; the time loop never sees a model's name.
+
+Models (``contact=``): ``"hertz-profile"`` (:class:`HertzProfileLaw`), ``"hertz-trajectory"``
+(:class:`HertzTrajectoryLaw`), ``"2d"`` (:class:`WinklerLaw`) and ``"3d"``: the exact table
+of one flat (:class:`TableLaw`), the parametric family over depth and length
+(:class:`ParametricLaw`, :mod:`wfjax.contact.family`) or a Kalker solve every step
+(:class:`wfjax.contact.direct3d.Direct3DLaw`), chosen by ``SimConfig.contact_mode_3d``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import geometry
+from ..params import (
+    MAX_FLAT_DEPTH,
+    Flat,
+    Material,
+    SimConfig,
+    Track,
+    Wheel,
+    _is_concrete,
+    _pytree,
+)
+from . import hertz, tables, winkler
+from .newton import solve_contact_step
+
+__all__ = [
+    "CONTACT_MODELS",
+    "FLAT_MARGIN",
+    "ContactLaw",
+    "HertzProfileLaw",
+    "HertzTrajectoryLaw",
+    "WinklerLaw",
+    "TableLaw",
+    "ParametricLaw",
+    "prepare",
+    "prepare_family",
+    "resolve_mode_3d",
+    "cached_table_3d",
+]
+
+CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
+FLAT_MARGIN = 0.02  # m added to the flat's half extent on either side of its window
+TRAJECTORY_SPACING = 2e-5  # m between the samples of the tabulated wheel-centre trajectory
+
+
+class ContactLaw:
+    """The protocol every contact law implements (see the module docstring)."""
+
+    def point(self, s):
+        """The s-dependent part of the law at flat position ``s`` [m] (a pytree)."""
+        raise NotImplementedError
+
+    def point_force(self, point, delta):
+        """Contact force F [N] at approach ``delta`` [m] for a :meth:`point` result."""
+        raise NotImplementedError
+
+    def force(self, delta, s):
+        """Contact force F [N] at approach ``delta`` [m] and flat position ``s`` [m]."""
+        return self.point_force(self.point(s), delta)
+
+    def init_state(self):
+        """Initial per-step solver state carried by the time loop (``None``: stateless)."""
+        return None
+
+    def step(self, delta_free, compliance, s, state, max_iter: int = 30):
+        """Solve the step's contact equation delta = delta_free - compliance F(delta, s).
+
+        Args:
+            delta_free: approach if F were zero [m]. compliance: structure's c > 0 [m/N].
+            s: flat position [m]. state: solver state (:meth:`init_state`).
+            max_iter: Newton iteration cap (static).
+
+        Returns:
+            (delta [m], F [N], |r| [m], state); differentiable by the implicit function
+            theorem (:func:`wfjax.contact.newton.solve_contact_step`).
+        """
+        frozen = jax.lax.stop_gradient(self)
+        point = self.point(s)
+        point_ng = frozen.point(jax.lax.stop_gradient(s))
+        delta, f, r = solve_contact_step(
+            lambda d: self.point_force(point, d), delta_free, compliance, max_iter,
+            loop_force_fn=lambda d: frozen.point_force(point_ng, d))
+        return delta, f, r, state
+
+
+def _hertz_law(c_h, compression):
+    positive = compression > 0
+    safe = jnp.where(positive, compression, 1.0)
+    return jnp.where(positive, c_h * safe**1.5, 0.0)
+
+
+@_pytree
+class HertzProfileLaw(ContactLaw):
+    """Hertz spring driven by the flat's profile deviation: F = C_H (delta - z(s))^1.5.
+
+    Attributes: c_h: Hertz constant C_H [N/m^1.5]; flat: the flat (traced geometry).
+    """
+
+    c_h: Any
+    flat: Flat
+
+    def point(self, s):
+        return geometry.profile_deviation(self.flat, s)
+
+    def point_force(self, point, delta):
+        return _hertz_law(self.c_h, delta - point)
+
+
+@_pytree
+class HertzTrajectoryLaw(ContactLaw):
+    """Hertz spring driven by the rigid wheel-centre trajectory: F = C_H (delta - drop(s))^1.5.
+
+    Attributes:
+        c_h: Hertz constant C_H [N/m^1.5].
+        s_grid: [n] flat positions [m] of the tabulated trajectory (2e-5 m apart).
+        drop: [n] centre drop -H(s) >= 0 [m] (:func:`wfjax.geometry.centre_trajectory`),
+            computed by traced code from the flat, so it carries the geometry's gradient.
+        flat: the flat it was computed from.
+    """
+
+    c_h: Any
+    s_grid: Any
+    drop: Any
+    flat: Flat
+
+    def point(self, s):
+        return jnp.interp(s, self.s_grid, self.drop, left=0.0, right=0.0)
+
+    def point_force(self, point, delta):
+        return _hertz_law(self.c_h, delta - point)
+
+
+@_pytree
+class WinklerLaw(ContactLaw):
+    """2D Winkler bedding (:mod:`wfjax.contact.winkler`); ``point(s)`` is the gap at the nodes.
+
+    Attributes: flat (traced geometry); material; radius: R_W [m]; nodes: [n] bedding nodes
+    x' [m] relative to the nominal contact point.
+    """
+
+    flat: Flat
+    material: Material
+    radius: Any
+    nodes: Any
+
+    def point(self, s):
+        return winkler.gap_at_nodes(self.flat, s, self.radius, self.nodes)
+
+    def point_force(self, point, delta):
+        return winkler.force_from_gap(point, delta, self.material, self.nodes)
+
+
+@_pytree
+class TableLaw(ContactLaw):
+    """3D contact through the exact table F3D(delta, s) of one flat (:mod:`.tables`).
+
+    Attributes: table: :class:`wfjax.contact.tables.ContactTable`.
+    """
+
+    table: Any
+
+    def point(self, s):
+        return tables.table_column(self.table, s)
+
+    def point_force(self, point, delta):
+        return tables.column_force(point, delta)
+
+
+@_pytree
+class ParametricLaw(ContactLaw):
+    """3D contact through the parametric family F3D(delta, s; depth, length) (:mod:`.family`).
+
+    Attributes: family: :class:`wfjax.contact.family.FlatFamily` (node tables, concrete);
+    depth, length: the flat's depth and length [m] (traced leaves: ``vmap`` and ``grad``).
+    """
+
+    family: Any
+    depth: Any
+    length: Any
+
+    def point(self, s):
+        from . import family
+
+        return family.family_column(self.family, s, self.depth, self.length)
+
+    def point_force(self, point, delta):
+        return tables.column_force(point, delta)
+
+
+def hertz_radius(wheel: Wheel, track: Track):
+    """Equivalent radius [m] of the Hertz spring: sqrt(R_W R_R).
+
+    The paper's Hertz spring assumes equal wheel and rail-head radii (Eq. 15). For unequal
+    radii the geometric mean is the usual equivalent radius (exact for the contact area).
+    """
+    return jnp.sqrt(wheel.radius * track.rail_head_radius)
+
+
+def resolve_mode_3d(config: SimConfig, batched: bool) -> str:
+    """The 3D mode actually used: ``"auto"`` is the exact table for one flat of a kind and
+    the parametric family for a batch of geometries (sweeps over depths, fits)."""
+    mode = config.contact_mode_3d
+    if mode == "auto":
+        return "parametric" if batched else "table"
+    return mode
+
+
+def prepare(contact: str, flat: Flat, wheel: Wheel, track: Track, material: Material,
+            config: SimConfig, cache_dir=None, family=None,
+            max_depth: float | None = None) -> ContactLaw:
+    """Build the contact law of ``flat`` (concrete grids and tables; traced geometry leaves).
+
+    Args:
+        contact: one of :data:`CONTACT_MODELS`.
+        flat: the flat; its depth, length and profile may be traced (``vmap``/``grad``) for
+            every model except the exact 3D table and the direct 3D mode, which need a
+            concrete flat (their grids depend on it). Traced flats need ``extent_bound``.
+        wheel, track, material, config: model parameters.
+        cache_dir: on-disk cache of 3D tables (default ``WFJAX_CACHE_DIR`` / ``~/.cache``).
+        family: a built :class:`wfjax.contact.family.FlatFamily` for ``"3d"``: selects the
+            parametric law (required when the flat is traced).
+        max_depth: concrete bound [m] of a traced flat's depth; sizes the 2D bedding window
+            (default: the flat's depth, or :data:`wfjax.params.MAX_FLAT_DEPTH` if traced).
+
+    Returns:
+        A :class:`ContactLaw` pytree.
+    """
+    if contact not in CONTACT_MODELS:
+        raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
+    c_h = hertz.hertz_constant(material, hertz_radius(wheel, track))
+    if contact == "hertz-profile":
+        return HertzProfileLaw(c_h, flat)
+    if contact == "hertz-trajectory":
+        half = flat.half_extent + FLAT_MARGIN
+        grid = jnp.linspace(-half, half, int(2 * half / TRAJECTORY_SPACING) + 1)
+        return HertzTrajectoryLaw(c_h, grid, -geometry.centre_trajectory(flat, grid), flat)
+    if contact == "2d":
+        if max_depth is None and not _is_concrete(flat.depth):
+            max_depth = MAX_FLAT_DEPTH
+        deepest = None if max_depth is None else max_depth + winkler.DEFAULT_APPROACH_MARGIN
+        half = winkler.default_half_window(flat, float(wheel.radius), deepest)
+        nodes = jnp.asarray(winkler.bedding_nodes(half, config.contact_element))
+        return WinklerLaw(flat, material, wheel.radius, nodes)
+    mode = "parametric" if family is not None else resolve_mode_3d(config, batched=False)
+    if mode == "parametric":
+        if family is None:
+            family = prepare_family([flat], wheel, track, material, config, cache_dir)
+        return ParametricLaw(family, flat.depth, flat.length)
+    if mode == "direct":
+        from .direct3d import prepare_direct
+
+        return prepare_direct(flat, wheel, track, material, config, cache_dir)
+    return TableLaw(cached_table_3d(flat, float(wheel.radius), float(track.rail_head_radius),
+                                    material, config.contact_element, cache_dir))
+
+
+def prepare_family(flats, wheel: Wheel, track: Track, material: Material, config: SimConfig,
+                   cache_dir=None, progress: bool = False):
+    """The parametric 3D family covering ``flats`` (concrete, one kind: new or rounded).
+
+    Node tables are cached on disk, so a later call over an overlapping range builds only the
+    missing nodes. Fits pass the two corners of their search range as ``flats``.
+
+    Returns:
+        :class:`wfjax.contact.family.FlatFamily`.
+    """
+    from ..params import new_flat_length
+    from . import family as family_mod
+
+    kinds = {f.kind for f in flats}
+    if len(kinds) != 1 or not kinds <= {"new", "rounded"}:
+        raise ValueError(f"the parametric 3D law needs flats of one kind, 'new' or 'rounded', "
+                         f"got kinds {sorted(kinds)}; measured profiles use the exact table "
+                         f"(SimConfig(contact_mode_3d='table'))")
+    kind = kinds.pop()
+    radius = float(wheel.radius)
+    depths = [float(np.asarray(f.depth)) for f in flats]
+    factors = None
+    if kind == "rounded":
+        factors = [float(np.asarray(f.length)) / float(new_flat_length(d, radius))
+                   for f, d in zip(flats, depths, strict=True)]
+    spec = family_mod.family_spec(kind, depths, factors, wheel_radius=radius,
+                                  rail_head_radius=float(track.rail_head_radius),
+                                  material=material, element_size=config.contact_element)
+    return family_mod.build_family(spec, material, cache_dir=cache_dir, progress=progress)
+
+
+def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
+                    material: Material, element_size: float, cache_dir=None):
+    """:func:`wfjax.contact.tables.build_table_3d` through the on-disk cache.
+
+    The key holds every input of the table (flat kind and geometry, radii, material, element
+    size, and the builder's defaults through the wfjax version). Flats with traced geometry
+    (``grad``, ``vmap``) are built directly, so gradients flow through the solves.
+    """
+    from .._cache import load_or_build
+
+    def build():
+        return tables.build_table_3d(flat, wheel_radius, rail_head_radius, material,
+                                     element_size=element_size)
+
+    leaves = jax.tree_util.tree_leaves((flat, material))
+    if not all(_is_concrete(leaf) for leaf in leaves):
+        return build()
+    key = {"flat_kind": flat.kind, "flat": [np.asarray(v) for v in leaves],
+           "wheel_radius": wheel_radius, "rail_head_radius": rail_head_radius,
+           "element_size": element_size}
+    arrays = load_or_build("table3d", key, lambda: build()._asdict(), cache_dir)
+    return tables.ContactTable(**{k: jnp.asarray(v) for k, v in arrays.items()})

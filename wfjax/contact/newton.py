@@ -1,0 +1,112 @@
+"""The scalar contact equation of one time step, solved for every contact law.
+
+Within a step the structure (wheel and rail) responds to the contact force F through a scalar
+compliance c [m/N], so the step's unknown approach delta [m] solves
+
+    r(delta) = delta - delta_free + c F(delta) = 0,
+
+with delta_free the approach if F were zero. r is increasing in delta for every law here
+(F is non-decreasing in delta). :func:`bracketed_newton` solves it without gradients;
+:func:`solve_contact_step` attaches exact first derivatives by the implicit function theorem
+(one Newton step from the converged root with the root and the slope held fixed), so
+reverse-mode autodiff never enters the ``while_loop``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["bracketed_newton", "solve_contact_step", "static_approach"]
+
+
+def bracketed_newton(evaluate, delta_free, compliance, aux0, max_iter: int = 30,
+                     tol: float = 1e-15):
+    """Root of r(delta) = delta - delta_free + c F(delta) (increasing), no gradients.
+
+    Newton iteration started from delta_free (where r >= 0), bisection whenever a step leaves
+    the bracket [delta_free - c F(delta_free), delta_free]. For a convex F the Newton iterates
+    decrease monotonically to the root.
+
+    Args:
+        evaluate: (delta, aux) -> (F [N], dF/d delta [N/m], aux); ``aux`` carries solver state
+            such as a warm start.
+        delta_free: approach if F were zero [m]. compliance: c > 0 [m/N].
+        aux0: initial ``aux``. max_iter: iteration cap (static). tol: tolerance on r [m].
+
+    Returns:
+        (delta [m], |r| [m], aux).
+    """
+    def residual(delta, aux):
+        f, df, aux = evaluate(delta, aux)
+        return delta - delta_free + compliance * f, 1.0 + compliance * df, aux
+
+    def cond(state):
+        return (jnp.abs(state[3]) > tol) & (state[4] < max_iter)
+
+    def body(state):
+        delta, lo, hi, _, it, aux = state
+        r, dr, aux = residual(delta, aux)
+        lo = jnp.where(r < 0, delta, lo)
+        hi = jnp.where(r >= 0, delta, hi)
+        step = delta - r / dr
+        inside = (step >= lo) & (step <= hi)
+        new = jnp.where(inside, step, 0.5 * (lo + hi))
+        new = jnp.where(jnp.abs(r) <= tol, delta, new)  # converged: keep the evaluated iterate
+        return new, lo, hi, r, it + 1, aux
+
+    f_free, _, aux = evaluate(delta_free, aux0)
+    r0 = compliance * f_free
+    lo0 = delta_free - r0 - 1e-12
+    state = (delta_free, lo0, delta_free, r0, 0, aux)
+    delta, _, _, r, _, aux = jax.lax.while_loop(cond, body, state)
+    return delta, jnp.abs(r), aux
+
+
+def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol: float = 1e-15,
+                       loop_force_fn=None):
+    """Solve delta = delta_free - compliance * F(delta) for the approach delta [m].
+
+    :func:`bracketed_newton` on r(delta), made differentiable by the implicit function
+    theorem: one Newton step from the converged iterate with the iterate and the slope held
+    fixed (exact first derivatives at the root).
+
+    Args:
+        force_fn: F(delta) [N], scalar -> scalar, jax-differentiable.
+        delta_free: approach if F were zero [m]. compliance: c > 0 [m/N].
+        max_iter: iteration cap (static). tol: absolute tolerance on r [m].
+        loop_force_fn: ``force_fn`` with its parameters under ``stop_gradient``, used inside
+            the ``while_loop`` so reverse-mode autodiff never has to enter the loop (default:
+            ``force_fn``; pass it whenever ``force_fn`` closes over differentiated values).
+
+    Returns:
+        (delta [m], F [N], |r| [m]).
+    """
+    loop_force_fn = loop_force_fn or force_fn
+
+    def evaluate(delta, aux):
+        f, df = jax.value_and_grad(loop_force_fn)(delta)
+        return f, df, aux
+
+    d_free = jax.lax.stop_gradient(delta_free)
+    c = jax.lax.stop_gradient(compliance)
+    delta_star, r_abs, _ = bracketed_newton(evaluate, d_free, c, None, max_iter, tol)
+    delta_star = jax.lax.stop_gradient(delta_star)
+    f_star, df_star = jax.value_and_grad(force_fn)(delta_star)
+    r_star = delta_star - delta_free + compliance * f_star
+    delta = delta_star - r_star / jax.lax.stop_gradient(1.0 + c * df_star)
+    return delta, force_fn(delta), jax.lax.stop_gradient(r_abs)
+
+
+def static_approach(force_fn, preload, max_iter: int = 30):
+    """Approach [m] with force_fn(delta) = preload [N] (Newton from below; law convex).
+
+    Starts below the root (10 um: F < P for any realistic contact): the first Newton step on
+    the convex law overshoots above the root, from where the iterates decrease monotonically.
+    A fixed iteration count keeps reverse-mode differentiation possible.
+    """
+    def body(_, d):
+        f, df = jax.value_and_grad(force_fn)(d)
+        return d - (f - preload) / jnp.where(df > 0, df, 1.0)
+
+    return jax.lax.fori_loop(0, max_iter, body, jnp.asarray(1e-5))

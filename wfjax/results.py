@@ -1,0 +1,101 @@
+"""Results of one simulation: :class:`SimResult` and the reduction of time histories to it."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from typing import Any, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["SimResult", "summarise"]
+
+
+class SimResult(NamedTuple):
+    """Result of :func:`simulate` (a pytree: batched by :func:`wfjax.sweep`).
+
+    Arrays are [n_steps] along time (batched results have leading batch axes).
+
+    Attributes:
+        t: time [s], 0 at the start (static equilibrium).
+        x: rail coordinate of the nominal contact point [m] (0 at a sleeper centre).
+        s: wheel position relative to the impact [m] (0: flat centre at the contact point).
+        force: normal contact force F [N] (>= 0).
+        approach: contact approach delta = xi_W - xi_R [m].
+        wheel_disp: wheel displacement at the contact point, downwards [m].
+        rail_disp: rail displacement at the contact point, downwards [m].
+        residual: |r(delta)| of the per-step contact equation at the solution [m].
+        max_force: maximum contact force after the run-in [N].
+        min_force: minimum contact force after the run-in [N].
+        loss_of_contact: whether F = 0 occurred.
+        loss_of_contact_duration: total time with F = 0 [s].
+        speed: train speed v [m/s].
+        impact_position: rail coordinate of the impact within the bay [m].
+        time_step: dt [s].
+    """
+
+    t: Any
+    x: Any
+    s: Any
+    force: Any
+    approach: Any
+    wheel_disp: Any
+    rail_disp: Any
+    residual: Any
+    max_force: Any
+    min_force: Any
+    loss_of_contact: Any
+    loss_of_contact_duration: Any
+    speed: Any
+    impact_position: Any
+    time_step: Any
+
+    def summary(self) -> dict:
+        """JSON-ready summary with practical units (kN, km/h, mm, ms)."""
+        return {
+            "speed_kmh": float(self.speed) * 3.6,
+            "impact_position_mm": float(self.impact_position) * 1e3,
+            "max_force_kN": float(self.max_force) / 1e3,
+            "min_force_kN": float(self.min_force) / 1e3,
+            "loss_of_contact": bool(self.loss_of_contact),
+            "loss_of_contact_duration_ms": float(self.loss_of_contact_duration) * 1e3,
+            "time_step_us": float(self.time_step) * 1e6,
+            "n_steps": int(np.shape(self.t)[-1]),
+            "max_contact_residual_m": float(np.max(self.residual)),
+        }
+
+    def to_csv(self) -> str:
+        """The time histories as CSV text (SI units, one row per step)."""
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["t_s", "x_m", "s_m", "force_N", "approach_m", "wheel_disp_m", "rail_disp_m"])
+        cols = [np.asarray(getattr(self, k)) for k in
+                ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp")]
+        for row in zip(*cols, strict=True):
+            w.writerow([f"{v:.9g}" for v in row])
+        return buf.getvalue()
+
+    def to_json(self) -> str:
+        """:meth:`summary` as JSON text."""
+        return json.dumps(self.summary(), indent=2)
+
+
+def summarise(hist: dict, speed, impact_position, dt, run_in_steps) -> SimResult:
+    """Reduce histories to a :class:`SimResult` (pure jnp; works batched under vmap)."""
+    f = hist["force"]
+    n = f.shape[-1]
+    after = jnp.arange(n) >= run_in_steps
+    f_after = jnp.where(after, f, jnp.nan)
+    lost = after & (f <= 0)
+    return SimResult(
+        t=hist["t"], x=hist["x"], s=hist["s"], force=f, approach=hist["approach"],
+        wheel_disp=hist["wheel_disp"], rail_disp=hist["rail_disp"], residual=hist["residual"],
+        max_force=jnp.nanmax(f_after, axis=-1), min_force=jnp.nanmin(f_after, axis=-1),
+        loss_of_contact=jnp.any(lost, axis=-1),
+        loss_of_contact_duration=jnp.sum(lost, axis=-1) * dt,
+        speed=jnp.asarray(speed, dtype=float), impact_position=jnp.asarray(impact_position,
+                                                                             dtype=float),
+        time_step=jnp.asarray(dt, dtype=float),
+    )
