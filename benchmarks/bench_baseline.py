@@ -27,6 +27,7 @@ import wfjax as wf
 from wfjax import interaction as I  # noqa: N812
 from wfjax import track as T  # noqa: N812
 from wfjax import wheel as W  # noqa: N812
+from wfjax.contact import laws
 
 
 def step_coefficients(poles: np.ndarray, dt: float):
@@ -84,8 +85,8 @@ def baseline_sweep(flat, speeds, positions):
     wheel, track, material, config = wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig()
     model = T.modal_model(track, max_frequency=config.track_max_frequency)
     wm = W.modal_model(wheel)
-    spec = I.contact_spec("hertz-trajectory", flat, wheel, track, material, config)
-    c_h, s_grid, drop = (np.asarray(spec.params[k]) for k in ("c_h", "s_grid", "drop"))
+    law = laws.prepare("hertz-trajectory", flat, wheel, track, material, config)
+    c_h, s_grid, drop = (np.asarray(a) for a in (law.c_h, law.s_grid, law.drop))
     poles_r, weights = np.asarray(model.poles), np.asarray(model.weights)
     poles_w, residues_w = np.asarray(wm.poles), np.asarray(wm.residues)
     n_steps = max(I.n_steps_for(flat, float(v), config)[0] for v in speeds)

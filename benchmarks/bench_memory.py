@@ -35,8 +35,8 @@ STRUCTURE = "I.structure(wf.Wheel(), wf.Track(), wf.SimConfig())"
 
 
 def _table(flat: str) -> str:
-    return (f"jax.block_until_ready(I.contact_spec('3d', {flat}, wf.Wheel(), wf.Track(), "
-            "wf.Material(), wf.SimConfig()).params)")
+    return (f"jax.block_until_ready(wf.contact.laws.prepare('3d', {flat}, wf.Wheel(), "
+            "wf.Track(), wf.Material(), wf.SimConfig()))")
 
 
 def _misfit(checkpoint: bool, evaluate: str) -> str:

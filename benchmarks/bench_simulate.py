@@ -2,8 +2,9 @@
 
 Rounded flat d = 0.9 mm, l = 100 mm, 100 km/h, impact above a sleeper, default ``SimConfig``
 (1 mm of travel per step). The prepared contact law (tables, node sets) and the modal models
-are built once and timed apart; the time loop (:func:`wfjax.interaction.run_scan`, the 3D
-direct mode through :func:`wfjax.direct3d.run_direct_3d`) is timed with ``block_until_ready``:
+are built once and timed apart; the time loop (:func:`wfjax.interaction.run_scan`; the 3D
+direct mode is :class:`wfjax.contact.direct3d.Direct3DLaw`) is timed with
+``block_until_ready``:
 compile time from ``jax.monitoring`` compile events, run time the median of repeats (the
 direct mode: its first call minus compilation, one repeat). Peak memory is the process's
 ``ru_maxrss`` after each model (monotone: a model's own peak is at most that).
@@ -22,6 +23,7 @@ import jax
 
 import wfjax as wf
 from wfjax import interaction as I  # noqa: N812
+from wfjax.contact import laws
 
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                   "/jax/core/compile/jaxpr_to_mlir_module_duration",
@@ -65,13 +67,12 @@ def main() -> None:
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for contact in ("3d", "2d", "hertz-trajectory", "hertz-profile"):
         t0 = time.perf_counter()
-        spec = I.contact_spec(contact, flat, wheel, track, material, config)
-        jax.block_until_ready(spec.params)
+        law = laws.prepare(contact, flat, wheel, track, material, config)
+        jax.block_until_ready(law)
         t_prep = time.perf_counter() - t0
 
-        def run(spec=spec):
-            return I.run_scan(spec.kind, spec.params, struct, v, dt, imp + s0, imp, n,
-                              config.newton_iterations)
+        def run(law=law):
+            return I.run_scan(law, struct, v, dt, imp + s0, imp, n, config.newton_iterations)
 
         first, comp = timed(run)
         t_run = statistics.median(timed(run)[0] for _ in range(a.repeats))
@@ -80,14 +81,13 @@ def main() -> None:
         print(f" | {t_prep:.2f} | {comp:.2f} | {t_run:.3f} | {n / t_run:.3g} | "
               f"{t_run / travel:.3f} | {fmax / 1e3:.1f} | {peak_mib():.0f} |")
     if not a.no_direct:
-        from wfjax.direct3d import run_direct_3d
-
         cfg = wf.SimConfig(contact_mode_3d="direct")
+        direct_law = laws.prepare("3d", flat, wheel, track, material, cfg)
         out = {}
 
         def direct():
-            out["h"] = run_direct_3d(flat, struct, v, dt, imp + s0, imp, n, wheel, track,
-                                     material, cfg)
+            out["h"] = I.run_scan(direct_law, struct, v, dt, imp + s0, imp, n,
+                                  cfg.newton_iterations)
             return out["h"]
 
         first, comp = timed(direct)

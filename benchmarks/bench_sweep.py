@@ -12,7 +12,7 @@ neither is given). Prints Markdown.
   20-300 km/h in 10 km/h steps, 10 positions, 3D table contact) from a fresh
   ``WFJAX_CACHE_DIR`` (cold: modal model build, table builds, compilation, batched loop), then
   again in the same process (warm: modal model from disk, compiled program reused). The split
-  comes from timing wrappers around ``structure`` and ``contact_spec`` and the compile events.
+  comes from timing wrappers around ``structure`` and ``prepare_batch`` and the compile events.
 """
 
 from __future__ import annotations
@@ -130,7 +130,7 @@ def default_sweep() -> None:
         return inner
 
     sweep_mod.structure = wrap("structure", sweep_mod.structure)
-    sweep_mod.contact_spec = wrap("tables", sweep_mod.contact_spec)
+    sweep_mod.prepare_batch = wrap("tables", sweep_mod.prepare_batch)
     flats = [ROUNDED, wf.Flat.new(depth=0.9e-3)]
     v = np.arange(20.0, 301.0, 10.0) / 3.6
     print(f"### Default sweep (2 flats x {v.size} speeds x 10 positions, 3d), cache {cache}\n")
