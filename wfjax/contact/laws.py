@@ -290,13 +290,14 @@ def prepare_family(flats, wheel: Wheel, track: Track, material: Material, config
         :class:`wfjax.contact.family.FlatFamily`.
     """
     from ..params import new_flat_length
-    from . import family as family_mod
 
     kinds = {f.kind for f in flats}
     if len(kinds) != 1 or not kinds <= {"new", "rounded"}:
         raise ValueError(f"the parametric 3D law needs flats of one kind, 'new' or 'rounded', "
                          f"got kinds {sorted(kinds)}; measured profiles use the exact table "
                          f"(SimConfig(contact_mode_3d='table'))")
+    from . import family as family_mod
+
     kind = kinds.pop()
     radius = float(wheel.radius)
     depths = [float(np.asarray(f.depth)) for f in flats]
