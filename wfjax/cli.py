@@ -1,7 +1,8 @@
 """The ``wfjax`` command: one entry point, one module per subcommand in ``wfjax.commands``.
 
 Each subcommand module defines ``HELP`` (one line), ``add_arguments(parser)`` and
-``run(args) -> int``. Bad input exits with status 2 and a one-line reason on stderr.
+``run(args) -> int``. Bad input (flags, case files, data files) exits with status 2 and a
+one-line reason on stderr, before any computation; a file that cannot be written exits 1.
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ import importlib
 import os
 import sys
 
-SUBCOMMANDS = ("sweep", "simulate", "compare", "figures", "fit", "receptance", "geometry")
+SUBCOMMANDS = ("sweep", "simulate", "compare", "figures", "fit", "receptance", "geometry",
+               "config")
 
 
 def _available():
@@ -23,9 +25,16 @@ def _available():
                 raise
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (and exit status 2), like the others."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``wfjax`` command with every available subcommand."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="wfjax", description="Wheel-flat impact forces (Pieringer, Kropp & Nielsen 2014)."
     )
     sub = parser.add_subparsers(dest="command", required=True)
@@ -74,6 +83,10 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"wfjax {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        where = f": {exc.filename}" if exc.filename else ""
+        print(f"wfjax {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import tempfile
+import secrets
+import sys
+import tomllib
 from pathlib import Path
+
+from .. import case as case_mod
 
 
 def add_out_argument(parser: argparse.ArgumentParser, default: str) -> None:
@@ -14,20 +18,134 @@ def add_out_argument(parser: argparse.ArgumentParser, default: str) -> None:
     parser.add_argument("--out", default=default, help=f"output directory (default: {default})")
 
 
+def add_case_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--config FILE`` and ``--set KEY=VALUE`` (every subcommand)."""
+    parser.add_argument("--config", metavar="FILE",
+                        help="case file (TOML, or a JSON summary written by wfjax) with every "
+                             "parameter; flags override it (docs/case_files.md)")
+    parser.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
+                        dest="set_values",
+                        help="set one case key, e.g. --set track.pad_stiffness=60e6 "
+                             "(repeatable; wins over --config)")
+
+
+def flag_layer(args: argparse.Namespace, flags: dict[str, tuple[str, float]]) -> dict:
+    """Checked SI case values of the flags the user gave.
+
+    Args:
+        args: parsed arguments; a flag not given is ``None``.
+        flags: ``dest -> ("section.key", factor to SI)`` (e.g. ``depth_mm -> ("flat.depth",
+            1e-3)``).
+    """
+    layer = {}
+    for text in getattr(args, "set_values", []) or []:
+        path, sep, raw = text.partition("=")
+        if not sep:
+            raise case_mod.CaseError(f"--set {text}: expected SECTION.KEY=VALUE")
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+        key, factor, unit = case_mod.canonical_key(path.strip(), "--set")
+        layer[key.path] = case_mod.check_value(key, value, "--set", factor, unit,
+                                               name=path.strip())
+    for dest, (path, factor) in flags.items():
+        value = getattr(args, dest, None)
+        if value is None:
+            continue
+        key = case_mod.KEYS[path]
+        unit = "mm" if factor == 1e-3 else key.unit
+        value = case_mod.check_value(key, value, "", factor, unit,
+                                     name="--" + dest.replace("_", "-"))
+        if key.name in ("profile_csv", "data"):
+            value = os.path.abspath(value)
+        layer[path] = value
+    return layer
+
+
+def resolve_case(args: argparse.Namespace, command: str,
+                 flags: dict[str, tuple[str, float]]) -> case_mod.Case:
+    """The resolved case of ``command``: defaults < environment < ``--config`` < flags.
+
+    Notes on stderr the case-file keys ``command`` does not read. Raises
+    :class:`wfjax.case.CaseError` (exit 2, one line) on any bad key or value.
+    """
+    case = case_mod.resolve(command, getattr(args, "config", None), flag_layer(args, flags))
+    if case.unused:
+        print(f"wfjax {command}: note: {args.config}: not used by {command}: "
+              f"{', '.join(case.unused)}", file=sys.stderr)
+    return case
+
+
+def provenance(case: case_mod.Case, inputs: dict[str, str] | None = None) -> dict:
+    """What made an output: wfjax and JAX versions, precision, devices, inputs' sha256."""
+    import jax
+
+    import wfjax
+
+    return {
+        "wfjax_version": wfjax.__version__,
+        "jax_version": jax.__version__,
+        "command": case.command,
+        "precision": "float64" if jax.config.read("jax_enable_x64") else "float32",
+        "jax_backend": jax.default_backend(),
+        "jax_device_count": jax.device_count(),
+        "case_sha256": case.digest(),
+        "inputs_sha256": {str(p): case_mod.file_sha256(p) for p in (inputs or {}).values()
+                          if p and Path(p).is_file()},
+    }
+
+
+def write_summary(path: Path, summary: dict, case: case_mod.Case,
+                  inputs: dict[str, str] | None = None) -> None:
+    """Write ``summary`` plus ``"case"`` and ``"provenance"`` as JSON, and ``case.toml``.
+
+    ``wfjax <command> --config <path>`` (or ``--config case.toml``) repeats the run.
+    """
+    write_json(path, {**summary, "case": case.to_dict(),
+                      "provenance": provenance(case, inputs)})
+    header = (f"wfjax {case.command}: the resolved case of the run that wrote {path.name}\n"
+              f"repeat it: wfjax {case.command} --config {path.parent / 'case.toml'}")
+    write_atomic(path.parent / "case.toml", case.to_toml(header))
+
+
 def prepare_out(path: str) -> Path:
     """Create the output directory and return it."""
     out = Path(path)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out {path}: cannot create the directory: "
+                         f"{exc.strerror or exc}") from None
     return out
 
 
+def _temporary(path: Path, suffix: str = "") -> Path:
+    """A new empty file next to ``path``, created with mode 0666 less the umask (0644)."""
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{suffix}")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+    raise OSError(f"cannot create a temporary file next to {path}")
+
+
 def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file, so it is never half-written."""
+    """Write ``text`` to ``path`` through a temporary file, so it is never half-written.
+
+    The file gets the ordinary permissions of a new file (0666 less the umask).
+    """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
+    tmp = _temporary(path)
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -40,8 +158,12 @@ def save_figure(fig, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
-    fig.savefig(tmp, dpi=130, bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, path)
+    tmp = _temporary(path, ".png")
+    try:
+        fig.savefig(tmp, dpi=130, bbox_inches="tight")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        plt.close(fig)

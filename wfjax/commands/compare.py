@@ -22,8 +22,15 @@ import time
 import numpy as np
 
 from ..params import Flat, Track
-from ._common import add_out_argument, prepare_out, save_figure, write_atomic, write_json
-from .sweep import parse_range_kmh
+from ._common import (
+    add_case_arguments,
+    add_out_argument,
+    prepare_out,
+    resolve_case,
+    save_figure,
+    write_atomic,
+    write_json,
+)
 
 HELP = "four contact models for rounded and new flats (Figs. 9 and 10: CSV, JSON, PNGs)"
 
@@ -57,7 +64,8 @@ def comparison_flats(depths_mm=COMPARISON_DEPTHS_MM) -> list[Flat]:
 
 
 def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=CONTACT_MODELS,
-                   track: Track | None = None, progress: bool = True) -> dict:
+                   track: Track | None = None, progress: bool = True, wheel=None,
+                   material=None, config=None) -> dict:
     """Sweep every contact model over the same flats, speeds [m/s] and impact positions.
 
     Args:
@@ -66,6 +74,7 @@ def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=CONTACT
         positions: number of impact positions evenly covering one bay.
         models: contact models; ``"3d"`` must be among them (the reference).
         track: default :meth:`Track.comparison` (R_R = 0.45 m).
+        wheel, material, config: model parameters (defaults as in :func:`wfjax.sweep`).
         progress: print per-model headers and the sweep's progress to stderr.
 
     Returns:
@@ -81,6 +90,7 @@ def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=CONTACT
         if progress:
             print(f"[{k + 1}/{len(models)}] {model} contact", file=sys.stderr, flush=True)
         results[model] = sweep(flats, speeds, positions, contact=model, track=track,
+                               wheel=wheel, material=material, config=config,
                                progress=progress)
     return results
 
@@ -149,20 +159,25 @@ def comparison_csv(results: dict) -> str:
 
 
 def write_comparison(out, results: dict, rail_head_radius_m: float = 0.45,
-                     extra: dict | None = None, prefix: str = "compare") -> dict:
+                     extra: dict | None = None, prefix: str = "compare", case=None) -> dict:
     """Write the comparison's files into the directory ``out``.
 
     Files: ``<prefix>.csv`` (:func:`comparison_csv`), ``<prefix>.json`` (the summary plus
     ``extra``), one ``<prefix>_<model>.npz`` per model (the full sweeps), ``fig9_forces.png``
-    and ``fig10_deviation.png``.
+    and ``fig10_deviation.png``; with ``case`` (a :class:`wfjax.case.Case`) the JSON records
+    it and its provenance, and ``case.toml`` is written too.
 
     Returns:
         The summary written to the JSON file (see :func:`comparison_summary`).
     """
     from ..plotting_paper import model_deviation_figure, model_forces_figure
+    from ._common import write_summary
 
     summary = {**comparison_summary(results, rail_head_radius_m), **(extra or {})}
-    write_json(out / f"{prefix}.json", summary)
+    if case is None:
+        write_json(out / f"{prefix}.json", summary)
+    else:
+        write_summary(out / f"{prefix}.json", summary, case)
     write_atomic(out / f"{prefix}.csv", comparison_csv(results))
     for model, res in results.items():
         res.save_npz(out / f"{prefix}_{model}.npz")
@@ -188,16 +203,21 @@ def print_summary(summary: dict, stream=None) -> None:
         print(f"  3D peak max force, {label}: {f:.1f} kN", file=stream)
 
 
+FLAGS = {"speeds_kmh": ("run.speeds_kmh", 1.0), "positions": ("run.impact_positions", 1.0),
+         "depths_mm": ("compare.depths_mm", 1.0), "models": ("compare.models", 1.0)}
+
+
 def add_arguments(parser) -> None:
-    parser.add_argument("--speeds-kmh", default="20:300:10",
+    parser.add_argument("--speeds-kmh",
                         help="speeds in km/h, 'start:stop:step' or 'v1,v2' (default 20:300:10)")
-    parser.add_argument("--positions", type=int, default=8,
+    parser.add_argument("--positions", type=int,
                         help="impact positions evenly covering one sleeper bay (default 8)")
-    parser.add_argument("--depths-mm", default=",".join(f"{d:g}" for d in COMPARISON_DEPTHS_MM),
+    parser.add_argument("--depths-mm",
                         help="flat depths in mm, comma separated (default 0.5,0.9,1.75); a "
                              "rounded and a new flat each")
-    parser.add_argument("--models", default=",".join(CONTACT_MODELS),
+    parser.add_argument("--models",
                         help="contact models, comma separated, must include 3d (default: all)")
+    add_case_arguments(parser)
     add_out_argument(parser, "out/compare")
 
 
@@ -221,21 +241,23 @@ def parse_models(text: str) -> tuple[str, ...]:
 
 
 def run(args) -> int:
-    speeds = parse_range_kmh(args.speeds_kmh)
-    if args.positions < 1:
-        raise ValueError(f"--positions must be >= 1, got {args.positions}")
-    flats = comparison_flats(parse_depths_mm(args.depths_mm))
-    models = parse_models(args.models)
-    track = Track.comparison()
+    case = resolve_case(args, "compare", FLAGS)
+    speeds = case.speeds()
+    positions = case["run.impact_positions"]
+    depths = case["compare.depths_mm"]
+    flats = comparison_flats(depths if isinstance(depths, list) else [depths])
+    models = parse_models(",".join(case["compare.models"]))
+    wheel, track, material, config = case.model()
     out = prepare_out(args.out)
     print(f"wfjax compare: {len(models)} models x {len(flats)} flats x {speeds.size} speeds x "
-          f"{args.positions} positions, R_R = {float(track.rail_head_radius)} m")
+          f"{positions} positions, R_R = {float(track.rail_head_radius)} m")
     t0 = time.perf_counter()
-    results = run_comparison(flats, speeds, args.positions, models, track)
+    results = run_comparison(flats, speeds, positions, models, track, wheel=wheel,
+                             material=material, config=config)
     elapsed = time.perf_counter() - t0
     summary = write_comparison(out, results, float(track.rail_head_radius),
-                               extra={"wall_time_s": elapsed})
+                               extra={"wall_time_s": elapsed}, case=case)
     print_summary(summary)
     print(f"  {elapsed:.1f} s; wrote {out}/compare.csv, compare.json, compare_<model>.npz, "
-          f"fig9_forces.png, fig10_deviation.png")
+          f"fig9_forces.png, fig10_deviation.png, case.toml")
     return 0

@@ -11,6 +11,10 @@ All on the paper's Section 4 track, R_R = R_W = 0.45 m (``Track.comparison()``):
 uses the 0.30 m rail head only for its field comparison (Section 4.1, Fig. 6), which is not
 reproduced here because the measured data are not available.
 
+``--config case.toml`` replaces the paper's wheel, track, material and numerical settings by
+the case file's (``[wheel]``, ``[track]``, ``[material]``, ``[config]``; default: the paper's,
+``Track.comparison()``); the flats and speeds stay the paper's.
+
 ``--fast`` shrinks every sweep (3 speeds, 2 positions, fewer depths) for smoke tests.
 """
 
@@ -21,8 +25,16 @@ import time
 
 import numpy as np
 
-from ..params import Flat, Track
-from ._common import add_out_argument, prepare_out, save_figure, write_atomic, write_json
+from ..params import Flat
+from ._common import (
+    add_case_arguments,
+    add_out_argument,
+    prepare_out,
+    resolve_case,
+    save_figure,
+    write_atomic,
+    write_summary,
+)
 from .compare import (
     COMPARISON_DEPTHS_MM,
     comparison_flat,
@@ -50,11 +62,11 @@ def fig8_flats(depths_mm=FIG8_DEPTHS_MM) -> list[Flat]:
     return [Flat.rounded_relative(d * 1e-3, 1.76) for d in depths_mm]
 
 
-def _write_sweep(out, name: str, result, elapsed: float) -> dict:
+def _write_sweep(out, name: str, result, elapsed: float, case) -> dict:
     write_atomic(out / f"{name}.csv", result.to_csv())
     result.save_npz(out / f"{name}.npz")
     summary = {**result.summary(), "wall_time_s": elapsed}
-    write_json(out / f"{name}.json", summary)
+    write_summary(out / f"{name}.json", summary, case)
     return summary
 
 
@@ -75,6 +87,7 @@ def add_arguments(parser) -> None:
                              "--fast: 40,100,160)")
     parser.add_argument("--only", default=",".join(FIGURES),
                         help="figures to make, comma separated (default 5,7,8,9; 9 = Figs. 9+10)")
+    add_case_arguments(parser)
     add_out_argument(parser, "out/figures")
 
 
@@ -84,6 +97,10 @@ def run(args) -> int:
     from ..sweep import sweep
 
     wanted = parse_figures(args.only)
+    case = resolve_case(args, "figures", {})
+    wheel, track, material, config = case.model()
+    model = dict(wheel=wheel, track=track, material=material, config=config)
+    rr = f"R_R = {float(track.rail_head_radius):g} m"
     speeds = parse_range_kmh(args.speeds_kmh or (FAST["speeds_kmh"] if args.fast
                                                  else "20:300:10"))
     pos7, pos8 = (FAST["positions"],) * 2 if args.fast else (10, 8)
@@ -101,38 +118,36 @@ def run(args) -> int:
         written.append("fig5_inputs.png")
 
     if "7" in wanted:
-        print("Fig. 7: 0.9 mm rounded and new flats, 3D, R_R = 0.45 m", file=sys.stderr)
+        print(f"Fig. 7: 0.9 mm rounded and new flats, 3D, {rr}", file=sys.stderr)
         t0 = time.perf_counter()
-        res = sweep(fig7_flats(), speeds, pos7, contact="3d", track=Track.comparison())
-        report["fig7"] = _write_sweep(out, "fig7", res, time.perf_counter() - t0)
+        res = sweep(fig7_flats(), speeds, pos7, contact="3d", **model)
+        report["fig7"] = _write_sweep(out, "fig7", res, time.perf_counter() - t0, case)
         save_figure(sweep_figure(res, title=f"Fig. 7: 0.9 mm flats, 3D contact, max/min over "
                                             f"{pos7} impact positions; filled: loss of contact"),
                     out / "fig7_speed_sweep.png")
         written += ["fig7.csv", "fig7.json", "fig7.npz", "fig7_speed_sweep.png"]
 
     if "8" in wanted:
-        print(f"Fig. 8: {len(depths8)} rounded flats (l = 1.76 l0), 3D, R_R = 0.45 m",
-              file=sys.stderr)
+        print(f"Fig. 8: {len(depths8)} rounded flats (l = 1.76 l0), 3D, {rr}", file=sys.stderr)
         t0 = time.perf_counter()
-        res = sweep(fig8_flats(depths8), speeds, pos8, contact="3d", track=Track.comparison())
-        report["fig8"] = _write_sweep(out, "fig8", res, time.perf_counter() - t0)
+        res = sweep(fig8_flats(depths8), speeds, pos8, contact="3d", **model)
+        report["fig8"] = _write_sweep(out, "fig8", res, time.perf_counter() - t0, case)
         save_figure(depth_family_figure(res, depths_mm=np.asarray(depths8)),
                     out / "fig8_depths.png")
         written += ["fig8.csv", "fig8.json", "fig8.npz", "fig8_depths.png"]
 
     if "9" in wanted:
-        print("Figs. 9/10: four contact models, R_R = 0.45 m", file=sys.stderr)
+        print(f"Figs. 9/10: four contact models, {rr}", file=sys.stderr)
         t0 = time.perf_counter()
-        track = Track.comparison()
-        results = run_comparison(comparison_flats(depths9), speeds, pos8, track=track)
+        results = run_comparison(comparison_flats(depths9), speeds, pos8, **model)
         summary = write_comparison(out, results, float(track.rail_head_radius),
-                                   extra={"wall_time_s": time.perf_counter() - t0})
+                                   extra={"wall_time_s": time.perf_counter() - t0}, case=case)
         report["fig9_10"] = summary["per_kind"]
         written += ["compare.csv", "compare.json", "compare_<model>.npz", "fig9_forces.png",
                     "fig10_deviation.png"]
 
     report["wall_time_s"] = time.perf_counter() - t_all
-    write_json(out / "figures.json", report)
+    write_summary(out / "figures.json", report, case)
     for key in ("fig7", "fig8"):
         for label, s in report.get(key, {}).get("flats", {}).items():
             loss = s["first_loss_of_contact_kmh"]
@@ -143,5 +158,6 @@ def run(args) -> int:
         cells = ", ".join(f"{k} {v['min_percent']:+.1f}..{v['max_percent']:+.1f} %"
                           for k, v in per.items())
         print(f"  Figs. 9/10 {model} vs 3D: {cells}")
-    print(f"  {report['wall_time_s']:.1f} s; wrote {out}/" + ", ".join(written + ["figures.json"]))
+    print(f"  {report['wall_time_s']:.1f} s; wrote {out}/"
+          + ", ".join(written + ["figures.json", "case.toml"]))
     return 0

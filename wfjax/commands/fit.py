@@ -24,9 +24,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..interaction import CONTACT_MODELS
-from ._common import add_out_argument, prepare_out, save_figure, write_atomic, write_json
-from .geometry import add_flat_arguments, flat_from_args
+from ._common import (
+    add_case_arguments,
+    add_out_argument,
+    prepare_out,
+    resolve_case,
+    save_figure,
+    write_atomic,
+    write_summary,
+)
+from .geometry import add_flat_arguments
+from .sweep import FLAT_FLAGS, MODEL_FLAGS, add_model_arguments, add_profile_arguments
 
 HELP = "fit a flat's geometry to measured max forces vs speed or a force history (JSON, PNG)"
 
@@ -46,28 +54,40 @@ EXAMPLE_CSV = """speed_kmh,max_force_kN
 """
 
 
+FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "data": ("fit.data", 1.0),
+         "example": ("fit.example", 1.0), "profile_basis": ("fit.profile_basis", 1.0),
+         "speed_kmh": ("run.speed_kmh", 1.0),
+         "impact_position_mm": ("run.impact_position", 1e-3),
+         "impact_positions": ("run.impact_positions", 1.0),
+         "temperature_kN": ("fit.temperature_kN", 1.0), "method": ("fit.method", 1.0),
+         "max_iter": ("fit.max_iter", 1.0)}
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("--data", help="measured CSV: columns speed_kmh,max_force_kN or "
                         "t_s,force_kN (with --speed-kmh)")
-    parser.add_argument("--example", action="store_true",
+    parser.add_argument("--example", action="store_true", default=None,
                         help="fit the embedded synthetic dataset (no --data needed)")
     add_flat_arguments(parser, default_kind="rounded", default_depth_mm=1.2,
                        default_length_mm=130.0)
-    parser.add_argument("--profile-basis", type=int, default=0,
+    add_profile_arguments(parser)
+    parser.add_argument("--profile-basis", type=int,
                         help="fit a measured-like profile of this many smooth non-negative "
-                        "bumps, started from --flat (default 0: fit --flat's depth/length)")
-    parser.add_argument("--contact", choices=CONTACT_MODELS, default="hertz-trajectory",
-                        help="contact model (default: hertz-trajectory)")
+                        "bumps, started from --flat or --profile-csv (default 0: fit --flat's "
+                        "depth/length; 8 with --profile-csv)")
+    add_model_arguments(parser, contact_default="hertz-trajectory", rail_head_default=0.45)
     parser.add_argument("--speed-kmh", type=float,
                         help="train speed in km/h of a force-history dataset")
-    parser.add_argument("--impact-position-mm", type=float, default=0.0,
+    parser.add_argument("--impact-position-mm", type=float,
                         help="impact position in mm from a sleeper (history data; default 0)")
-    parser.add_argument("--impact-positions", type=int, default=3,
+    parser.add_argument("--impact-positions", type=int,
                         help="impact positions per speed, max-force data (default 3)")
-    parser.add_argument("--temperature-kN", type=float, default=1.0,
-                        help="smooth-max temperature over impact positions in kN (0: hard max)")
-    parser.add_argument("--method", choices=("lbfgs", "adam"), default="lbfgs")
-    parser.add_argument("--max-iter", type=int, default=40, help="iteration cap (default 40)")
+    parser.add_argument("--temperature-kN", type=float,
+                        help="smooth-max temperature over impact positions in kN (default 1; "
+                             "0: hard max)")
+    parser.add_argument("--method", choices=("lbfgs", "adam"), help="optimiser (default lbfgs)")
+    parser.add_argument("--max-iter", type=int, help="iteration cap (default 40)")
+    add_case_arguments(parser)
     add_out_argument(parser, "out/fit")
 
 
@@ -138,13 +158,16 @@ def _check_kn(force_kn: np.ndarray, name: str, source: str) -> None:
                          "N, not kN: divide by 1000")
 
 
-def _initial_flat(args):
+def _initial_flat(case):
     from ..fit import parametrisation_for
 
-    flat = flat_from_args(args)
-    if args.profile_basis > 0:
+    flat = case.flat()
+    n_basis = case["fit.profile_basis"]
+    if flat.kind == "profile":
+        return flat, parametrisation_for(flat, n_basis=n_basis or 8)
+    if n_basis > 0:
         start = _profile_start(flat)
-        return start, parametrisation_for(start, n_basis=args.profile_basis)
+        return start, parametrisation_for(start, n_basis=n_basis)
     return flat, None
 
 
@@ -159,33 +182,44 @@ def _profile_start(flat):
 
 
 def run(args) -> int:
-    from .. import fit
+    from .sweep import set_precision
 
-    if args.example:
+    case = resolve_case(args, "fit", FLAGS)
+    if case["fit.example"]:
         text, source = EXAMPLE_CSV, "example"
-    elif args.data:
-        path = Path(args.data)
+    elif case.get("fit.data"):
+        path = Path(case["fit.data"])
         if not path.is_file():
-            raise ValueError(f"--data {args.data}: no such file")
+            raise ValueError(f"--data {case['fit.data']}: no such file")
         text, source = path.read_text(), str(path)
     else:
-        raise ValueError("give --data FILE.csv or --example")
-    data = parse_data(text, source, args.speed_kmh, args.impact_position_mm)
-    flat, par = _initial_flat(args)
+        raise ValueError("give --data FILE.csv or --example (or fit.data in the case file)")
+    speed_kmh = case.get("run.speed_kmh")
+    data = parse_data(text, source, speed_kmh, case["run.impact_position"] * 1e3)
+    set_precision(case["run.precision"])
+    from .. import fit
+
+    flat, par = _initial_flat(case)
+    wheel, track, material, config = case.model()
+    contact = case["run.contact"]
     out = prepare_out(args.out)
-    if args.example:
+    if case["fit.example"]:
         write_atomic(out / "example_data.csv", EXAMPLE_CSV)
-    print(f"fitting a {flat.kind} flat ({args.contact}) to {len(data[0])} points ...")
+    print(f"fitting a {flat.kind} flat ({contact}, R_R = {float(track.rail_head_radius):g} m) "
+          f"to {len(data[0])} points ...")
 
     def progress(i, loss, _flat):
         print(f"  iteration {i}: loss {loss:.4g}", flush=True)
 
-    res = fit.fit_flat(data, flat, contact=args.contact, parametrisation=par,
-                       impact_positions=args.impact_positions,
-                       temperature=args.temperature_kN * 1e3 or None, method=args.method,
-                       max_iter=args.max_iter, callback=progress)
+    res = fit.fit_flat(data, flat, contact=contact, parametrisation=par,
+                       impact_positions=case["run.impact_positions"],
+                       temperature=case["fit.temperature_kN"] * 1e3 or None,
+                       method=case["fit.method"], max_iter=case["fit.max_iter"],
+                       wheel=wheel, track=track, material=material, config=config,
+                       callback=progress)
     summary = res.summary()
-    write_json(out / "fit.json", summary)
+    write_summary(out / "fit.json", summary, case,
+                  {"data": case.get("fit.data"), "profile_csv": case.get("flat.profile_csv")})
     x_name = "speed_kmh" if res.kind == "max_force" else "t_s"
     x = res.x * 3.6 if res.kind == "max_force" else res.x
     rows = "".join(f"{a:.6g},{b / 1e3:.6f},{c / 1e3:.6f}\n"
@@ -196,7 +230,7 @@ def run(args) -> int:
         print(f"{name}: {value * 1e3:.4f} +- {res.std[name] * 1e3:.4f} mm")
     print(f"residual rms {res.residual_rms / 1e3:.2f} kN; {res.n_iterations} iterations, "
           f"{res.message} ({res.wall_time:.0f} s)")
-    print(f"wrote {out}/fit.json, fit.csv, fit.png, loss.png")
+    print(f"wrote {out}/fit.json, fit.csv, fit.png, loss.png, case.toml")
     return 0 if res.converged else 1
 
 

@@ -4,44 +4,59 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import geometry
-from ..params import Flat, new_flat_length
-from ._common import add_out_argument, prepare_out, save_figure, write_atomic, write_json
+from ._common import (
+    add_case_arguments,
+    add_out_argument,
+    prepare_out,
+    resolve_case,
+    save_figure,
+    write_atomic,
+    write_summary,
+)
 
 HELP = "profile deviation and wheel-centre trajectory of a flat (CSV, JSON, Fig. 5 PNG)"
+
+MM = 1e-3
+GEOMETRY_FLAGS = {"flat": ("flat.kind", 1.0), "depth_mm": ("flat.depth", MM),
+                  "length_mm": ("flat.length", MM), "wheel_radius_m": ("wheel.radius", 1.0),
+                  "profile_csv": ("flat.profile_csv", 1.0),
+                  "profile_smoothing_mm": ("flat.profile_smoothing_mm", 1.0)}
 
 
 def add_flat_arguments(parser, default_kind="rounded", default_depth_mm=0.9,
                        default_length_mm=100.0) -> None:
-    """``--flat``, ``--depth-mm``, ``--length-mm``, ``--wheel-radius-m`` shared by subcommands."""
-    parser.add_argument("--flat", choices=["new", "rounded"], default=default_kind,
-                        help=f"flat kind (default: {default_kind})")
-    parser.add_argument("--depth-mm", type=float, default=default_depth_mm,
+    """``--flat``, ``--depth-mm``, ``--length-mm``, ``--wheel-radius-m`` shared by subcommands.
+
+    The defaults shown are the subcommand's case defaults (``wfjax.case.default_layer``);
+    a flag not given is ``None`` so that a case file can set it.
+    """
+    parser.add_argument("--flat", choices=["new", "rounded", "profile"],
+                        help=f"flat kind (default: {default_kind}; profile: --profile-csv)")
+    parser.add_argument("--depth-mm", type=float,
                         help=f"flat depth d in mm (default: {default_depth_mm})")
-    parser.add_argument("--length-mm", type=float, default=default_length_mm,
-                        help="rounded flat length l in mm (default: %(default)s; ignored for new)")
-    parser.add_argument("--wheel-radius-m", type=float, default=0.45,
+    parser.add_argument("--length-mm", type=float,
+                        help=f"rounded flat length l in mm (default: {default_length_mm}; "
+                             "ignored for new)")
+    parser.add_argument("--wheel-radius-m", type=float,
                         help="wheel radius R_W in m (default: 0.45)")
 
 
-def flat_from_args(args, kind=None, depth_mm=None) -> Flat:
-    """Build the :class:`Flat` named by the command-line options (validated)."""
-    kind = kind or args.flat
-    depth = (depth_mm if depth_mm is not None else args.depth_mm) * 1e-3
-    if kind == "new":
-        return Flat.new(depth, args.wheel_radius_m)
-    return Flat.rounded(depth, args.length_mm * 1e-3, args.wheel_radius_m)
-
-
 def add_arguments(parser) -> None:
+    from .sweep import add_profile_arguments
+
     add_flat_arguments(parser)
+    add_profile_arguments(parser)
+    add_case_arguments(parser)
     add_out_argument(parser, "out/geometry")
 
 
 def run(args) -> int:
+    from .. import geometry
+    from ..params import new_flat_length
     from ..plotting import flat_inputs_figure
 
-    flat = flat_from_args(args)
+    case = resolve_case(args, "geometry", GEOMETRY_FLAGS)
+    flat = case.flat()
     out = prepare_out(args.out)
     half = 1.2 * flat.half_extent
     x = np.linspace(-half, half, 481)
@@ -61,12 +76,13 @@ def run(args) -> int:
         "trajectory_min_mm": float(traj.min()) * 1e3,
         "trajectory_width_mm": float(np.ptp(x[traj < 0])) * 1e3 if np.any(traj < 0) else 0.0,
     }
-    write_json(out / "geometry.json", summary)
-    save_figure(flat_inputs_figure({f"{flat.kind} flat, d = {args.depth_mm:g} mm": flat}),
-                out / "geometry.png")
+    write_summary(out / "geometry.json", summary, case,
+                  {"profile_csv": case.get("flat.profile_csv")})
+    label = f"{flat.kind} flat, d = {summary['depth_mm']:g} mm"
+    save_figure(flat_inputs_figure({label: flat}), out / "geometry.png")
     print(f"{flat.kind} flat: depth {summary['depth_mm']:.3f} mm, length "
           f"{summary['length_mm']:.1f} mm (l0 = {summary['new_flat_length_l0_mm']:.1f} mm); "
           f"wheel-centre drop {-summary['trajectory_min_mm']:.3f} mm over "
           f"{summary['trajectory_width_mm']:.1f} mm")
-    print(f"wrote {out}/geometry.csv, geometry.json, geometry.png")
+    print(f"wrote {out}/geometry.csv, geometry.json, geometry.png, case.toml")
     return 0

@@ -20,6 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="log-spaced frequencies (default 400)")
     parser.add_argument("--elements-per-bay", type=int, default=None,
                         help="rail elements per sleeper bay (default: Track's default)")
+    _common.add_case_arguments(parser)
 
 
 def _db(h):
@@ -28,7 +29,6 @@ def _db(h):
 
 def run(args: argparse.Namespace) -> int:
     """Compute, write receptance.csv / receptance.json / receptance.png, print a summary."""
-    import wfjax
     from wfjax import track as T
     from wfjax import wheel as W
 
@@ -38,9 +38,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--fmax-hz must be > --fmin-hz ({args.fmin_hz} Hz), got {args.fmax_hz}")
     if args.points < 2:
         raise ValueError(f"--points must be >= 2, got {args.points}")
-    track = wfjax.Track() if args.elements_per_bay is None else wfjax.Track(
-        elements_per_bay=args.elements_per_bay)
-    wheel = wfjax.Wheel()
+    case = _common.resolve_case(args, "receptance",
+                                {"elements_per_bay": ("track.elements_per_bay", 1.0)})
+    wheel, track, _, _ = case.model()
+    preload = float(wheel.preload)
     out = _common.prepare_out(args.out)
     f = np.geomspace(args.fmin_hz, args.fmax_hz, args.points)
     ls = float(track.sleeper_spacing)
@@ -68,15 +69,16 @@ def run(args: argparse.Namespace) -> int:
     summary = {
         "elements_per_bay": int(track.elements_per_bay),
         "n_bays": int(track.n_bays),
-        "static_deflection_118kN_mm": {
-            "sleeper": T.static_deflection(track, 118e3, 0.0) * 1e3,
-            "midspan": T.static_deflection(track, 118e3, ls / 2) * 1e3},
+        "preload_kN": preload / 1e3,
+        "static_deflection_mm": {
+            "sleeper": T.static_deflection(track, preload, 0.0) * 1e3,
+            "midspan": T.static_deflection(track, preload, ls / 2) * 1e3},
         "track_resonance_hz": peak(curves["track_sleeper"], 50, 200),
         "rail_on_pad_resonance_hz": peak(curves["track_sleeper"], 200, 500),
         "pinned_pinned_hz": peak(curves["track_midspan"], 700, 1200),
         "wheel_static_displacement_mm": W.static_displacement(wheel) * 1e3,
     }
-    _common.write_json(out / "receptance.json", summary)
+    _common.write_summary(out / "receptance.json", summary, case)
 
     import matplotlib
 
@@ -102,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"track: resonances {s['track_resonance_hz']:.0f} Hz (track on ballast), "
           f"{s['rail_on_pad_resonance_hz']:.0f} Hz (rail on pads), "
           f"pinned-pinned {s['pinned_pinned_hz']:.0f} Hz (midspan)")
-    print(f"static rail deflection at 118 kN: {s['static_deflection_118kN_mm']['sleeper']:.3f} mm "
-          f"above a sleeper, {s['static_deflection_118kN_mm']['midspan']:.3f} mm at midspan")
-    print(f"wrote {out / 'receptance.csv'}, receptance.json, receptance.png")
+    print(f"static rail deflection at {s['preload_kN']:g} kN: "
+          f"{s['static_deflection_mm']['sleeper']:.3f} mm above a sleeper, "
+          f"{s['static_deflection_mm']['midspan']:.3f} mm at midspan")
+    print(f"wrote {out / 'receptance.csv'}, receptance.json, receptance.png, case.toml")
     return 0

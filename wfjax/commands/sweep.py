@@ -1,4 +1,11 @@
-"""``wfjax sweep``: max/min contact force against speed over impact positions (Fig. 7)."""
+"""``wfjax sweep``: max/min contact force against speed over impact positions (Fig. 7).
+
+Flats: one kind (or ``--flat both``: a rounded and a new flat) at one depth or a list of
+depths (``--depths-mm 0.25:2:0.25``), with one length for all, one length per depth
+(``--lengths-mm``) or a length rule (``--length-factor 1.76``: l = 1.76 l0), or a measured
+profile (``--profile-csv``). All flats go to one :func:`wfjax.sweep` call and into one CSV,
+JSON, NPZ and PNG (one curve per flat).
+"""
 
 from __future__ import annotations
 
@@ -7,11 +14,28 @@ import time
 
 import numpy as np
 
-from ..params import Material, SimConfig, Track, Wheel
-from ._common import add_out_argument, prepare_out, save_figure, write_atomic, write_json
-from .geometry import flat_from_args
+from ._common import (
+    add_case_arguments,
+    add_out_argument,
+    prepare_out,
+    resolve_case,
+    save_figure,
+    write_atomic,
+    write_summary,
+)
 
 HELP = "speed sweep of max/min contact force over impact positions (default: Fig. 7, 3D contact)"
+
+MM = 1e-3
+MODEL_FLAGS = {"contact": ("run.contact", 1.0),
+               "rail_head_radius_m": ("track.rail_head_radius", 1.0),
+               "wheel_radius_m": ("wheel.radius", 1.0),
+               "precision": ("run.precision", 1.0)}
+FLAT_FLAGS = {"flat": ("flat.kind", 1.0), "depth_mm": ("flat.depth", MM),
+              "length_mm": ("flat.length", MM), "profile_csv": ("flat.profile_csv", 1.0),
+              "profile_smoothing_mm": ("flat.profile_smoothing_mm", 1.0)}
+FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "length_factor": ("flat.length_factor", 1.0),
+         "speeds_kmh": ("run.speeds_kmh", 1.0), "positions": ("run.impact_positions", 1.0)}
 
 
 def parse_range_kmh(text: str) -> np.ndarray:
@@ -34,36 +58,50 @@ def parse_range_kmh(text: str) -> np.ndarray:
     return values / 3.6
 
 
-def add_model_arguments(parser) -> None:
-    """Contact model and track options shared by sweep and simulate."""
-    parser.add_argument("--contact", default="3d",
-                        choices=["3d", "2d", "hertz-trajectory", "hertz-profile"],
-                        help="contact model (default: 3d)")
-    parser.add_argument("--rail-head-radius-m", type=float, default=0.30,
-                        help="transverse rail head radius R_R in m (default 0.30; the paper's "
-                             "model comparison uses 0.45)")
+def add_model_arguments(parser, contact_default: str = "3d", rail_head_default: float = 0.30,
+                        choices=("3d", "2d", "hertz-trajectory", "hertz-profile")) -> None:
+    """Contact model, rail head radius and precision (sweep, simulate, fit)."""
+    parser.add_argument("--contact", choices=choices,
+                        help=f"contact model (default: {contact_default})")
+    parser.add_argument("--rail-head-radius-m", type=float,
+                        help=f"transverse rail head radius R_R in m (default "
+                             f"{rail_head_default:g}; the paper's model comparison uses 0.45)")
+    parser.add_argument("--precision", choices=["float64", "float32"],
+                        help="floating-point precision (default: WFJAX_PRECISION, else "
+                             "float64; float32 for GPUs, see benchmarks/README.md)")
 
 
-def model_from_args(args):
-    """(wheel, track, material, config) from the shared options."""
-    return Wheel(), Track(rail_head_radius=args.rail_head_radius_m), Material(), SimConfig()
+def add_profile_arguments(parser) -> None:
+    """``--profile-csv`` and ``--profile-smoothing-mm`` (sweep, simulate, fit, geometry)."""
+    parser.add_argument("--profile-csv", metavar="FILE",
+                        help="measured flat profile, columns x_mm,z_mm (circumferential "
+                             "coordinate and radial deviation in mm; docs/case_files.md); "
+                             "implies --flat profile")
+    parser.add_argument("--profile-smoothing-mm", type=float,
+                        help="Gaussian smoothing of the profile, standard deviation in mm "
+                             "(default 0: none)")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--flat", choices=["both", "new", "rounded"], default="both",
+    parser.add_argument("--flat", choices=["both", "new", "rounded", "profile"],
                         help="flat kind(s) (default: both, as in Fig. 7)")
-    parser.add_argument("--depth-mm", type=float, default=0.9, help="flat depth d in mm (0.9)")
-    parser.add_argument("--length-mm", type=float, default=100.0,
-                        help="rounded flat length l in mm (default 100)")
-    parser.add_argument("--wheel-radius-m", type=float, default=0.45, help=argparse_hide())
-    parser.add_argument("--speeds-kmh", default="20:300:10",
+    parser.add_argument("--depth-mm", "--depths-mm", dest="depth_mm", metavar="MM",
+                        help="flat depth(s) d in mm: 0.9, 'a,b,c' or 'start:stop:step' "
+                             "(default 0.9)")
+    parser.add_argument("--length-mm", "--lengths-mm", dest="length_mm", metavar="MM",
+                        help="rounded flat length(s) l in mm: one for all depths or one per "
+                             "depth (default 100)")
+    parser.add_argument("--length-factor", type=float,
+                        help="rounded flat length l = factor x l0, l0 = sqrt(8 R d) (Fig. 8: "
+                             "1.76); replaces --length-mm")
+    add_profile_arguments(parser)
+    parser.add_argument("--wheel-radius-m", type=float, help=argparse_hide())
+    parser.add_argument("--speeds-kmh",
                         help="speeds in km/h, 'start:stop:step' or 'v1,v2' (default 20:300:10)")
-    parser.add_argument("--positions", type=int, default=10,
+    parser.add_argument("--positions", type=int,
                         help="impact positions evenly covering one sleeper bay (default 10)")
     add_model_arguments(parser)
-    parser.add_argument("--precision", choices=["float64", "float32"], default="float64",
-                        help="floating-point precision of the computation (default float64; "
-                             "float32 for GPUs, see benchmarks/README.md 'Precision')")
+    add_case_arguments(parser)
     add_out_argument(parser, "out/sweep")
 
 
@@ -89,30 +127,31 @@ def set_precision(precision: str) -> None:
 
 
 def run(args) -> int:
-    set_precision(getattr(args, "precision", "float64"))
+    case = resolve_case(args, "sweep", FLAGS)
+    set_precision(case["run.precision"])
     from ..plotting import sweep_figure
     from ..sweep import sweep
 
-    speeds = parse_range_kmh(args.speeds_kmh)
-    if args.positions < 1:
-        raise ValueError(f"--positions must be >= 1, got {args.positions}")
-    kinds = ["rounded", "new"] if args.flat == "both" else [args.flat]
-    flats = [flat_from_args(args, kind=k) for k in kinds]
-    wheel, track, material, config = model_from_args(args)
+    speeds = case.speeds()
+    positions = case["run.impact_positions"]
+    flats = case.flats()
+    wheel, track, material, config = case.model()
+    contact = case["run.contact"]
     out = prepare_out(args.out)
-    print(f"wfjax sweep: {len(flats)} flat(s) x {speeds.size} speeds x {args.positions} "
-          f"positions, {args.contact} contact, R_R = {args.rail_head_radius_m} m, "
-          f"{getattr(args, 'precision', 'float64')}")
+    print(f"wfjax sweep: {len(flats)} flat(s) x {speeds.size} speeds x {positions} "
+          f"positions, {contact} contact, R_R = {float(track.rail_head_radius):g} m, "
+          f"{case['run.precision']}")
     t0 = time.perf_counter()
-    result = sweep(flats, speeds, args.positions, contact=args.contact, wheel=wheel,
-                   track=track, material=material, config=config)
+    result = sweep(flats, speeds, positions, contact=contact, wheel=wheel, track=track,
+                   material=material, config=config)
     elapsed = time.perf_counter() - t0
     write_atomic(out / "sweep.csv", result.to_csv())
     result.save_npz(out / "sweep.npz")
     summary = result.summary()
     summary["wall_time_s"] = elapsed
-    summary["precision"] = getattr(args, "precision", "float64")
-    write_json(out / "sweep.json", summary)
+    summary["precision"] = case["run.precision"]
+    write_summary(out / "sweep.json", summary, case,
+                  {"profile_csv": case.get("flat.profile_csv")})
     save_figure(sweep_figure(result), out / "sweep.png")
     for label, s in summary["flats"].items():
         loss = s["first_loss_of_contact_kmh"]
@@ -120,5 +159,6 @@ def run(args) -> int:
         print(f"  {label}: peak max force {s['peak_max_force_kN']:.1f} kN at "
               f"{s['at_speed_kmh']:.0f} km/h; loss of contact {loss_text}; spread over "
               f"positions up to {s['max_spread_over_positions_percent']:.1f} %")
-    print(f"  {elapsed:.1f} s; wrote {out}/sweep.csv, sweep.json, sweep.npz, sweep.png")
+    print(f"  {elapsed:.1f} s; wrote {out}/sweep.csv, sweep.json, sweep.npz, sweep.png, "
+          "case.toml")
     return 0
