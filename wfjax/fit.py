@@ -35,7 +35,8 @@ Gradients
 Forward mode (``jax.jacfwd`` of the residual vector, one tangent per parameter) when there are
 few parameters: it costs about (1 + n_params) forward runs, needs no stored time history, and
 returns the Jacobian used by Gauss-Newton. Reverse mode (``jax.grad``) otherwise, and always
-for ``"3d"`` (the Kalker solver's implicit gradients are ``custom_vjp``); with
+for ``"3d"`` with a measured profile (its exact table is rebuilt at every evaluation and the
+Kalker solver's implicit gradients are ``custom_vjp``); with
 ``checkpoint=True`` the simulations are run one after the other under ``jax.checkpoint``, so the
 backward pass holds one time history at a time.
 
@@ -624,7 +625,7 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
             two successive steps.
         max_step: largest step in theta (a factor e^0.5 in depth) per iteration (L-BFGS).
         mode: ``"forward"`` (Jacobian by ``jacfwd``), ``"reverse"`` or ``"auto"`` (forward
-            for <= 4 parameters except for ``"3d"``).
+            for <= 4 parameters except for ``"3d"`` with a measured profile).
         checkpoint: see :func:`max_force_model` (reverse mode only).
         extent_bound: static bound of the flat's half extent [m] during the fit.
         wheel, track, material, config: model parameters (default track
@@ -649,10 +650,12 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
     theta0 = np.asarray(par.from_flat(initial), dtype=float)
     n_par = theta0.size
     data = _validate_data(measured, n_par)
+    exact_3d = contact == "3d" and initial.kind == "profile"  # traced Kalker table build
     if mode == "auto":
-        mode = "forward" if n_par <= 4 and contact != "3d" else "reverse"
-    if mode == "forward" and contact == "3d":
-        raise ValueError("contact '3d' needs mode='reverse' (custom_vjp Kalker solver)")
+        mode = "forward" if n_par <= 4 and not exact_3d else "reverse"
+    if mode == "forward" and exact_3d:
+        raise ValueError("contact '3d' with a measured profile needs mode='reverse' "
+                         "(its exact table's Kalker solves have custom_vjp gradients)")
     ref = par.to_flat(jnp.asarray(theta0))
     ref = jax.tree_util.tree_map(np.asarray, ref)
     kw = dict(contact=contact, extent_bound=par.extent_bound, wheel=wheel, track=track,

@@ -28,6 +28,7 @@ of one flat (:class:`TableLaw`), the parametric family over depth and length
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import jax
@@ -328,6 +329,9 @@ def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
     leaves = jax.tree_util.tree_leaves((flat, material))
     if not all(_is_concrete(leaf) for leaf in leaves):
         return build()
+    # A concrete flat's table spans its own extent: a window bound (extent_bound, which sizes
+    # simulation windows of batches) must neither change the table nor alias its cache key.
+    flat = dataclasses.replace(flat, extent_bound=None)
     key = {"flat_kind": flat.kind, "flat": [np.asarray(v) for v in leaves],
            "wheel_radius": wheel_radius, "rail_head_radius": rail_head_radius,
            "element_size": element_size}
