@@ -523,9 +523,9 @@ class Case:
         """(wheel, track, material, config) of the case."""
         objs = []
         for section, cls in MODEL_SECTIONS.items():
-            kw = {k.split(".", 1)[1]: v for k, v in self.values.items()
-                  if k.startswith(section + ".")}
-            kw = {k: (None if v == "auto" else v) for k, v in kw.items()}
+            kw = {k.split(".", 1)[1]: (None if KEYS[k].kind == "float|auto" and v == "auto"
+                                        else v)
+                  for k, v in self.values.items() if k.startswith(section + ".")}
             try:
                 objs.append(cls(**kw))
             except (TypeError, ValueError) as exc:
@@ -673,6 +673,9 @@ def resolve(command: str, config: str | None = None, flags: dict | None = None,
             raise CaseError(f"{path} is not an option of wfjax {command}")
     if values.get("flat.kind") != "profile":
         values.pop("flat.profile_csv", None)
+    else:  # a measured profile has its own depth and length
+        for path in ("flat.depth", "flat.length", "flat.length_factor"):
+            values.pop(path, None)
     if command == "fit" and "run.speed_kmh" not in values:
         values["run.speed_kmh"] = None
     values = {k: v for k, v in values.items() if v is not None}
