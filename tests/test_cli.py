@@ -1,0 +1,183 @@
+"""The command line with case files: precedence, errors before work, provenance, permissions.
+
+Runs are tiny (hertz-trajectory contact, 2 speeds, 1 position) so the file stays fast.
+"""
+
+import csv
+import importlib
+import json
+import os
+import stat
+
+import numpy as np
+import pytest
+
+import wfjax as wf
+from wfjax import case as C
+from wfjax.cli import build_parser, main
+
+SWEEP = importlib.import_module("wfjax.sweep")  # the module (wfjax.sweep is the function)
+INTERACTION = importlib.import_module("wfjax.interaction")
+TINY = ["--contact", "hertz-trajectory", "--speeds-kmh", "60,120", "--positions", "1"]
+
+
+@pytest.fixture(name="umask022")
+def _umask022():
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+@pytest.fixture(name="no_work")
+def _no_work(monkeypatch):
+    """Make any simulation fail loudly: errors must come before work."""
+    def boom(*args, **kwargs):
+        raise AssertionError("a simulation ran")
+
+    monkeypatch.setattr(SWEEP, "sweep", boom)
+    monkeypatch.setattr(INTERACTION, "simulate", boom)
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "error" in err[0]
+    return err[0]
+
+
+def test_tiny_sweep_from_config_files_ordinary_permissions_and_round_trip(tmp_path, capsys,
+                                                                           umask022):
+    """Flags override the file; outputs are 0644; --config sweep.json repeats the run exactly."""
+    cfg = tmp_path / "case.toml"
+    cfg.write_text('[run]\ncontact = "2d"\nspeeds_kmh = [60, 120]\nimpact_positions = 3\n'
+                   '[flat]\nkind = "new"\n[track]\npad_stiffness_MN_per_m = 100\n')
+    out = tmp_path / "a"
+    assert main(["sweep", "--config", str(cfg), "--contact", "hertz-trajectory",
+                 "--positions", "1", "--out", str(out)]) == 0
+    summary = json.loads((out / "sweep.json").read_text())
+    case = summary["case"]
+    assert case["run"]["contact"] == "hertz-trajectory"  # flag over file
+    assert case["run"]["impact_positions"] == 1
+    assert case["run"]["speeds_kmh"] == [60.0, 120.0]  # file over default
+    assert case["track"]["pad_stiffness"] == 100e6
+    assert case["wheel"] == {f: getattr(wf.Wheel(), f) for f in case["wheel"]}  # defaults too
+    prov = summary["provenance"]
+    assert prov["wfjax_version"] == wf.__version__ and prov["precision"] == "float64"
+    assert prov["jax_device_count"] >= 1 and prov["command"] == "sweep"
+    for name in ("sweep.csv", "sweep.json", "sweep.png", "sweep.npz", "case.toml"):
+        assert stat.S_IMODE((out / name).stat().st_mode) == 0o644, name
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary left
+    first = wf.SweepResult.load_npz(out / "sweep.npz")
+    for source in (out / "sweep.json", out / "case.toml"):
+        again = tmp_path / source.suffix[1:]
+        assert main(["sweep", "--config", str(source), "--out", str(again)]) == 0
+        assert (again / "sweep.csv").read_text() == (out / "sweep.csv").read_text()
+        second = wf.SweepResult.load_npz(again / "sweep.npz")
+        np.testing.assert_array_equal(second.max_force, first.max_force)
+        np.testing.assert_array_equal(second.min_force, first.min_force)
+        assert json.loads((again / "sweep.json").read_text())["case"] == case
+
+
+def test_depth_list_is_one_sweep_call_one_csv(tmp_path, monkeypatch):
+    calls = []
+    real = SWEEP.sweep
+
+    def counted(flats, *args, **kwargs):
+        calls.append(len(flats))
+        return real(flats, *args, **kwargs)
+
+    monkeypatch.setattr(SWEEP, "sweep", counted)
+    out = tmp_path / "d"
+    assert main(["sweep", *TINY, "--flat", "rounded", "--depths-mm", "0.5:1.0:0.5",
+                 "--length-factor", "1.76", "--out", str(out)]) == 0
+    assert calls == [2]
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    assert len(rows) == 2 * 2 * 1
+    assert {r["flat"] for r in rows} == {"rounded d=0.50mm l=74.7mm",
+                                         "rounded d=1.00mm l=105.6mm"}
+    assert wf.SweepResult.load_npz(out / "sweep.npz").max_force.shape == (2, 2, 1)
+    assert json.loads((out / "sweep.json").read_text())["case"]["flat"]["length_factor"] == 1.76
+
+
+@pytest.mark.parametrize("text, argv, words", [
+    ("[track]\npad_stifness = 60e6\n", [], ["track.pad_stifness", "did you mean"]),
+    ("[track]\nn_bays = \"70\"\n", [], ["track.n_bays", "wrong type", "[4, 1000]"]),
+    ("[wheel]\npreload = 118\n", [], ["wheel.preload = 118", "[1000, 1e+06] N"]),
+    ("[run]\nspeeds = [60]\n", [], ["missing unit", "run.speeds_kmh"]),
+    ("", ["--flat", "rounded", "--length-mm", "5000"], ["--length-mm", "(0, 300] mm"]),
+    ("", ["--depth-mm", "-1"], ["--depth-mm", "(0, 5] mm"]),
+    ("", ["--set", "track.sleeper_spacing=65"], ["track.sleeper_spacing = 65", "[0.3, 1.5] m"]),
+    ("", ["--profile-csv", "missing.csv"], ["missing.csv", "cannot read"]),
+])
+def test_bad_case_fails_before_work_with_one_line(tmp_path, capsys, no_work, text, argv, words):
+    cfg = tmp_path / "case.toml"
+    cfg.write_text(text)
+    out = tmp_path / "out"
+    assert main(["sweep", "--config", str(cfg), *argv, "--out", str(out)]) == 2
+    line = _one_line_error(capsys)
+    for w in words:
+        assert w in line, (w, line)
+    assert not out.exists()  # nothing written
+
+
+def test_simulate_profile_csv_records_the_file(tmp_path, capsys, umask022):
+    x = np.arange(0.0, 80.01, 0.5)
+    z = np.where(np.abs(x - 40) < 30, 0.3 * (1 + np.cos(np.pi * (x - 40) / 30)), 0.0)
+    profile = tmp_path / "profile.csv"
+    profile.write_text("x_mm,z_mm\n" + "".join(f"{a},{b:.5f}\n" for a, b in zip(x, z,
+                                                                              strict=True)))
+    out = tmp_path / "s"
+    assert main(["simulate", "--profile-csv", str(profile), "--contact", "hertz-trajectory",
+                 "--speed-kmh", "80", "--out", str(out)]) == 0
+    summary = json.loads((out / "simulate.json").read_text())
+    assert summary["flat"] == "profile" and summary["depth_mm"] == pytest.approx(0.6, rel=1e-3)
+    assert summary["case"]["flat"]["profile_csv"] == str(profile)
+    assert str(profile) in summary["provenance"]["inputs_sha256"]
+    assert stat.S_IMODE((out / "simulate.csv").stat().st_mode) == 0o644
+    assert 118 < summary["max_force_kN"] < 400
+
+
+def test_profile_csv_error_is_one_line(tmp_path, capsys, no_work):
+    bad = tmp_path / "p.csv"
+    bad.write_text("x_mm,z_mm\n0,0\n1,0.2\n1,0.3\n2,0.1\n3,0\n")
+    assert main(["simulate", "--profile-csv", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "strictly increasing" in _one_line_error(capsys)
+
+
+def test_config_print_defaults_reloads_to_the_defaults(tmp_path, capsys):
+    assert main(["config", "--print-defaults"]) == 0
+    path = tmp_path / "case.toml"
+    path.write_text(capsys.readouterr().out)
+    case = C.resolve("sweep", str(path), environ={})
+    assert case.values == C.default_layer("sweep")
+    assert case.model() == (wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig())
+
+
+def test_config_check_shows_environment_precision_and_flag_wins(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("WFJAX_PRECISION", "float32")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[track]\nrail_head_radius = 0.45\n")
+    assert main(["config", "--config", str(cfg), "--no-comments"]) == 0
+    text = capsys.readouterr().out
+    assert 'precision = "float32"' in text and "rail_head_radius = 0.45" in text
+    assert main(["config", "--config", str(cfg), "--set", "run.precision=\"float64\""]) == 0
+    assert 'precision = "float64"' in capsys.readouterr().out
+    assert main(["config", "--print-table"]) == 0
+    assert capsys.readouterr().out == C.markdown_table()
+
+
+def test_fit_accepts_3d_contact_and_the_comparison_track(tmp_path):
+    args = build_parser().parse_args(["fit", "--example", "--contact", "3d"])
+    from wfjax.commands._common import resolve_case
+    from wfjax.commands.fit import FLAGS
+
+    case = resolve_case(args, "fit", FLAGS)
+    assert case["run.contact"] == "3d" and case["fit.example"] is True
+    assert case.model()[1] == wf.Track.comparison()  # fit_flat's default track, stated
+
+
+def test_argparse_errors_are_one_line(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", "--contact", "5d"])
+    assert exc.value.code == 2
+    assert "invalid choice" in _one_line_error(capsys)
