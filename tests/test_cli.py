@@ -181,3 +181,17 @@ def test_argparse_errors_are_one_line(capsys):
         main(["sweep", "--contact", "5d"])
     assert exc.value.code == 2
     assert "invalid choice" in _one_line_error(capsys)
+
+
+def test_non_finite_result_writes_nothing(tmp_path, capsys, monkeypatch):
+    def nan_sweep(flats, speeds, positions, contact, **kwargs):
+        shape = (len(flats), len(speeds), positions)
+        nan = np.full(shape, np.nan)
+        return wf.SweepResult(np.asarray(speeds), np.zeros(positions), nan, nan,
+                              np.zeros(shape, bool), nan, nan, ("x",) * len(flats), contact)
+
+    monkeypatch.setattr(SWEEP, "sweep", nan_sweep)
+    out = tmp_path / "n"
+    assert main(["sweep", *TINY, "--flat", "new", "--out", str(out)]) == 1
+    assert "non-finite max_force" in _one_line_error(capsys)
+    assert not list(out.iterdir())

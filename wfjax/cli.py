@@ -75,6 +75,8 @@ def expose_cpu_cores(count: int | None = None) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``wfjax`` command line; returns the exit status."""
+    from .commands._common import NonFiniteResult
+
     expose_cpu_cores()
     args = build_parser().parse_args(argv)
     enable_compilation_cache()
@@ -83,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"wfjax {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except NonFiniteResult as exc:
+        print(f"wfjax {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:
         where = f": {exc.filename}" if exc.filename else ""
         print(f"wfjax {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)

@@ -13,6 +13,21 @@ from pathlib import Path
 from .. import case as case_mod
 
 
+class NonFiniteResult(RuntimeError):
+    """A simulation returned NaN or infinite values: nothing is written (exit status 1)."""
+
+
+def check_finite(what: str, **arrays) -> None:
+    """Raise :class:`NonFiniteResult` if any of ``arrays`` holds NaN or inf."""
+    import numpy as np
+
+    bad = [name for name, a in arrays.items() if not np.all(np.isfinite(np.asarray(a)))]
+    if bad:
+        raise NonFiniteResult(f"{what}: non-finite {', '.join(bad)} (solver failure; try a "
+                              "smaller config.max_time_step or more config.newton_iterations); "
+                              "nothing written")
+
+
 def add_out_argument(parser: argparse.ArgumentParser, default: str) -> None:
     """``--out DIR``: where CSV, JSON and PNG results go."""
     parser.add_argument("--out", default=default, help=f"output directory (default: {default})")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from ._common import (
     add_case_arguments,
     add_out_argument,
+    check_finite,
     prepare_out,
     resolve_case,
     save_figure,
@@ -45,6 +46,8 @@ def run(args) -> int:
     result = simulate(flat, speed_kmh / 3.6, contact=contact,
                       impact_position=case["run.impact_position"], wheel=wheel, track=track,
                       material=material, config=config)
+    check_finite("simulate", force=result.force, wheel_disp=result.wheel_disp,
+                 rail_disp=result.rail_disp)
     out = prepare_out(args.out)
     write_atomic(out / "simulate.csv", result.to_csv())
     summary = {"flat": flat.kind, "depth_mm": float(flat.depth) * 1e3, "contact": contact,

@@ -17,6 +17,7 @@ import numpy as np
 from ._common import (
     add_case_arguments,
     add_out_argument,
+    check_finite,
     prepare_out,
     resolve_case,
     save_figure,
@@ -145,6 +146,7 @@ def run(args) -> int:
     result = sweep(flats, speeds, positions, contact=contact, wheel=wheel, track=track,
                    material=material, config=config)
     elapsed = time.perf_counter() - t0
+    check_finite("sweep", max_force=result.max_force, min_force=result.min_force)
     write_atomic(out / "sweep.csv", result.to_csv())
     result.save_npz(out / "sweep.npz")
     summary = result.summary()
