@@ -1,0 +1,549 @@
+"""A parametric 3D contact law F(delta, s; depth[, length]) of new and rounded flats.
+
+One :class:`FlatFamily` serves every flat of one kind (``"new"`` or ``"rounded"``), pair of
+radii, material and element size whose depth (and, for rounded flats, length) lies in its
+range: the geometry is a traced input of a pure-jnp interpolation over precomputed node tables,
+so ``jit``, ``vmap`` and ``grad`` reach the depth and the length, and no table is built at
+evaluation time.
+
+Why it works: the rigid gap is self-similar
+-------------------------------------------
+With L = sqrt(R_W d) along x (sqrt(R_R d) across), the smooth wheel x^2/2R_W + y^2/2R_R, the
+chord of a new flat d - x^2/2R_W and the cosine of a rounded flat (d/2)(1 + cos(2 pi x / l))
+with l = lambda l0, l0 = sqrt(8 R_W d), all become d G(x/L, y/L; s/L, lambda). The half-space
+problem is scale-invariant, so in the continuum F = E* d^(3/2) Phi(delta/d, s/L; lambda) up to
+the O(d/R) difference between circles and parabolas. The node tables are therefore tabulated
+on a scaled flat position sigma = s / half (half = l/2, or l0/2 for new flats; the same column
+index sigma / d_sigma for every node), and between nodes only the small residual dependence
+(the discretisation at fixed element size, which changes h/L, and the O(d/R) terms) is left
+for the depth interpolation; lambda = l/l0 stays a genuine parameter of rounded flats.
+
+Interpolation (documented scheme)
+---------------------------------
+* Node lattice (global and fixed, so node tables are shared between families and calls):
+  depths d_k = 1 mm x 2^(k / DEPTH_STEPS_PER_OCTAVE) (log-spaced), length factors
+  lambda_j = LENGTH_FACTOR_ORIGIN + j LENGTH_FACTOR_STEP (1.76, the paper's Fig. 8 value, is a
+  node). A family holds the contiguous block of lattice nodes that brackets the requested
+  geometries; an axis whose requested values all sit on one node has that single node.
+* Every node table has the same layout as :mod:`wfjax.contact.tables` along the compression:
+  t = sqrt(c / c_max), c = delta - onset(sigma), the SAME physical c_max (1.4 x the Hertz
+  approach at ``max_force``) and n_t for every node. Interpolation over the geometry is at
+  fixed physical compression: far from the flat every node is the same smooth wheel there
+  (so the interpolation is exact), and the columns of all nodes combine node by node into one
+  :class:`wfjax.contact.tables.Column` (no resampling along t). (Fixed *scaled* compression
+  c/d would need each node to cover its neighbours' scaled range: up to r^2 times the
+  compression and grid of the deepest node, for a node ratio r.)
+* Along s: Catmull-Rom cubic in sigma over 4 columns (as the per-flat tables).
+* Along log(depth) and lambda: C1 piecewise-cubic Hermite with finite-difference node slopes
+  (central differences inside, second-order one-sided differences at the end nodes; linear
+  for two nodes, constant for one), over a 4-node window: interpolates the nodes, C1 in the
+  geometry, so gradients are continuous.
+* The onset is interpolated as onset / d (exactly self-similar up to O(d/R)) with the same
+  weights and multiplied by the traced depth.
+
+Outside the family's range, traced geometry is clamped to the range (the law of the nearest
+covered flat, zero gradient with respect to the clamped parameter); :func:`family_spec`
+raises ``ValueError`` for concrete geometries outside the lattice.
+
+Build and cache: each node table is built by ``lax.map`` over its columns (s >= 0, mirrored)
+and a warm-started ``lax.scan`` over the compression (the per-flat builder's column routine),
+and cached on disk by itself through :func:`wfjax._cache.load_or_build` (atomic, verified), so
+families over overlapping ranges share node tables.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import sys
+import time
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..params import MAX_FLAT_DEPTH, Flat, Material
+from . import kalker, tables
+
+__all__ = ["FamilySpec", "FlatFamily", "family_spec", "build_family", "family_column",
+           "family_force", "DEPTH_STEPS_PER_OCTAVE", "LENGTH_FACTOR_ORIGIN",
+           "LENGTH_FACTOR_STEP", "FAMILY_KINDS"]
+
+_DEFAULT_MATERIAL = Material()
+FAMILY_KINDS = ("new", "rounded")
+DEPTH_REFERENCE = 1e-3  # m; lattice depth of index 0
+DEPTH_STEPS_PER_OCTAVE = 2  # depth nodes per factor 2 in depth
+MIN_DEPTH = 0.05e-3  # m; shallowest lattice node allowed
+LENGTH_FACTOR_ORIGIN = 1.76  # lambda = l / l0 of lattice index 0 (Fig. 8)
+LENGTH_FACTOR_STEP = 0.2
+MIN_LENGTH_FACTOR = math.pi / 2  # rounded flats: l >= pi/2 l0
+MAX_LENGTH_FACTOR = 8.0
+D_SIGMA = {"rounded": 1 / 24, "new": 1 / 16}  # column spacing in sigma = s / half
+_ON_NODE = 1e-9  # relative distance below which a requested value is "on" a node
+
+
+class FamilySpec(NamedTuple):
+    """Static layout of a :class:`FlatFamily` (hashable; concrete numbers).
+
+    Attributes:
+        kind: ``"new"`` or ``"rounded"``.
+        wheel_radius, rail_head_radius: R_W, R_R [m].
+        element_size: square contact element side [m].
+        max_force: largest force covered [N] (sets c_max).
+        c_max: compression of the last t node [m] (every node).
+        n_t: nodes along t = sqrt(c / c_max).
+        d_sigma: target column spacing in sigma = s / half (each node rounds it to a whole
+            number of elements, at least one).
+        n_half: columns on each side of sigma = 0 (n_s = 2 n_half + 1).
+        depth_index: lattice indices k of the depth nodes (contiguous, increasing).
+        length_index: lattice indices j of the length-factor nodes (``(0,)`` for new flats,
+            where it is unused).
+        grids: (nx, ny) of each node's contact grid, depth-major (len = n_depth x n_length).
+        node_columns: solved columns (s >= 0) of each node, same order.
+        node_steps: column spacing of each node in elements (an integer, so every column
+            sits at s = multiple of the element size like the per-flat tables' columns: the
+            flat then has the same position relative to the grid in every column, and the
+            discrete solution's sub-element wobble in s is sampled at the same phase).
+    """
+
+    kind: str
+    wheel_radius: float
+    rail_head_radius: float
+    element_size: float
+    max_force: float
+    c_max: float
+    n_t: int
+    d_sigma: float
+    n_half: int
+    depth_index: tuple
+    length_index: tuple
+    grids: tuple
+    node_columns: tuple
+    node_steps: tuple
+
+    @property
+    def depths(self) -> np.ndarray:
+        """[n_depth] node depths [m]."""
+        return np.array([lattice_depth(k) for k in self.depth_index])
+
+    @property
+    def length_factors(self) -> np.ndarray:
+        """[n_length] node length factors lambda = l / l0 (rounded flats)."""
+        return np.array([lattice_length_factor(j) for j in self.length_index])
+
+    @property
+    def depth_range(self) -> tuple[float, float]:
+        """(min, max) depth [m] covered."""
+        d = self.depths
+        return float(d[0]), float(d[-1])
+
+    @property
+    def length_factor_range(self) -> tuple[float, float]:
+        """(min, max) lambda covered (rounded flats)."""
+        lam = self.length_factors
+        return float(lam[0]), float(lam[-1])
+
+    @property
+    def nodes(self) -> list[tuple[float, float]]:
+        """(depth [m], lambda) of every node, depth-major."""
+        return [(float(d), float(lam)) for d in self.depths for lam in self.length_factors]
+
+    @property
+    def n_s(self) -> int:
+        """Stored columns per node (mirrored, padded with the smooth-wheel end column)."""
+        return 2 * self.n_half + 1
+
+    @property
+    def column_scale(self) -> np.ndarray:
+        """[n_depth, n_length] half / (column spacing) of each node: column index per sigma."""
+        out = []
+        for idx, step in enumerate(self.node_steps):
+            k = self.depth_index[idx // len(self.length_index)]
+            j = self.length_index[idx % len(self.length_index)]
+            depth = lattice_depth(k)
+            flat = _node_flat(self.kind, depth, lattice_length_factor(j), self.wheel_radius)
+            half = float(_half_scale(self.kind, depth, flat.length, self.wheel_radius))
+            out.append(half / (step * self.element_size))
+        return np.array(out).reshape(len(self.depth_index), len(self.length_index))
+
+
+@functools.partial(jax.tree_util.register_dataclass, data_fields=[
+    "c_max", "onset", "force", "slope", "converged"], meta_fields=["spec"])
+class FlatFamily:
+    """Node tables of a parametric contact law (a pytree; ``spec`` is static).
+
+    Attributes:
+        spec: the :class:`FamilySpec`.
+        c_max: compression of the last t node [m] (scalar).
+        onset: [n_depth, n_length, n_s] rigid contact onset / node depth (dimensionless) at
+            sigma = (i - n_half) d_sigma.
+        force: [n_depth, n_length, n_s, n_t] force [N] at c = c_max (j / (n_t - 1))^2.
+        slope: [n_depth, n_length, n_s, n_t] dF/du [N] per t node index u.
+        converged: 1.0 when every solve of every node converged, else 0.0 (scalar).
+    """
+
+    def __init__(self, spec: FamilySpec, c_max, onset, force, slope, converged):
+        self.spec = spec
+        self.c_max = c_max
+        self.onset = onset
+        self.force = force
+        self.slope = slope
+        self.converged = converged
+
+
+def lattice_depth(k: int) -> float:
+    """Depth [m] of lattice index ``k``: 1 mm x 2^(k / DEPTH_STEPS_PER_OCTAVE)."""
+    return DEPTH_REFERENCE * 2.0 ** (k / DEPTH_STEPS_PER_OCTAVE)
+
+
+def lattice_length_factor(j: int) -> float:
+    """Length factor lambda = l / l0 of lattice index ``j``."""
+    return LENGTH_FACTOR_ORIGIN + j * LENGTH_FACTOR_STEP
+
+
+def _depth_coordinate(depth):
+    return jnp.log(depth / DEPTH_REFERENCE) / math.log(2.0) * DEPTH_STEPS_PER_OCTAVE
+
+
+def _bracket(values, coord, name: str, unit_scale: float, unit: str) -> tuple[int, ...]:
+    """Contiguous lattice indices covering ``values`` (lattice coordinates ``coord``)."""
+    lo, hi = float(np.min(coord)), float(np.max(coord))
+    k_lo, k_hi = math.floor(lo + _ON_NODE), math.ceil(hi - _ON_NODE)
+    if abs(lo - round(lo)) < _ON_NODE:
+        k_lo = round(lo)
+    if abs(hi - round(hi)) < _ON_NODE:
+        k_hi = round(hi)
+    return tuple(range(k_lo, max(k_hi, k_lo) + 1))
+
+
+def _half_scale(kind: str, depth, length, wheel_radius):
+    """half [m]: l/2 of a rounded flat, l0/2 = sqrt(2 R_W d) of a new flat (traceable)."""
+    if kind == "rounded":
+        return length / 2
+    return jnp.sqrt(2 * wheel_radius * depth)
+
+
+def _node_flat(kind: str, depth: float, length_factor: float, wheel_radius: float) -> Flat:
+    l0 = math.sqrt(8 * wheel_radius * depth)
+    if kind == "rounded":
+        return Flat("rounded", depth=depth, length=length_factor * l0,
+                    wheel_radius=wheel_radius)
+    return Flat("new", depth=depth, length=l0, wheel_radius=wheel_radius)
+
+
+def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.45,
+                rail_head_radius: float = 0.45, material: Material = _DEFAULT_MATERIAL,
+                element_size: float = 1e-3, max_force: float = 600e3, n_t: int = 16,
+                d_sigma: float | None = None) -> FamilySpec:
+    """Choose the lattice nodes and layout of a family covering the given geometries.
+
+    Args:
+        kind: ``"new"`` or ``"rounded"``.
+        depths: depths [m] to cover (any shape; their range is covered).
+        length_factors: lambda = l / l0 to cover (rounded flats; required), l0 = sqrt(8 R_W d).
+        wheel_radius, rail_head_radius: R_W, R_R [m].
+        material: wheel and rail material (sizes the compression range and grids).
+        element_size: square contact element side [m].
+        max_force: largest force to cover [N]; c_max = 1.4 x the Hertz approach at it.
+        n_t: nodes along t = sqrt(c / c_max).
+        d_sigma: column spacing in sigma = s / half; default :data:`D_SIGMA` of the kind.
+
+    Returns:
+        :class:`FamilySpec`.
+
+    Raises:
+        ValueError: unknown kind, depths outside [MIN_DEPTH, MAX_FLAT_DEPTH] (after rounding
+            out to the lattice), length factors outside [pi/2, MAX_LENGTH_FACTOR], missing
+            length factors for rounded flats, bad element size or n_t.
+    """
+    if kind not in FAMILY_KINDS:
+        raise ValueError(f"kind must be one of {FAMILY_KINDS}, got {kind!r}")
+    h = float(element_size)
+    if not math.isfinite(h) or h <= 0:
+        raise ValueError(f"element_size must be > 0 m, got {element_size!r}")
+    if int(n_t) < 4:
+        raise ValueError(f"n_t must be >= 4, got {n_t!r}")
+    d = np.asarray(depths, dtype=float).ravel()
+    if d.size == 0 or not np.all(np.isfinite(d)):
+        raise ValueError(f"depths must be finite numbers [m], got {depths!r}")
+    if np.any(d < MIN_DEPTH) or np.any(d > MAX_FLAT_DEPTH):
+        raise ValueError(
+            f"depths must be in [{MIN_DEPTH * 1e3:g}, {MAX_FLAT_DEPTH * 1e3:g}] mm, got "
+            f"{d.min() * 1e3:g} to {d.max() * 1e3:g} mm")
+    depth_index = _bracket(d, np.asarray(_depth_coordinate(d)), "depths", 1e3, "mm")
+    if lattice_depth(depth_index[0]) < MIN_DEPTH * (1 - 1e-12) or \
+            lattice_depth(depth_index[-1]) > MAX_FLAT_DEPTH * (1 + 1e-12) * 2 ** (
+                1 / DEPTH_STEPS_PER_OCTAVE):
+        raise ValueError(
+            f"depths {d.min() * 1e3:g} to {d.max() * 1e3:g} mm need lattice nodes outside "
+            f"[{MIN_DEPTH * 1e3:g}, {MAX_FLAT_DEPTH * 1e3:g}] mm")
+    if kind == "rounded":
+        if length_factors is None:
+            raise ValueError("length_factors (lambda = l / l0) are required for rounded flats")
+        lam = np.asarray(length_factors, dtype=float).ravel()
+        if lam.size == 0 or not np.all(np.isfinite(lam)):
+            raise ValueError(f"length_factors must be finite, got {length_factors!r}")
+        if np.any(lam < MIN_LENGTH_FACTOR - 1e-12) or np.any(lam > MAX_LENGTH_FACTOR):
+            raise ValueError(
+                f"length_factors (l / l0) must be in [pi/2 = {MIN_LENGTH_FACTOR:.4f}, "
+                f"{MAX_LENGTH_FACTOR:g}], got {lam.min():.4g} to {lam.max():.4g}")
+        length_index = _bracket(lam, (lam - LENGTH_FACTOR_ORIGIN) / LENGTH_FACTOR_STEP,
+                                "length_factors", 1.0, "")
+    else:
+        if length_factors is not None:
+            raise ValueError("length_factors apply to rounded flats only (new flats: "
+                             "l0 = sqrt(8 R_W d) follows from the depth)")
+        length_index = (0,)
+    ds = D_SIGMA[kind] if d_sigma is None else float(d_sigma)
+    if not math.isfinite(ds) or ds <= 0:
+        raise ValueError(f"d_sigma must be > 0, got {d_sigma!r}")
+    _, _, d_hertz, _ = kalker.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
+                                             material)
+    c_max = 1.4 * d_hertz
+    grids, columns, steps = [], [], []
+    for k in depth_index:
+        for j in length_index:
+            depth = lattice_depth(k)
+            lam_j = lattice_length_factor(j)
+            flat = _node_flat(kind, depth, lam_j, wheel_radius)
+            x, y = kalker.contact_grid(flat, wheel_radius, rail_head_radius, material,
+                                       max_compression=c_max, max_force=max_force,
+                                       element_size=h)
+            grids.append((len(x), len(y)))
+            half = float(_half_scale(kind, depth, flat.length, wheel_radius))
+            # Beyond half + sqrt(2 R_W c_max) the flat is outside every rigid overlap: the
+            # column is the smooth wheel (as in tables.table_spec).
+            reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
+            step = max(1, round(ds * half / h))
+            steps.append(step)
+            columns.append(math.ceil(reach / (step * h)) + 1)
+    return FamilySpec(kind=kind, wheel_radius=float(wheel_radius),
+                      rail_head_radius=float(rail_head_radius), element_size=h,
+                      max_force=float(max_force), c_max=float(c_max), n_t=int(n_t),
+                      d_sigma=ds, n_half=max(columns) - 1, depth_index=depth_index,
+                      length_index=length_index, grids=tuple(grids),
+                      node_columns=tuple(columns), node_steps=tuple(steps))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _node_build(tspec: tables.TableSpec, flat: Flat, material: Material, tol: float):
+    """Columns s_j = j ds, j < n_s, of one node (ds = s_max / (n_s - 1))."""
+    s = np.linspace(0.0, tspec.s_max, tspec.n_s)
+    onset, force, slope, ok = jax.lax.map(
+        lambda si: tables._column(tspec, flat, material, si, tol), jnp.asarray(s))
+    return onset, force, slope, jnp.all(ok)
+
+
+def _build_node(spec: FamilySpec, idx: int, material: Material, tol: float, cache_dir,
+                progress: bool) -> dict[str, np.ndarray]:
+    from .._cache import load_or_build
+
+    n_l = len(spec.length_index)
+    k, j = spec.depth_index[idx // n_l], spec.length_index[idx % n_l]
+    depth, lam = lattice_depth(k), lattice_length_factor(j)
+    nx, ny = spec.grids[idx]
+    n_cols, step = spec.node_columns[idx], spec.node_steps[idx]
+    flat = _node_flat(spec.kind, depth, lam, spec.wheel_radius)
+    # Columns s_j = j step h, j < n_cols (s >= 0; mirrored by build_family).
+    tspec = tables.TableSpec(nx=nx, ny=ny, element_size=spec.element_size,
+                             s_max=(n_cols - 1) * step * spec.element_size, n_s=n_cols,
+                             c_max=spec.c_max, n_t=spec.n_t, symmetric=True,
+                             wheel_radius=spec.wheel_radius,
+                             rail_head_radius=spec.rail_head_radius)
+    key = {"kind": spec.kind, "depth": depth, "length_factor": lam if spec.kind == "rounded"
+           else None, "wheel_radius": spec.wheel_radius,
+           "rail_head_radius": spec.rail_head_radius, "element_size": spec.element_size,
+           "c_max": spec.c_max, "n_t": spec.n_t, "step": step, "n_cols": n_cols,
+           "nx": nx, "ny": ny, "youngs_modulus": float(material.youngs_modulus),
+           "poisson_ratio": float(material.poisson_ratio), "tol": tol}
+    built = []
+
+    def build():
+        built.append(True)
+        onset, force, slope, ok = _node_build(tspec, flat, material, tol)
+        return {"onset": np.asarray(onset) / depth, "force": np.asarray(force),
+                "slope": np.asarray(slope), "converged": np.asarray(ok, dtype=float)}
+
+    t0 = time.perf_counter()
+    arrays = load_or_build("family-node", key, build, cache_dir)
+    if progress:
+        what = "built" if built else "cached"
+        geo = f"depth {depth * 1e3:.4g} mm" + (f", l/l0 {lam:.4g}" if spec.kind == "rounded"
+                                               else "")
+        print(f"contact family ({spec.kind}) node {idx + 1}/{len(spec.grids)}: {geo}, "
+              f"grid {nx}x{ny}, {n_cols} columns: {what} in {time.perf_counter() - t0:.1f} s",
+              file=sys.stderr, flush=True)
+    return arrays
+
+
+def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache_dir=None,
+                 progress: bool = False, tol: float = 1e-8) -> FlatFamily:
+    """Build (or load from the on-disk cache) every node table of ``spec``.
+
+    Args:
+        spec: a :func:`family_spec`.
+        material: wheel and rail material (concrete).
+        cache_dir: cache directory (see :func:`wfjax._cache.cache_directory`).
+        progress: print one line per node to stderr.
+        tol: CG tolerance of the solves.
+
+    Returns:
+        :class:`FlatFamily`.
+    """
+    leaves = jax.tree_util.tree_leaves(material)
+    if not all(kalker._is_concrete(v) for v in leaves):
+        raise ValueError("build_family needs a concrete material (node tables are cached)")
+    n_d, n_l = len(spec.depth_index), len(spec.length_index)
+    n_s, n_t = spec.n_s, spec.n_t
+    onset = np.zeros((n_d, n_l, n_s))
+    force = np.zeros((n_d, n_l, n_s, n_t))
+    slope = np.zeros((n_d, n_l, n_s, n_t))
+    ok = True
+    for idx in range(n_d * n_l):
+        a = _build_node(spec, idx, material, float(tol), cache_dir, progress)
+        n_cols = a["onset"].shape[0]
+        # sigma >= 0 columns, padded with the last (smooth-wheel) column, then mirrored.
+        pad = spec.n_half + 1 - n_cols
+
+        def full(v):
+            v = np.concatenate([v, np.repeat(v[-1:], pad, axis=0)], axis=0)
+            return np.concatenate([v[:0:-1], v], axis=0)
+
+        i, j = divmod(idx, n_l)
+        onset[i, j], force[i, j], slope[i, j] = full(a["onset"]), full(a["force"]), \
+            full(a["slope"])
+        ok = ok and bool(a["converged"] == 1.0)
+    return FlatFamily(spec, jnp.asarray(spec.c_max), jnp.asarray(onset), jnp.asarray(force),
+                      jnp.asarray(slope), jnp.asarray(1.0 if ok else 0.0))
+
+
+# ----------------------------------------------------------------------------------------
+# Evaluation (pure jnp)
+# ----------------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=32)
+def _slope_matrix(n: int) -> np.ndarray:
+    """[n, n] node slopes m = D f of unit-spaced node values (finite differences)."""
+    D = np.zeros((n, n))
+    if n == 2:
+        D[0, :2] = D[1, :2] = (-1.0, 1.0)
+    elif n >= 3:
+        D[0, :3] = (-1.5, 2.0, -0.5)
+        D[-1, -3:] = (0.5, -2.0, 1.5)
+        for i in range(1, n - 1):
+            D[i, i - 1], D[i, i + 1] = -0.5, 0.5
+    return D
+
+
+def _axis_weights(u, n: int):
+    """(indices [m], weights [m]) of the C1 cubic Hermite over n unit-spaced nodes at u.
+
+    u is clamped to [0, n - 1]. m = min(n, 4): a window of 4 nodes holds every node the
+    interval's two Hermite slopes use.
+    """
+    if n == 1:
+        return jnp.zeros((1,), jnp.int32), jnp.ones((1,), jnp.result_type(u, float))
+    u = jnp.clip(u, 0.0, n - 1.0)
+    i = jnp.clip(jnp.floor(u), 0, n - 2).astype(jnp.int32)
+    v = u - i
+    v2, v3 = v * v, v * v * v
+    h00, h10, h01, h11 = 2 * v3 - 3 * v2 + 1, v3 - 2 * v2 + v, -2 * v3 + 3 * v2, v3 - v2
+    m = min(n, 4)
+    idx = jnp.clip(i - 1, 0, n - m) + jnp.arange(m)
+    D = jnp.asarray(_slope_matrix(n))
+    w = (h00 * (idx == i) + h01 * (idx == i + 1) + h10 * D[i, idx] + h11 * D[i + 1, idx])
+    return idx, w
+
+
+def _geometry(spec: FamilySpec, depth, length):
+    """Clamped (depth, half, lattice coordinates u_depth, u_length) of a traced geometry."""
+    d_lo, d_hi = spec.depth_range
+    depth = jnp.clip(jnp.asarray(depth, dtype=float), d_lo, d_hi)
+    u_d = _depth_coordinate(depth) - spec.depth_index[0]
+    if spec.kind == "rounded":
+        if length is None:
+            raise ValueError("family_column needs the length of a rounded flat")
+        l0 = jnp.sqrt(8 * spec.wheel_radius * depth)
+        lam_lo, lam_hi = spec.length_factor_range
+        lam = jnp.clip(jnp.asarray(length, dtype=float) / l0, lam_lo, lam_hi)
+        half = lam * l0 / 2
+        u_l = (lam - LENGTH_FACTOR_ORIGIN) / LENGTH_FACTOR_STEP - spec.length_index[0]
+    else:
+        half = _half_scale("new", depth, None, spec.wheel_radius)
+        u_l = jnp.zeros_like(depth)
+    return depth, half, u_d, u_l
+
+
+def _exact_onset(spec: FamilySpec, s, depth, half, n_coarse: int = 129, n_fine: int = 65):
+    """Continuum rigid contact onset min_x' gap(x', 0; s) [m] of the traced flat.
+
+    The minimiser satisfies x'^2 / 2R_W <= gap(x') <= gap(0) <= d, so it lies in
+    |x'| <= sqrt(2 R_W d): a grid of ``n_coarse`` points there, refined on ``n_fine`` points
+    across two coarse steps around its minimiser, plus the kinks of a new flat's chord ends.
+    Grid minimisers are held fixed for the gradient (envelope theorem); the kinks move with the
+    depth and keep their gradient.
+    """
+    from ..geometry import profile_deviation
+
+    rw = spec.wheel_radius
+    if spec.kind == "rounded":
+        flat = Flat("rounded", depth=depth, length=2 * half, wheel_radius=rw)
+    else:
+        flat = Flat("new", depth=depth, length=2 * half, wheel_radius=rw)
+
+    def g1d(x):
+        return rw - jnp.sqrt(rw**2 - x**2) + profile_deviation(flat, x + s)
+
+    window = jax.lax.stop_gradient(jnp.sqrt(2 * rw * depth))
+    xs = window * jnp.linspace(-1.0, 1.0, n_coarse)
+    step = 2 * window / (n_coarse - 1)
+    x0 = xs[jnp.argmin(g1d(xs))]
+    xf = jax.lax.stop_gradient(x0 + step * jnp.linspace(-1.0, 1.0, n_fine))
+    candidates = [xf]
+    if spec.kind == "new":
+        edge = rw * jnp.arccos(1.0 - depth / rw)
+        candidates.append(jnp.clip(jnp.stack([edge - s, -edge - s]), -window, window))
+    return jnp.min(g1d(jnp.concatenate(candidates)))
+
+
+def family_column(family: FlatFamily, s, depth, length=None) -> tables.Column:
+    """The compression column at flat position ``s`` [m] of the flat (depth, length).
+
+    ``tables.column_force(family_column(family, s, depth, length), delta)`` is the force.
+    Pure jnp: ``jit``/``vmap``/``grad`` with respect to s, depth [m] and length [m] (rounded
+    flats; ignored for new flats). Geometry outside the family's range is clamped to it (zero
+    gradient beyond); beyond the tabulated s range the end columns (smooth wheel) apply.
+
+    Returns:
+        :class:`wfjax.contact.tables.Column` (onset [m], c_max [m], force [n_t] N,
+        slope [n_t] N).
+    """
+    spec = family.spec
+    depth, half, u_d, u_l = _geometry(spec, depth, length)
+    n_d, n_l, n_s = family.onset.shape
+    i_d, w_d = _axis_weights(u_d, n_d)
+    i_l, w_l = _axis_weights(u_l, n_l)
+    # Each node at its own s = sigma half_node; column index sigma * half_node / spacing.
+    scale = jnp.asarray(spec.column_scale)[i_d[:, None], i_l[None, :]]
+    u_s = jnp.clip(s / half * scale + spec.n_half, 0.0, n_s - 1.0)  # [m_d, m_l]
+    c = jnp.clip(jnp.floor(u_s), 0, n_s - 2).astype(jnp.int32)
+    w = (u_s - c)[..., None]
+    w2, w3 = w * w, w * w * w
+    # Catmull-Rom weights of columns c-1, c, c+1, c+2 (clamped at the ends): [m_d, m_l, 4].
+    w_s = 0.5 * jnp.concatenate([-w3 + 2 * w2 - w, 3 * w3 - 5 * w2 + 2,
+                                 -3 * w3 + 4 * w2 + w, w3 - w2], axis=-1)
+    i_s = jnp.clip(c[..., None] + jnp.arange(-1, 3), 0, n_s - 1)
+    ix = (i_d[:, None, None], i_l[None, :, None], i_s)
+    onset = _exact_onset(spec, s, depth, half)
+    force = jnp.einsum("i,j,ijk,ijkt->t", w_d, w_l, w_s, family.force[ix])
+    slope = jnp.einsum("i,j,ijk,ijkt->t", w_d, w_l, w_s, family.slope[ix])
+    return tables.Column(onset=onset, c_max=family.c_max, force=force, slope=slope)
+
+
+def family_force(family: FlatFamily, delta, s, depth, length=None):
+    """Contact force F [N] at approach ``delta`` [m], flat position ``s`` [m] of the flat
+    (depth [m], length [m]); ``column_force(family_column(...), delta)``. Scalars in, scalar
+    out (``vmap`` for batches)."""
+    return tables.column_force(family_column(family, s, depth, length), delta)
