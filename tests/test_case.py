@@ -131,6 +131,7 @@ def test_flag_beats_file_beats_environment_beats_default(tmp_path):
     assert case["track.rail_head_radius"] == 0.3 and case["track.pad_stiffness"] == 60e6
     with pytest.raises(C.CaseError, match="WFJAX_PRECISION"):
         C.resolve("sweep", environ={"WFJAX_PRECISION": "float16"})
+    assert "run.precision" not in C.resolve("compare", environ=env32).values  # not read there
 
 
 def test_a_length_flag_replaces_the_files_length_factor(tmp_path):

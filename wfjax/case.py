@@ -660,7 +660,8 @@ def resolve(command: str, config: str | None = None, flags: dict | None = None,
     Raises:
         CaseError: anything wrong, before any computation.
     """
-    layers = [default_layer(command), environment_layer(environ)]
+    env = {k: v for k, v in environment_layer(environ).items() if command in KEYS[k].commands}
+    layers = [default_layer(command), env]
     unused: tuple = ()
     if config:
         file_layer = load_layer(config)
