@@ -13,33 +13,48 @@ chord of a new flat d - x^2/2R_W and the cosine of a rounded flat (d/2)(1 + cos(
 with l = lambda l0, l0 = sqrt(8 R_W d), all become d G(x/L, y/L; s/L, lambda). The half-space
 problem is scale-invariant, so in the continuum F = E* d^(3/2) Phi(delta/d, s/L; lambda) up to
 the O(d/R) difference between circles and parabolas. The node tables are therefore tabulated
-on a scaled flat position sigma = s / half (half = l/2, or l0/2 for new flats; the same column
-index sigma / d_sigma for every node), and between nodes only the small residual dependence
+on a scaled flat position sigma = s / half (half = l/2, or l0/2 for new flats), and between
+nodes only the small residual dependence
 (the discretisation at fixed element size, which changes h/L, and the O(d/R) terms) is left
 for the depth interpolation; lambda = l/l0 stays a genuine parameter of rounded flats.
 
 Interpolation (documented scheme)
 ---------------------------------
 * Node lattice (global and fixed, so node tables are shared between families and calls):
-  depths d_k = 1 mm x 2^(k / DEPTH_STEPS_PER_OCTAVE) (log-spaced), length factors
-  lambda_j = LENGTH_FACTOR_ORIGIN + j LENGTH_FACTOR_STEP (1.76, the paper's Fig. 8 value, is a
-  node). A family holds the contiguous block of lattice nodes that brackets the requested
-  geometries; an axis whose requested values all sit on one node has that single node.
-* Every node table has the same layout as :mod:`wfjax.contact.tables` along the compression:
-  t = sqrt(c / c_max), c = delta - onset(sigma), the SAME physical c_max (1.4 x the Hertz
-  approach at ``max_force``) and n_t for every node. Interpolation over the geometry is at
-  fixed physical compression: far from the flat every node is the same smooth wheel there
-  (so the interpolation is exact), and the columns of all nodes combine node by node into one
-  :class:`wfjax.contact.tables.Column` (no resampling along t). (Fixed *scaled* compression
-  c/d would need each node to cover its neighbours' scaled range: up to r^2 times the
-  compression and grid of the deepest node, for a node ratio r.)
-* Along s: Catmull-Rom cubic in sigma over 4 columns (as the per-flat tables).
+  depths d_k = 1 mm x 2^(k / DEPTH_STEPS_PER_OCTAVE) (log-spaced; 0.25, 0.5, 1, 2 mm, ...),
+  length factors lambda_j = LENGTH_FACTOR_ORIGIN + j LENGTH_FACTOR_STEP (1.76, the paper's
+  Fig. 8 value, is a node). A family holds the contiguous block of lattice nodes that brackets
+  the requested geometries; an axis whose requested values all sit on one node has that single
+  node.
+* Every node table has the layout of :mod:`wfjax.contact.tables`: columns at whole elements
+  s = j h (so the flat sits at the same sub-element phase in every column, as in the
+  per-flat tables), t = sqrt(c / c_max), c = delta - onset, the same physical c_max
+  (1.4 x the Hertz approach at ``max_force``) and n_t for every node.
+* A query (s, d, l) reads each node at the same scaled position sigma = s / half
+  (s_node = sigma half_node; Catmull-Rom over 4 of the node's columns) and at the same
+  physical compression c, so the node columns combine into one
+  :class:`wfjax.contact.tables.Column` without resampling along t. Far from the flat every
+  node is the same smooth wheel at fixed c, so the combination is exact there. (Fixed
+  *scaled* compression c/d would need each node to cover its neighbours' scaled range: up to
+  r^2 times the compression, and a larger grid, for a node ratio r.)
 * Along log(depth) and lambda: C1 piecewise-cubic Hermite with finite-difference node slopes
   (central differences inside, second-order one-sided differences at the end nodes; linear
-  for two nodes, constant for one), over a 4-node window: interpolates the nodes, C1 in the
-  geometry, so gradients are continuous.
-* The onset is interpolated as onset / d (exactly self-similar up to O(d/R)) with the same
-  weights and multiplied by the traced depth.
+  for two nodes, constant for one), over a 4-node window: it interpolates the nodes and is C1
+  in the geometry, so gradients are continuous.
+* Onset: computed from the traced geometry (a 1D search of the continuum rigid onset,
+  cheap), by default at the 4 element-spaced positions around s and Catmull-Rom in s, which
+  is what the per-flat tables do with theirs (``onset="columns"``), or at s itself
+  (``onset="exact"``). Interpolating node onsets over depth was 0.9 um off near a rounded
+  flat's conformal centre, where the contact stiffness is ~5e9 N/m (20 % of a 20 kN force);
+  the exact onset and the table's differ by up to 0.085 um (0.75 % at 24 kN), so
+  ``"columns"`` reproduces the per-flat table at node geometries to 1e-5.
+
+Accuracy (1 mm elements, R_W = R_R = 0.45 m, rounded flats l = 1.76 l0, depths between
+nodes): limited by the discretisation itself. At fixed compression and flat position the
+1 mm discrete force is not a smooth function of the depth: direct solves at the flat centre
+for 26 depths in 0.25-0.5 mm scatter about a smooth fit by +-1.1 % at 20 kN, +-0.5 % at
+100 kN (the contact edge crossing element rows), and no interpolation over depth can follow
+that; a node ratio of 2 and one of sqrt(2) gave the same errors (see benchmarks/bench_family.py).
 
 Outside the family's range, traced geometry is clamped to the range (the law of the nearest
 covered flat, zero gradient with respect to the clamped parameter); :func:`family_spec`
@@ -57,7 +72,7 @@ import functools
 import math
 import sys
 import time
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -73,13 +88,13 @@ __all__ = ["FamilySpec", "FlatFamily", "family_spec", "build_family", "family_co
 _DEFAULT_MATERIAL = Material()
 FAMILY_KINDS = ("new", "rounded")
 DEPTH_REFERENCE = 1e-3  # m; lattice depth of index 0
-DEPTH_STEPS_PER_OCTAVE = 2  # depth nodes per factor 2 in depth
+DEPTH_STEPS_PER_OCTAVE = 1  # depth nodes per factor 2 in depth
 MIN_DEPTH = 0.05e-3  # m; shallowest lattice node allowed
 LENGTH_FACTOR_ORIGIN = 1.76  # lambda = l / l0 of lattice index 0 (Fig. 8)
 LENGTH_FACTOR_STEP = 0.2
 MIN_LENGTH_FACTOR = math.pi / 2  # rounded flats: l >= pi/2 l0
 MAX_LENGTH_FACTOR = 8.0
-D_SIGMA = {"rounded": 1 / 24, "new": 1 / 16}  # column spacing in sigma = s / half
+ONSET_MODES = ("columns", "exact")
 _ON_NODE = 1e-9  # relative distance below which a requested value is "on" a node
 
 
@@ -94,7 +109,7 @@ class FamilySpec(NamedTuple):
         c_max: compression of the last t node [m] (every node).
         n_t: nodes along t = sqrt(c / c_max).
         d_sigma: target column spacing in sigma = s / half (each node rounds it to a whole
-            number of elements, at least one).
+            number of elements, at least one); 0: one element for every node (default).
         n_half: columns on each side of sigma = 0 (n_s = 2 n_half + 1).
         depth_index: lattice indices k of the depth nodes (contiguous, increasing).
         length_index: lattice indices j of the length-factor nodes (``(0,)`` for new flats,
@@ -105,6 +120,9 @@ class FamilySpec(NamedTuple):
             sits at s = multiple of the element size like the per-flat tables' columns: the
             flat then has the same position relative to the grid in every column, and the
             discrete solution's sub-element wobble in s is sampled at the same phase).
+        onset: ``"columns"`` (default): the exact continuum onset of the traced flat at the
+            4 element-spaced positions around s, Catmull-Rom in s, as the per-flat tables
+            interpolate theirs; ``"exact"``: the exact onset at s.
     """
 
     kind: str
@@ -121,6 +139,7 @@ class FamilySpec(NamedTuple):
     grids: tuple
     node_columns: tuple
     node_steps: tuple
+    onset: str
 
     @property
     def depths(self) -> np.ndarray:
@@ -176,8 +195,9 @@ class FlatFamily:
     Attributes:
         spec: the :class:`FamilySpec`.
         c_max: compression of the last t node [m] (scalar).
-        onset: [n_depth, n_length, n_s] rigid contact onset / node depth (dimensionless) at
-            sigma = (i - n_half) d_sigma.
+        onset: [n_depth, n_length, n_s] rigid contact onset / node depth (dimensionless) of
+            the node columns (informative: the evaluation computes the onset from the
+            traced geometry).
         force: [n_depth, n_length, n_s, n_t] force [N] at c = c_max (j / (n_t - 1))^2.
         slope: [n_depth, n_length, n_s, n_t] dF/du [N] per t node index u.
         converged: 1.0 when every solve of every node converged, else 0.0 (scalar).
@@ -206,8 +226,8 @@ def _depth_coordinate(depth):
     return jnp.log(depth / DEPTH_REFERENCE) / math.log(2.0) * DEPTH_STEPS_PER_OCTAVE
 
 
-def _bracket(values, coord, name: str, unit_scale: float, unit: str) -> tuple[int, ...]:
-    """Contiguous lattice indices covering ``values`` (lattice coordinates ``coord``)."""
+def _bracket(coord) -> tuple[int, ...]:
+    """Contiguous lattice indices covering the lattice coordinates ``coord``."""
     lo, hi = float(np.min(coord)), float(np.max(coord))
     k_lo, k_hi = math.floor(lo + _ON_NODE), math.ceil(hi - _ON_NODE)
     if abs(lo - round(lo)) < _ON_NODE:
@@ -235,7 +255,7 @@ def _node_flat(kind: str, depth: float, length_factor: float, wheel_radius: floa
 def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.45,
                 rail_head_radius: float = 0.45, material: Material = _DEFAULT_MATERIAL,
                 element_size: float = 1e-3, max_force: float = 600e3, n_t: int = 16,
-                d_sigma: float | None = None) -> FamilySpec:
+                d_sigma: float = 0.0, onset: str = "columns") -> FamilySpec:
     """Choose the lattice nodes and layout of a family covering the given geometries.
 
     Args:
@@ -247,7 +267,11 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
         element_size: square contact element side [m].
         max_force: largest force to cover [N]; c_max = 1.4 x the Hertz approach at it.
         n_t: nodes along t = sqrt(c / c_max).
-        d_sigma: column spacing in sigma = s / half; default :data:`D_SIGMA` of the kind.
+        d_sigma: column spacing in sigma = s / half, rounded per node to whole elements;
+            0 (default): every node's columns one element apart, like the per-flat tables
+            (measured at a node, 1 mm elements, 1 mm rounded flat: 2-element columns are
+            0.5 % off the per-flat table at 100-600 kN, 1-element columns 0.000 %).
+        onset: ``"columns"`` or ``"exact"`` (see :class:`FamilySpec`).
 
     Returns:
         :class:`FamilySpec`.
@@ -271,7 +295,7 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
         raise ValueError(
             f"depths must be in [{MIN_DEPTH * 1e3:g}, {MAX_FLAT_DEPTH * 1e3:g}] mm, got "
             f"{d.min() * 1e3:g} to {d.max() * 1e3:g} mm")
-    depth_index = _bracket(d, np.asarray(_depth_coordinate(d)), "depths", 1e3, "mm")
+    depth_index = _bracket(np.asarray(_depth_coordinate(d)))
     if lattice_depth(depth_index[0]) < MIN_DEPTH * (1 - 1e-12) or \
             lattice_depth(depth_index[-1]) > MAX_FLAT_DEPTH * (1 + 1e-12) * 2 ** (
                 1 / DEPTH_STEPS_PER_OCTAVE):
@@ -288,16 +312,17 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
             raise ValueError(
                 f"length_factors (l / l0) must be in [pi/2 = {MIN_LENGTH_FACTOR:.4f}, "
                 f"{MAX_LENGTH_FACTOR:g}], got {lam.min():.4g} to {lam.max():.4g}")
-        length_index = _bracket(lam, (lam - LENGTH_FACTOR_ORIGIN) / LENGTH_FACTOR_STEP,
-                                "length_factors", 1.0, "")
+        length_index = _bracket((lam - LENGTH_FACTOR_ORIGIN) / LENGTH_FACTOR_STEP)
     else:
         if length_factors is not None:
             raise ValueError("length_factors apply to rounded flats only (new flats: "
                              "l0 = sqrt(8 R_W d) follows from the depth)")
         length_index = (0,)
-    ds = D_SIGMA[kind] if d_sigma is None else float(d_sigma)
-    if not math.isfinite(ds) or ds <= 0:
-        raise ValueError(f"d_sigma must be > 0, got {d_sigma!r}")
+    ds = float(d_sigma)
+    if not math.isfinite(ds) or ds < 0:
+        raise ValueError(f"d_sigma must be >= 0, got {d_sigma!r}")
+    if onset not in ONSET_MODES:
+        raise ValueError(f"onset must be one of {ONSET_MODES}, got {onset!r}")
     _, _, d_hertz, _ = kalker.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
                                              material)
     c_max = 1.4 * d_hertz
@@ -315,7 +340,7 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
             # Beyond half + sqrt(2 R_W c_max) the flat is outside every rigid overlap: the
             # column is the smooth wheel (as in tables.table_spec).
             reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
-            step = max(1, round(ds * half / h))
+            step = max(1, round(ds * half / h)) if ds > 0 else 1
             steps.append(step)
             columns.append(math.ceil(reach / (step * h)) + 1)
     return FamilySpec(kind=kind, wheel_radius=float(wheel_radius),
@@ -323,7 +348,8 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                       max_force=float(max_force), c_max=float(c_max), n_t=int(n_t),
                       d_sigma=ds, n_half=max(columns) - 1, depth_index=depth_index,
                       length_index=length_index, grids=tuple(grids),
-                      node_columns=tuple(columns), node_steps=tuple(steps))
+                      node_columns=tuple(columns), node_steps=tuple(steps),
+                      onset=onset)
 
 
 @functools.partial(jax.jit, static_argnums=(0, 3))
@@ -377,6 +403,12 @@ def _build_node(spec: FamilySpec, idx: int, material: Material, tol: float, cach
     return arrays
 
 
+def _mirror_padded(v: np.ndarray, pad: int) -> np.ndarray:
+    """s >= 0 columns padded with the last (smooth-wheel) column, then mirrored to s < 0."""
+    v = np.concatenate([v, np.repeat(v[-1:], pad, axis=0)], axis=0)
+    return np.concatenate([v[:0:-1], v], axis=0)
+
+
 def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache_dir=None,
                  progress: bool = False, tol: float = 1e-8) -> FlatFamily:
     """Build (or load from the on-disk cache) every node table of ``spec``.
@@ -403,16 +435,10 @@ def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache
     for idx in range(n_d * n_l):
         a = _build_node(spec, idx, material, float(tol), cache_dir, progress)
         n_cols = a["onset"].shape[0]
-        # sigma >= 0 columns, padded with the last (smooth-wheel) column, then mirrored.
-        pad = spec.n_half + 1 - n_cols
-
-        def full(v):
-            v = np.concatenate([v, np.repeat(v[-1:], pad, axis=0)], axis=0)
-            return np.concatenate([v[:0:-1], v], axis=0)
-
         i, j = divmod(idx, n_l)
-        onset[i, j], force[i, j], slope[i, j] = full(a["onset"]), full(a["force"]), \
-            full(a["slope"])
+        onset[i, j], force[i, j], slope[i, j] = (
+            _mirror_padded(a[name], spec.n_half + 1 - n_cols)
+            for name in ("onset", "force", "slope"))
         ok = ok and bool(a["converged"] == 1.0)
     return FlatFamily(spec, jnp.asarray(spec.c_max), jnp.asarray(onset), jnp.asarray(force),
                       jnp.asarray(slope), jnp.asarray(1.0 if ok else 0.0))
@@ -536,7 +562,18 @@ def family_column(family: FlatFamily, s, depth, length=None) -> tables.Column:
                                  -3 * w3 + 4 * w2 + w, w3 - w2], axis=-1)
     i_s = jnp.clip(c[..., None] + jnp.arange(-1, 3), 0, n_s - 1)
     ix = (i_d[:, None, None], i_l[None, :, None], i_s)
-    onset = _exact_onset(spec, s, depth, half)
+    if spec.onset == "columns":
+        h = spec.element_size
+        u = s / h
+        i0 = jnp.floor(u)
+        wv = u - i0
+        wv2, wv3 = wv * wv, wv * wv * wv
+        wo = 0.5 * jnp.stack([-wv3 + 2 * wv2 - wv, 3 * wv3 - 5 * wv2 + 2,
+                              -3 * wv3 + 4 * wv2 + wv, wv3 - wv2])
+        sj = (i0 + jnp.arange(-1, 3)) * h
+        onset = jnp.sum(wo * jax.vmap(lambda si: _exact_onset(spec, si, depth, half))(sj))
+    else:
+        onset = _exact_onset(spec, s, depth, half)
     force = jnp.einsum("i,j,ijk,ijkt->t", w_d, w_l, w_s, family.force[ix])
     slope = jnp.einsum("i,j,ijk,ijkt->t", w_d, w_l, w_s, family.slope[ix])
     return tables.Column(onset=onset, c_max=family.c_max, force=force, slope=slope)
