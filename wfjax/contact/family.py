@@ -182,7 +182,7 @@ class FamilySpec(NamedTuple):
             j = self.length_index[idx % len(self.length_index)]
             depth = lattice_depth(k)
             flat = _node_flat(self.kind, depth, lattice_length_factor(j), self.wheel_radius)
-            half = float(_half_scale(self.kind, depth, flat.length, self.wheel_radius))
+            half = _node_half(self.kind, depth, flat.length, self.wheel_radius)
             out.append(half / (step * self.element_size))
         return np.array(out).reshape(len(self.depth_index), len(self.length_index))
 
@@ -242,6 +242,11 @@ def _half_scale(kind: str, depth, length, wheel_radius):
     if kind == "rounded":
         return length / 2
     return jnp.sqrt(2 * wheel_radius * depth)
+
+
+def _node_half(kind: str, depth: float, length: float, wheel_radius: float) -> float:
+    """:func:`_half_scale` of concrete numbers (a Python float, also under tracing)."""
+    return length / 2 if kind == "rounded" else math.sqrt(2 * wheel_radius * depth)
 
 
 def _node_flat(kind: str, depth: float, length_factor: float, wheel_radius: float) -> Flat:
@@ -336,7 +341,7 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                                        max_compression=c_max, max_force=max_force,
                                        element_size=h)
             grids.append((len(x), len(y)))
-            half = float(_half_scale(kind, depth, flat.length, wheel_radius))
+            half = _node_half(kind, depth, flat.length, wheel_radius)
             # Beyond half + sqrt(2 R_W c_max) the flat is outside every rigid overlap: the
             # column is the smooth wheel (as in tables.table_spec).
             reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
@@ -484,17 +489,24 @@ def _axis_weights(u, n: int):
 
 
 def _geometry(spec: FamilySpec, depth, length):
-    """Clamped (depth, half, lattice coordinates u_depth, u_length) of a traced geometry."""
+    """Clamped (depth, half, lattice coordinates u_depth, u_length) of a traced geometry.
+
+    lambda = l / l0 is taken from the given depth, then depth and lambda are clamped to the
+    family's range separately (the nearest covered flat in (log d, lambda)).
+    """
     d_lo, d_hi = spec.depth_range
-    depth = jnp.clip(jnp.asarray(depth, dtype=float), d_lo, d_hi)
-    u_d = _depth_coordinate(depth) - spec.depth_index[0]
+    depth = jnp.asarray(depth, dtype=float)
     if spec.kind == "rounded":
         if length is None:
             raise ValueError("family_column needs the length of a rounded flat")
-        l0 = jnp.sqrt(8 * spec.wheel_radius * depth)
         lam_lo, lam_hi = spec.length_factor_range
-        lam = jnp.clip(jnp.asarray(length, dtype=float) / l0, lam_lo, lam_hi)
-        half = lam * l0 / 2
+        safe = jnp.maximum(depth, d_lo)
+        lam = jnp.clip(jnp.asarray(length, dtype=float) / jnp.sqrt(8 * spec.wheel_radius * safe),
+                       lam_lo, lam_hi)
+    depth = jnp.clip(depth, d_lo, d_hi)
+    u_d = _depth_coordinate(depth) - spec.depth_index[0]
+    if spec.kind == "rounded":
+        half = lam * jnp.sqrt(8 * spec.wheel_radius * depth) / 2
         u_l = (lam - LENGTH_FACTOR_ORIGIN) / LENGTH_FACTOR_STEP - spec.length_index[0]
     else:
         half = _half_scale("new", depth, None, spec.wheel_radius)
@@ -539,7 +551,8 @@ def family_column(family: FlatFamily, s, depth, length=None) -> tables.Column:
 
     ``tables.column_force(family_column(family, s, depth, length), delta)`` is the force.
     Pure jnp: ``jit``/``vmap``/``grad`` with respect to s, depth [m] and length [m] (rounded
-    flats; ignored for new flats). Geometry outside the family's range is clamped to it (zero
+    flats; ignored for new flats). Geometry outside the family's range is clamped to it:
+    lambda = length / l0(depth) and the depth are each clamped to their node range (zero
     gradient beyond); beyond the tabulated s range the end columns (smooth wheel) apply.
 
     Returns:
