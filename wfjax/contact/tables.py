@@ -164,7 +164,8 @@ def _onset(spec: TableSpec, flat: Flat, s):
 
     The minimum over y is at y = 0 (the flat's transverse arcs follow the rail head), so a 1D
     search suffices: a grid at 1/8 element across the contact grid, refined to 1/256 element
-    around its minimiser (the minimiser is held fixed for the gradient: envelope theorem).
+    around its minimiser (the minimiser is held fixed for the gradient: envelope theorem), and
+    the chord ends of a new flat (corners of the gap).
     """
     from ..geometry import profile_deviation
 
@@ -178,7 +179,15 @@ def _onset(spec: TableSpec, flat: Flat, s):
     xs = jnp.asarray(np.arange(-8 * (spec.nx - 1) // 2, 8 * (spec.nx - 1) // 2 + 1) * step)
     x0 = jax.lax.stop_gradient(xs[jnp.argmin(g1d(xs))])
     xf = jnp.clip(x0 + jnp.asarray(np.linspace(-step, step, 65)), -half, half)
-    return jnp.min(g1d(jax.lax.stop_gradient(xf)))
+    onset = jnp.min(g1d(jax.lax.stop_gradient(xf)))
+    if flat.kind == "new":
+        # The chord ends are corners of the gap, often its minimum: a grid minimum misses a
+        # corner by up to |slope| x spacing (~0.4 um at 2 mm elements). They move with the
+        # depth and keep their gradient.
+        edge = flat.wheel_radius * jnp.arccos(1.0 - flat.depth / flat.wheel_radius)
+        onset = jnp.minimum(onset, jnp.min(g1d(jnp.clip(jnp.stack([edge - s, -edge - s]),
+                                                        -half, half))))
+    return onset
 
 
 def _column(spec: TableSpec, flat: Flat, material: Material, s, tol: float):
