@@ -118,7 +118,7 @@ def main() -> None:
                                f"--xla_force_host_platform_device_count={a.host_devices}")
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
     speeds = np.array([float(s) for s in a.speeds_kmh.split(",")]) / 3.6
-    from wfjax.sweep import impact_positions_grid
+    from wfjax.sweeps import impact_positions_grid
 
     positions = impact_positions_grid(a.positions)
     n_runs = speeds.size * positions.size

@@ -29,7 +29,7 @@ import numpy as np
 
 import wfjax as wf
 
-sweep_mod = importlib.import_module("wfjax.sweep")  # the module (wfjax.sweep is the function)
+sweep_mod = importlib.import_module("wfjax.sweeps")  # the module (wfjax.sweep is the function)
 
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                   "/jax/core/compile/jaxpr_to_mlir_module_duration",

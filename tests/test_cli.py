@@ -16,7 +16,7 @@ import wfjax as wf
 from wfjax import case as C
 from wfjax.cli import build_parser, main
 
-SWEEP = importlib.import_module("wfjax.sweep")  # the module (wfjax.sweep is the function)
+SWEEP = importlib.import_module("wfjax.sweeps")  # the module (wfjax.sweep is the function)
 INTERACTION = importlib.import_module("wfjax.interaction")
 TINY = ["--contact", "hertz-trajectory", "--speeds-kmh", "60,120", "--positions", "1"]
 

@@ -18,9 +18,9 @@ import pytest
 import wfjax as wf
 from wfjax import fit
 from wfjax import interaction as it
-from wfjax.contact import laws
 from wfjax.cli import main
 from wfjax.commands.fit import parse_data
+from wfjax.contact import laws
 
 COARSE = wf.SimConfig(max_travel_step=1e-3, max_time_step=5e-5)
 SPEEDS = np.array([40.0, 100.0, 140.0]) / 3.6  # m/s; 140 km/h loses contact (asserted)

@@ -181,7 +181,7 @@ def test_loop_mode_shapes_equal_track_interpolation():
                          [(80, 64, 1, (40, 40)), (290, 64, 1, (58, 58)), (64, 64, 1, (64, 64)),
                           (6, 4, 2, (3, 4)), (5, 64, 2, (5, 6)), (1, 64, 1, (1, 1))])
 def test_chunks_spread_runs_evenly(n_runs, chunk, n_dev, layout):
-    from wfjax.sweep import _chunk_layout
+    from wfjax.sweeps import _chunk_layout
 
     step, width = _chunk_layout(n_runs, chunk, n_dev)
     assert (step, width) == layout

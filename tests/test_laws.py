@@ -13,7 +13,7 @@ import wfjax as wf
 from wfjax import interaction as it
 from wfjax.contact import laws
 from wfjax.params import _pytree
-from wfjax.sweep import _batched, prepare_batch
+from wfjax.sweeps import _batched, prepare_batch
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 MODEL = (wf.Wheel(), wf.Track.comparison(), wf.Material(), COARSE)
@@ -114,3 +114,11 @@ def test_prepare_rejects_unknown_models_and_mixed_family_kinds():
         laws.prepare("4d", FLATS[0], *MODEL)
     with pytest.raises(ValueError, match="one kind"):
         laws.prepare_family([FLATS[0], wf.Flat.new(0.9e-3)], *MODEL)
+
+
+def test_sweep_name_is_unambiguous():
+    """``from wfjax import sweep`` is the function; the module is ``wfjax.sweeps``."""
+    import wfjax.sweeps
+    from wfjax import sweep
+
+    assert callable(sweep) and sweep is wfjax.sweeps.sweep

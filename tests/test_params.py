@@ -74,3 +74,9 @@ def test_rounded_length_boundary_is_accepted():
 def test_unit_helpers():
     assert wf.kmh(36.0) == pytest.approx(10.0)
     assert wf.mm(0.9) == pytest.approx(0.9e-3)
+
+
+def test_flat_longer_than_a_tenth_of_the_circumference_is_refused():
+    with pytest.raises(ValueError, match=r"Flat.length must be in \(0, 300\] mm"):
+        wf.Flat.rounded(0.9e-3, 5.0)
+    assert float(wf.Flat.rounded(0.9e-3, 0.3).length) == 0.3

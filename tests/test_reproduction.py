@@ -16,7 +16,7 @@ import wfjax as wf
 from wfjax.cli import main
 from wfjax.commands.compare import comparison_flat, comparison_flats, run_comparison
 from wfjax.commands.figures import fig7_flats, fig8_flats
-from wfjax.sweep import loss_of_contact_speed
+from wfjax.sweeps import loss_of_contact_speed
 
 
 def _kmh(*values):

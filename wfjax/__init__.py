@@ -32,8 +32,8 @@ from .params import Track as Track
 from .params import Wheel as Wheel
 from .params import kmh as kmh
 from .params import mm as mm
-from .sweep import SweepResult as SweepResult
-from .sweep import sweep as sweep
+from .sweeps import SweepResult as SweepResult
+from .sweeps import sweep as sweep
 from .track import ModalModel as ModalModel
 from .track import MovingGreens as MovingGreens
 from .wheel import WheelModal as WheelModal

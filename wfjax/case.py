@@ -45,7 +45,7 @@ COMMANDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "geo
 CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
 PRECISIONS = ("float64", "float32")
 MAX_SPEED_KMH = 540.0  # = 150 m/s, the API's limit
-MAX_FLAT_LENGTH = 0.3  # m; about a tenth of a 0.45 m wheel's circumference
+MAX_FLAT_LENGTH = P.MAX_FLAT_LENGTH  # m; about a tenth of a 0.45 m wheel's circumference
 PROFILE_STEP = 0.1e-3  # m; measured profiles are resampled on this uniform grid
 
 

@@ -63,7 +63,7 @@ import optax
 from . import interaction as it
 from .contact.laws import CONTACT_MODELS, ContactLaw, TableLaw, prepare, prepare_family
 from .params import Flat, Material, SimConfig, Track, Wheel, new_flat_length
-from .sweep import impact_positions_grid
+from .sweeps import impact_positions_grid
 
 __all__ = [
     "D_REF",
@@ -373,7 +373,7 @@ def _setup(contact: str, reference: Flat, wheel, track, material, config, cache_
     if contact not in CONTACT_MODELS:
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     wheel = wheel or Wheel()
-    track = track or Track.comparison()
+    track = track or Track()
     material = material or Material()
     config = config or SimConfig()
     spec3d = family = None
@@ -467,7 +467,7 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
         temperature, time_temperature: smooth-maximum temperatures [N] (None: hard max).
         extent_bound: static bound [m] of the flat's half extent (default: the reference's).
         wheel, track, material, config: model parameters (default track:
-            :meth:`Track.comparison`).
+            ``Track()``, as :func:`wfjax.simulate` and :func:`wfjax.sweep`).
         checkpoint: run the simulations sequentially under ``jax.checkpoint`` (reverse-mode
             memory: one time history at a time instead of n x positions).
 
@@ -629,7 +629,8 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
         checkpoint: see :func:`max_force_model` (reverse mode only).
         extent_bound: static bound of the flat's half extent [m] during the fit.
         wheel, track, material, config: model parameters (default track
-            :meth:`Track.comparison`, as the paper's model comparison).
+            ``Track()``, Table 2 with R_R = 0.30 m, the default of every entry point; pass
+            :meth:`Track.comparison` for the paper's R_R = 0.45 m).
         callback: called as ``callback(iteration, loss, flat)`` after every iteration.
 
     Returns:

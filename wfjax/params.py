@@ -24,6 +24,7 @@ import numpy as np
 __all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT_KINDS"]
 
 MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (half-space, Eq. 1)
+MAX_FLAT_LENGTH = 0.3  # m; about a tenth of a 0.45 m wheel's circumference
 FLAT_KINDS = ("new", "rounded", "profile", "none")
 CONTACT_MODES_3D = ("auto", "table", "parametric", "direct")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
@@ -306,6 +307,12 @@ class Flat:
         _validate_depth(depth)
         _check_positive("Flat", "wheel_radius", wheel_radius, "m")
         _check_positive("Flat", "length", length, "m")
+        if float(np.max(np.asarray(length))) > MAX_FLAT_LENGTH:
+            raise ValueError(
+                f"Flat.length must be in (0, {MAX_FLAT_LENGTH * 1e3:g}] mm (a flat longer than "
+                f"about a tenth of the circumference is not a wheel flat), got "
+                f"{float(np.max(length)) * 1e3:g} mm"
+            )
         l0 = new_flat_length(depth, wheel_radius)
         l_min = math.pi / 2 * l0
         if float(np.min(np.asarray(length) - l_min)) < -1e-12:

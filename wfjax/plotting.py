@@ -58,7 +58,7 @@ def sweep_figure(result, title: str | None = None):
     min of min); filled markers where loss of contact occurs at some position.
 
     Args:
-        result: a :class:`wfjax.sweep.SweepResult`.
+        result: a :class:`wfjax.SweepResult`.
     """
     v = np.asarray(result.speeds) * 3.6
     fig, ax = plt.subplots(figsize=(8, 5))

@@ -80,7 +80,7 @@ def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=CONTACT
     Returns:
         model -> :class:`wfjax.SweepResult`, arrays [n_flats, n_speeds, positions].
     """
-    from ..sweep import sweep
+    from ..sweeps import sweep
 
     if "3d" not in models:
         raise ValueError("the comparison needs the 3d model as reference")

@@ -94,7 +94,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from ..plotting import default_fig5_flats, flat_inputs_figure, sweep_figure
     from ..plotting_paper import depth_family_figure
-    from ..sweep import sweep
+    from ..sweeps import sweep
 
     wanted = parse_figures(args.only)
     case = resolve_case(args, "figures", {})

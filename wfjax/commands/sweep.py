@@ -131,7 +131,7 @@ def run(args) -> int:
     case = resolve_case(args, "sweep", FLAGS)
     set_precision(case["run.precision"])
     from ..plotting import sweep_figure
-    from ..sweep import sweep
+    from ..sweeps import sweep
 
     speeds = case.speeds()
     positions = case["run.impact_positions"]
