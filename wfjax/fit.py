@@ -61,7 +61,7 @@ import numpy as np
 import optax
 
 from . import interaction as it
-from .contact.laws import CONTACT_MODELS, ContactLaw, TableLaw, prepare, prepare_family
+from .contact.laws import CONTACT_MODELS, ContactLaw, TableLaw, prepare, prepare_family_range
 from .params import Flat, Material, SimConfig, Track, Wheel, new_flat_length
 from .sweeps import impact_positions_grid
 
@@ -350,23 +350,23 @@ class _Setup:
     family: Any  # FlatFamily for "3d" with a new or rounded flat, else None
 
 
-def fit_range_flats(reference: Flat, wheel_radius: float, depth_factor: float = FIT_DEPTH_FACTOR,
-                    length_factor: float = FIT_LENGTH_FACTOR) -> list[Flat]:
-    """Corner flats of the geometry range a 3D fit may visit (sizes its parametric family).
+def fit_range(reference: Flat, wheel_radius: float, depth_factor: float = FIT_DEPTH_FACTOR,
+              length_factor: float = FIT_LENGTH_FACTOR):
+    """(depths [m], length factors l / l0 or None) spanning the range a 3D fit may visit.
 
     Depths from d0 / ``depth_factor`` to d0 x ``depth_factor`` (within the model's 0-5 mm);
-    rounded flats from the shortest allowed length (pi/2 l0) to ``length_factor`` x their
-    starting l / l0.
+    rounded flats from l / l0 = lambda0 / ``length_factor`` (at least pi/2, the shortest
+    rounded flat) to lambda0 x ``length_factor``. The parametric family of the fit covers this
+    range; :func:`fit_flat` warns when the fitted flat ends on its edge.
     """
     from .params import MAX_FLAT_DEPTH
 
     d0 = float(reference.depth)
-    depths = (d0 / depth_factor, min(d0 * depth_factor, MAX_FLAT_DEPTH))
+    depths = [d0 / depth_factor, min(d0 * depth_factor, MAX_FLAT_DEPTH)]
     if reference.kind == "new":
-        return [Flat.new(d, wheel_radius) for d in depths]
+        return depths, None
     factor = float(reference.length) / float(new_flat_length(d0, wheel_radius))
-    factors = (math.pi / 2, max(factor, math.pi / 2) * length_factor)
-    return [Flat.rounded_relative(d, f, wheel_radius) for d in depths for f in factors]
+    return depths, [max(factor / length_factor, math.pi / 2), factor * length_factor]
 
 
 def _setup(contact: str, reference: Flat, wheel, track, material, config, cache_dir=None):
@@ -383,8 +383,9 @@ def _setup(contact: str, reference: Flat, wheel, track, material, config, cache_
         spec3d = tables.table_spec(reference, float(wheel.radius), float(track.rail_head_radius),
                                    material, element_size=config.contact_element)
     elif contact == "3d":
-        corners = fit_range_flats(reference, float(wheel.radius))
-        family = prepare_family(corners, wheel, track, material, config, cache_dir)
+        depths, factors = fit_range(reference, float(wheel.radius))
+        family = prepare_family_range(reference.kind, depths, factors, wheel, track, material,
+                                      config, cache_dir)
     return _Setup(contact, wheel, track, material, config,
                   it.structure(wheel, track, config, cache_dir), spec3d, family)
 

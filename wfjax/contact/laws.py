@@ -60,6 +60,7 @@ __all__ = [
     "ParametricLaw",
     "prepare",
     "prepare_family",
+    "prepare_family_range",
     "resolve_mode_3d",
     "cached_table_3d",
 ]
@@ -285,7 +286,7 @@ def prepare_family(flats, wheel: Wheel, track: Track, material: Material, config
     """The parametric 3D family covering ``flats`` (concrete, one kind: new or rounded).
 
     Node tables are cached on disk, so a later call over an overlapping range builds only the
-    missing nodes. Fits pass the two corners of their search range as ``flats``.
+    missing nodes (fits use :func:`prepare_family_range` over their search range).
 
     Returns:
         :class:`wfjax.contact.family.FlatFamily`.
@@ -297,8 +298,6 @@ def prepare_family(flats, wheel: Wheel, track: Track, material: Material, config
         raise ValueError(f"the parametric 3D law needs flats of one kind, 'new' or 'rounded', "
                          f"got kinds {sorted(kinds)}; measured profiles use the exact table "
                          f"(SimConfig(contact_mode_3d='table'))")
-    from . import family as family_mod
-
     kind = kinds.pop()
     radius = float(wheel.radius)
     depths = [float(np.asarray(f.depth)) for f in flats]
@@ -306,7 +305,18 @@ def prepare_family(flats, wheel: Wheel, track: Track, material: Material, config
     if kind == "rounded":
         factors = [float(np.asarray(f.length)) / float(new_flat_length(d, radius))
                    for f, d in zip(flats, depths, strict=True)]
-    spec = family_mod.family_spec(kind, depths, factors, wheel_radius=radius,
+    return prepare_family_range(kind, depths, factors, wheel, track, material, config,
+                                cache_dir, progress)
+
+
+def prepare_family_range(kind: str, depths, length_factors, wheel: Wheel, track: Track,
+                         material: Material, config: SimConfig, cache_dir=None,
+                         progress: bool = False):
+    """The parametric 3D family of ``kind`` covering ``depths`` [m] and, for rounded flats,
+    ``length_factors`` l / l0 (their ranges; see :func:`wfjax.contact.family.family_spec`)."""
+    from . import family as family_mod
+
+    spec = family_mod.family_spec(kind, depths, length_factors, wheel_radius=float(wheel.radius),
                                   rail_head_radius=float(track.rail_head_radius),
                                   material=material, element_size=config.contact_element)
     return family_mod.build_family(spec, material, cache_dir=cache_dir, progress=progress)
