@@ -4,7 +4,8 @@ Fig. 8: rounded flats l = 1.76 l0, depths 0.25-2.00 mm (step 0.25), 29 speeds (2
 8 impact positions, R_W = R_R = 0.45 m, 3D contact. ``wf.sweep`` runs the 8 flats as one batch
 through the parametric family F(delta, s; depth, length) (one compile).
 
-* ``cold``: a fresh cache directory (modal model and family built), timed end to end;
+* ``cold``: a fresh cache directory (modal model and family built), timed end to end, one
+  JAX device per core as the ``wfjax`` command uses;
 * ``warm``: the same sweep again in a new process on the now-filled cache;
 * ``--accuracy``: the same runs with each flat's exact per-flat table
   (``SimConfig(contact_mode_3d="table")``, 8 builds), with identical simulation windows (every
@@ -82,6 +83,9 @@ def loss_speeds(result) -> list:
 
 
 def main() -> None:
+    from wfjax.cli import expose_cpu_cores
+
+    expose_cpu_cores()  # one JAX device per core, as the wfjax command does
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--accuracy", action="store_true",
                    help="also run the exact per-flat tables and compare (minutes)")

@@ -21,11 +21,13 @@ for the depth interpolation; lambda = l/l0 stays a genuine parameter of rounded 
 Interpolation (documented scheme)
 ---------------------------------
 * Node lattice (global and fixed, so node tables are shared between families and calls):
-  depths d_k = 1 mm x 2^(k / DEPTH_STEPS_PER_OCTAVE) (log-spaced; 0.25, 0.5, 1, 2 mm, ...),
-  length factors lambda_j = LENGTH_FACTOR_ORIGIN + j LENGTH_FACTOR_STEP (1.76, the paper's
-  Fig. 8 value, is a node). A family holds the contiguous block of lattice nodes that brackets
-  the requested geometries; an axis whose requested values all sit on one node has that single
-  node.
+  depths d_k = 1.1 mm x 2^(k / DEPTH_STEPS_PER_OCTAVE) (log-spaced; 0.1375, 0.275, 0.55, 1.1,
+  2.2 mm, ...), length factors lambda_j = LENGTH_FACTOR_ORIGIN + j LENGTH_FACTOR_STEP
+  (1.66, 1.86, ...). The lattice is deliberately not aligned with the paper's geometries: every
+  Fig. 8 flat (0.25-2.00 mm, l = 1.76 l0) lies between nodes in depth and in length, which is
+  where the family is checked against exact tables. A family holds the contiguous block of
+  lattice nodes that brackets the requested geometries; an axis whose requested values all sit
+  on one node has that single node.
 * Every node table has the layout of :mod:`wfjax.contact.tables`: columns at whole elements
   s = j h (so the flat sits at the same sub-element phase in every column, as in the
   per-flat tables), t = sqrt(c / c_max), c = delta - onset, the same physical c_max
@@ -63,13 +65,16 @@ raises ``ValueError`` for concrete geometries outside the lattice.
 Build and cache: each node table is built by ``lax.map`` over its columns (s >= 0, mirrored)
 and a warm-started ``lax.scan`` over the compression (the per-flat builder's column routine),
 and cached on disk by itself through :func:`wfjax._cache.load_or_build` (atomic, verified), so
-families over overlapping ranges share node tables.
+families over overlapping ranges share node tables. Nodes are built concurrently, one thread
+per CPU core (deepest first).
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import math
+import os
 import sys
 import time
 from typing import NamedTuple
@@ -87,10 +92,10 @@ __all__ = ["FamilySpec", "FlatFamily", "family_spec", "build_family", "family_co
 
 _DEFAULT_MATERIAL = Material()
 FAMILY_KINDS = ("new", "rounded")
-DEPTH_REFERENCE = 1e-3  # m; lattice depth of index 0
+DEPTH_REFERENCE = 1.1e-3  # m; lattice depth of index 0 (nodes 0.1375, 0.275, 0.55, 1.1, 2.2 mm)
 DEPTH_STEPS_PER_OCTAVE = 1  # depth nodes per factor 2 in depth
 MIN_DEPTH = 0.05e-3  # m; shallowest lattice node allowed
-LENGTH_FACTOR_ORIGIN = 1.76  # lambda = l / l0 of lattice index 0 (Fig. 8)
+LENGTH_FACTOR_ORIGIN = 1.66  # lambda = l / l0 of lattice index 0
 LENGTH_FACTOR_STEP = 0.2
 MIN_LENGTH_FACTOR = math.pi / 2  # rounded flats: l >= pi/2 l0
 MAX_LENGTH_FACTOR = 8.0
@@ -213,7 +218,7 @@ class FlatFamily:
 
 
 def lattice_depth(k: int) -> float:
-    """Depth [m] of lattice index ``k``: 1 mm x 2^(k / DEPTH_STEPS_PER_OCTAVE)."""
+    """Depth [m] of lattice index ``k``: 1.1 mm x 2^(k / DEPTH_STEPS_PER_OCTAVE)."""
     return DEPTH_REFERENCE * 2.0 ** (k / DEPTH_STEPS_PER_OCTAVE)
 
 
@@ -437,8 +442,17 @@ def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache
     force = np.zeros((n_d, n_l, n_s, n_t))
     slope = np.zeros((n_d, n_l, n_s, n_t))
     ok = True
+    # Node builds are independent, and one XLA CPU computation keeps about one core busy: run
+    # one per core (threads release the GIL inside XLA), the most expensive (deepest) first.
+    order = sorted(range(n_d * n_l), key=lambda idx: -spec.grids[idx][0] * spec.grids[idx][1]
+                   * spec.node_columns[idx])
+    workers = max(1, min(len(order), os.cpu_count() or 1))
+    with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+        built = dict(zip(order, pool.map(
+            lambda idx: _build_node(spec, idx, material, float(tol), cache_dir, progress),
+            order), strict=True))
     for idx in range(n_d * n_l):
-        a = _build_node(spec, idx, material, float(tol), cache_dir, progress)
+        a = built[idx]
         n_cols = a["onset"].shape[0]
         i, j = divmod(idx, n_l)
         onset[i, j], force[i, j], slope[i, j] = (
