@@ -40,6 +40,17 @@ Kalker solver's implicit gradients are ``custom_vjp``); with
 ``checkpoint=True`` the simulations are run one after the other under ``jax.checkpoint``, so the
 backward pass holds one time history at a time.
 
+3D contact
+----------
+``contact="3d"`` evaluates the paper's own contact model through the parametric family
+F(delta, s; depth, length) of :mod:`wfjax.contact.family`, built once over the range a fit may
+visit (:func:`fit_range`: depth d0 / 2.5 to 2.5 d0 and, for rounded flats, l / l0 within a
+factor 2.5 of the start; node tables cached on disk). Every evaluation is then an
+interpolation with the geometry traced: forward-mode Jacobians as for the Hertz models, and no
+contact table is rebuilt. A fit that ends outside the family's range is flagged (not
+converged). Measured profiles (:class:`ProfileParam`) use their exact table, rebuilt at every
+evaluation with implicit-function gradients (slow).
+
 Uncertainty
 -----------
 Gauss-Newton covariance at the optimum: Cov(theta) = s^2 (J^T J)^-1 with J the Jacobian of the
@@ -332,8 +343,9 @@ def smooth_max(x, temperature=None, axis=-1):
 
 
 # -- differentiable force models ------------------------------------------------------------
-FIT_DEPTH_FACTOR = 2.5  # the 3D family of a fit covers depths in [d0 / 2.5, 2.5 d0]
-FIT_LENGTH_FACTOR = 2.5  # ... and rounded lengths up to 2.5 x the starting l / l0
+FIT_DEPTH_FACTOR = 1.4  # the 3D family of a fit covers depths in [d0 / 1.4, 1.4 d0]
+FIT_LENGTH_FACTOR = 1.2  # ... and l / l0 within a factor 1.2 of the start (rounded flats)
+MAX_FAMILY_ROUNDS = 5  # restarts of a 3D fit on a family around where it left the last one
 
 
 @dataclasses.dataclass(frozen=True)
@@ -658,46 +670,43 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
     if mode == "forward" and exact_3d:
         raise ValueError("contact '3d' with a measured profile needs mode='reverse' "
                          "(its exact table's Kalker solves have custom_vjp gradients)")
-    ref = par.to_flat(jnp.asarray(theta0))
-    ref = jax.tree_util.tree_map(np.asarray, ref)
     kw = dict(contact=contact, extent_bound=par.extent_bound, wheel=wheel, track=track,
               material=material, config=config, cache_dir=cache_dir)
     if isinstance(data, MaxForceData):
-        model = max_force_model(data.speeds, ref, impact_positions=impact_positions,
-                                temperature=temperature, time_temperature=time_temperature,
-                                checkpoint=checkpoint, **kw)
         y, x, kind = data.max_force, data.speeds, "max_force"
+
+        def build(ref):
+            return max_force_model(data.speeds, ref, impact_positions=impact_positions,
+                                   temperature=temperature, time_temperature=time_temperature,
+                                   checkpoint=checkpoint, **kw)
     else:
-        model = history_model(data.t, data.speed, ref, impact_position=data.impact_position,
-                              **kw)
         y, x, kind = data.force, data.t, "history"
+
+        def build(ref):
+            return history_model(data.t, data.speed, ref, impact_position=data.impact_position,
+                                 **kw)
     scale = float(np.mean(np.abs(y)))
     y_j = jnp.asarray(y)
-
-    def residuals(theta):
-        return (model(par.to_flat(theta)) - y_j) / scale
-
-    def loss(theta):
-        r = residuals(theta)
-        return jnp.mean(r**2) + par.penalty(theta)
-
-    if mode == "forward":
-        def value_and_grad(theta):
-            J, r = jax.jacfwd(lambda th: (residuals(th),) * 2, has_aux=True)(theta)
-            pen, g_pen = jax.value_and_grad(par.penalty)(theta)
-            return jnp.mean(r**2) + pen, 2 * J.T @ r / r.size + g_pen
-        value_and_grad = jax.jit(value_and_grad)
-    else:
-        value_and_grad = jax.jit(jax.value_and_grad(loss))
-    loss_j = jax.jit(loss)
 
     def report(i, value, theta):
         if callback is not None:
             callback(i, value, par.to_flat(theta))
 
-    theta, history, gnorms, message, converged = _optimise(
-        value_and_grad, loss_j, jnp.asarray(theta0), method, int(max_iter), learning_rate,
-        gtol, ftol, xtol, max_step, report)
+    # A 3D fit's family covers a box around its start; a fit that leaves the box is restarted
+    # from where it left, on a box around that point (nodes are cached, so only new ones build).
+    theta, history, gnorms = jnp.asarray(theta0), [], []
+    for _ in range(MAX_FAMILY_ROUNDS):
+        model = build(jax.tree_util.tree_map(np.asarray, par.to_flat(theta)))
+        residuals, value_and_grad, loss_j = _objective(model, par, y_j, scale, mode)
+        theta, h, g, message, converged = _optimise(
+            value_and_grad, loss_j, theta, method, int(max_iter) - len(history), learning_rate,
+            gtol, ftol, xtol, max_step, report)
+        history, gnorms = history + list(h[len(history) > 0:]), gnorms + list(g[len(gnorms) > 0:])
+        family = model.setup.family
+        inside = family is None or _inside_family(family.spec, _concrete_flat(
+            jax.tree_util.tree_map(np.asarray, par.to_flat(theta))))
+        if inside or len(history) > int(max_iter):
+            break
 
     # uncertainty (Gauss-Newton, force residuals in N)
     jac_fn = jax.jacfwd if mode == "forward" else jax.jacrev
@@ -717,12 +726,50 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
                     f"exceeds extent_bound {par.extent_bound * 1e3:.1f} mm, refit with a "
                     f"larger extent_bound")
         converged = False
+    family = model.setup.family
+    if family is not None and not _inside_family(family.spec, flat):
+        lo, hi = family.spec.depth_range
+        message += (f"; WARNING: after {MAX_FAMILY_ROUNDS} rounds the fitted flat lies outside "
+                    f"the 3D family's range (depth {lo * 1e3:.3g}-{hi * 1e3:.3g} mm), where the "
+                    "law is clamped: refit from a start closer to it")
+        converged = False
     return FitResult(flat=flat, params=params, std=std, covariance=cov, theta=np.asarray(theta),
                      loss_history=np.asarray(history), grad_norm_history=np.asarray(gnorms),
                      n_iterations=len(history) - 1, converged=converged, message=message,
                      prediction=pred, measured=np.asarray(y), x=np.asarray(x),
                      residual_rms=float(np.sqrt(np.mean(r**2))), kind=kind, contact=contact,
                      wall_time=time.perf_counter() - start)
+
+
+def _objective(model: ForceModel, par, y_j, scale: float, mode: str):
+    """(residuals, jitted value_and_grad, jitted loss) of theta for ``model`` and data y_j."""
+    def residuals(theta):
+        return (model(par.to_flat(theta)) - y_j) / scale
+
+    def loss(theta):
+        r = residuals(theta)
+        return jnp.mean(r**2) + par.penalty(theta)
+
+    if mode == "forward":
+        def value_and_grad(theta):
+            J, r = jax.jacfwd(lambda th: (residuals(th),) * 2, has_aux=True)(theta)
+            pen, g_pen = jax.value_and_grad(par.penalty)(theta)
+            return jnp.mean(r**2) + pen, 2 * J.T @ r / r.size + g_pen
+        return residuals, jax.jit(value_and_grad), jax.jit(loss)
+    return residuals, jax.jit(jax.value_and_grad(loss)), jax.jit(loss)
+
+
+def _inside_family(spec, flat: Flat) -> bool:
+    """Whether ``flat``'s depth (and length factor) lie inside a family's node range."""
+    lo, hi = spec.depth_range
+    depth = float(flat.depth)
+    if not lo * (1 - 1e-9) <= depth <= hi * (1 + 1e-9):
+        return False
+    if flat.kind != "rounded":
+        return True
+    lam = float(flat.length) / float(new_flat_length(depth, float(flat.wheel_radius)))
+    lam_lo, lam_hi = spec.length_factor_range
+    return max(lam_lo, math.pi / 2) * (1 - 1e-9) <= lam <= lam_hi * (1 + 1e-9)
 
 
 def _concrete_flat(flat: Flat) -> Flat:
