@@ -29,6 +29,7 @@ of one flat (:class:`TableLaw`), the parametric family over depth and length
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import jax
@@ -197,21 +198,57 @@ class TableLaw(ContactLaw):
 class ParametricLaw(ContactLaw):
     """3D contact through the parametric family F3D(delta, s; depth, length) (:mod:`.family`).
 
-    Attributes: family: :class:`wfjax.contact.family.FlatFamily` (node tables, concrete);
-    depth, length: the flat's depth and length [m] (traced leaves: ``vmap`` and ``grad``).
+    Attributes:
+        family: :class:`wfjax.contact.family.FlatFamily` (node tables, concrete).
+        depth, length: the flat's depth and length [m] (traced leaves: ``vmap`` and ``grad``).
+        onsets: [2 n + 1] rigid contact onset [m] of this flat at s_j = j h, |j| <= n (h the
+            element size), computed once by :func:`parametric_law` from the traced geometry:
+            the family's column onset is the Catmull-Rom of these four around s, exactly as
+            the family (and the per-flat table) evaluate it, without a 1D search per step.
     """
 
     family: Any
     depth: Any
     length: Any
+    onsets: Any
 
     def point(self, s):
         from . import family
 
-        return family.family_column(self.family, s, self.depth, self.length)
+        h = self.family.spec.element_size
+        n = (self.onsets.shape[0] - 1) // 2
+        u = s / h
+        i0 = jnp.floor(u)
+        w = u - i0
+        w2, w3 = w * w, w * w * w
+        weights = 0.5 * jnp.stack([-w3 + 2 * w2 - w, 3 * w3 - 5 * w2 + 2,
+                                   -3 * w3 + 4 * w2 + w, w3 - w2])
+        idx = jnp.clip((i0 + n).astype(jnp.int32) + jnp.arange(-1, 3), 0, 2 * n)
+        column = family.family_column(self.family, s, self.depth, self.length)
+        return column._replace(onset=jnp.sum(weights * self.onsets[idx]))
 
     def point_force(self, point, delta):
         return tables.column_force(point, delta)
+
+
+def parametric_law(family, depth, length) -> ParametricLaw:
+    """:class:`ParametricLaw` of the flat (depth [m], length [m]; may be traced).
+
+    The onsets at the element-spaced positions are computed here (traced, differentiable) over
+    the family's whole reach; beyond it the onset is the smooth wheel's, 0.
+    """
+    from . import family as family_mod
+
+    spec = family.spec
+    d_hi = spec.depth_range[1]
+    half_hi = (spec.length_factor_range[1] * math.sqrt(8 * spec.wheel_radius * d_hi) / 2
+               if spec.kind == "rounded" else math.sqrt(2 * spec.wheel_radius * d_hi))
+    reach = half_hi + math.sqrt(2 * spec.wheel_radius * d_hi) + 4 * spec.element_size
+    n = math.ceil(reach / spec.element_size)
+    d, half, _, _ = family_mod._geometry(spec, depth, length)
+    s_j = jnp.arange(-n, n + 1) * spec.element_size
+    onsets = jax.vmap(lambda sj: family_mod._exact_onset(spec, sj, d, half))(s_j)
+    return ParametricLaw(family, depth, length, onsets)
 
 
 def hertz_radius(wheel: Wheel, track: Track):
@@ -272,7 +309,7 @@ def prepare(contact: str, flat: Flat, wheel: Wheel, track: Track, material: Mate
     if mode == "parametric":
         if family is None:
             family = prepare_family([flat], wheel, track, material, config, cache_dir)
-        return ParametricLaw(family, flat.depth, flat.length)
+        return parametric_law(family, flat.depth, flat.length)
     if mode == "direct":
         from .direct3d import prepare_direct
 
