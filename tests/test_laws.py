@@ -122,3 +122,25 @@ def test_sweep_name_is_unambiguous():
     from wfjax import sweep
 
     assert callable(sweep) and sweep is wfjax.sweeps.sweep
+
+
+def test_parametric_law_equals_the_family_and_batches():
+    """ParametricLaw (onsets precomputed per flat) is the family's force exactly, under vmap."""
+    from wfjax.contact import family
+
+    wheel, track, material, _ = MODEL
+    config = wf.SimConfig(contact_element=2.5e-3)
+    fam = laws.prepare_family_range("rounded", [0.6e-3, 0.9e-3], [1.76], wheel, track,
+                                    material, config)
+    depths = jnp.array([0.6e-3, 0.75e-3, 0.9e-3])
+    lengths = 1.76 * jnp.sqrt(8 * 0.45 * depths)
+    batch = jax.vmap(lambda d, ln: laws.parametric_law(fam, d, ln))(depths, lengths)
+    s = jnp.linspace(-0.09, 0.09, 37)
+    for i in range(3):
+        law = jax.tree.map(lambda a, i=i: a[i], batch)
+        for si in s:
+            onset = family.family_column(fam, si, depths[i], lengths[i]).onset
+            assert float(law.point(si).onset) == pytest.approx(float(onset), abs=1e-15)
+            delta = onset + 0.1e-3
+            assert float(law.force(delta, si)) == pytest.approx(
+                float(family.family_force(fam, delta, si, depths[i], lengths[i])), rel=1e-12)
