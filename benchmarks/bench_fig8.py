@@ -6,7 +6,8 @@ through the parametric family F(delta, s; depth, length) (one compile).
 
 * ``cold``: a fresh cache directory (modal model and family built), timed end to end, one
   JAX device per core as the ``wfjax`` command uses;
-* ``warm``: the same sweep again in a new process on the now-filled cache;
+* ``warm``: the same sweep again in a new process on the now-filled cache (contact family and
+  the persistent XLA compilation cache, as ``wfjax figures`` uses them);
 * ``--accuracy``: the same runs with each flat's exact per-flat table
   (``SimConfig(contact_mode_3d="table")``, 8 builds), with identical simulation windows (every
   flat carries the batch's ``extent_bound``), so the difference is the law's alone: the largest
@@ -61,6 +62,9 @@ def run_sweep(mode: str, depths_mm, speeds_kmh, positions: int):
 
 
 def _child(args) -> None:
+    from wfjax.cli import enable_compilation_cache
+
+    enable_compilation_cache()  # as the wfjax command: compiled programs cached next to tables
     res, elapsed = run_sweep("auto", DEPTHS_MM[:args.n_depths], SPEEDS_KMH[::args.speed_stride],
                              args.positions)
     print(json.dumps({"seconds": elapsed, "peak_mib": _peak_mib(),
@@ -79,7 +83,7 @@ def loss_speeds(result) -> list:
     """Per flat: the lowest speed [km/h] with loss of contact at any position (None if none)."""
     lost = np.any(result.loss_of_contact, axis=-1)
     v = np.asarray(result.speeds) * 3.6
-    return [float(v[row].min()) if row.any() else None for row in lost]
+    return [round(float(v[row].min()), 1) if row.any() else None for row in lost]
 
 
 def main() -> None:
