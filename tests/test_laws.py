@@ -144,3 +144,21 @@ def test_parametric_law_equals_the_family_and_batches():
             delta = onset + 0.1e-3
             assert float(law.force(delta, si)) == pytest.approx(
                 float(family.family_force(fam, delta, si, depths[i], lengths[i])), rel=1e-12)
+
+
+@pytest.mark.slow
+def test_parametric_fig8_subset_matches_exact_tables():
+    """Fig. 8 flats between family nodes (0.75, 1.5 mm; l = 1.76 l0): batched through the
+    parametric family, max force within 0.5 % of each flat's exact table and the same loss
+    of contact (the full set is benchmarks/bench_fig8.py --accuracy)."""
+    flats = [wf.Flat.rounded_relative(d, 1.76) for d in (0.75e-3, 1.5e-3)]
+    bound = max(f.half_extent for f in flats)
+    flats = [dataclasses.replace(f, extent_bound=bound) for f in flats]
+    speeds = np.array([40.0, 100.0, 160.0, 220.0]) / 3.6
+    runs = {mode: wf.sweep(flats, speeds, 4, contact="3d", track=wf.Track.comparison(),
+                           config=wf.SimConfig(contact_mode_3d=mode), progress=False)
+            for mode in ("parametric", "table")}
+    ratio = runs["parametric"].max_force / runs["table"].max_force
+    assert np.max(np.abs(ratio - 1)) < 0.005, ratio
+    assert np.array_equal(runs["parametric"].loss_of_contact, runs["table"].loss_of_contact)
+    assert runs["table"].loss_of_contact.any()  # the comparison includes loss of contact
