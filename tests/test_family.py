@@ -32,8 +32,8 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def rounded(cache):
-    """Rounded family: depth nodes 0.5, 1 mm x length-factor nodes 1.76, 1.96."""
-    spec = family.family_spec("rounded", [0.6e-3, 0.9e-3], [1.8, 1.9], R, R, MAT,
+    """Rounded family: depth nodes 0.55, 1.1 mm x length-factor nodes 1.66, 1.86."""
+    spec = family.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], R, R, MAT,
                               element_size=H, max_force=F_MAX)
     return family.build_family(spec, MAT, cache_dir=cache)
 
@@ -54,22 +54,23 @@ vtable = jax.jit(jax.vmap(tables.table_force, (None, 0, 0)))
 
 def test_spec_lattice_and_layout(rounded):
     spec = rounded.spec
-    np.testing.assert_allclose(spec.depths, [0.5e-3, 1e-3])
-    np.testing.assert_allclose(spec.length_factors, [1.76, 1.96])
+    np.testing.assert_allclose(spec.depths, [0.55e-3, 1.1e-3])
+    np.testing.assert_allclose(spec.length_factors, [1.66, 1.86])
+    assert spec.s_map == "scaled"
     assert rounded.force.shape == (2, 2, spec.n_s, spec.n_t)
     assert float(rounded.converged) == 1.0
     # a geometry exactly on a node needs only that node
-    one = family.family_spec("rounded", [0.5e-3], [1.76], R, R, MAT, element_size=H,
+    one = family.family_spec("rounded", [0.55e-3], [1.66], R, R, MAT, element_size=H,
                              max_force=F_MAX)
     assert one.depth_index == (-1,) and one.length_index == (0,)
-    assert hash(spec) == hash(family.family_spec("rounded", [0.6e-3, 0.9e-3], [1.8, 1.9], R,
+    assert hash(spec) == hash(family.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], R,
                                                  R, MAT, element_size=H, max_force=F_MAX))
 
 
 def test_equals_per_flat_table_at_nodes(rounded):
     """At a node geometry the family is the per-flat table (same columns, onset, layout)."""
     rng = np.random.default_rng(0)
-    for d, lam in ((0.5e-3, 1.76), (1e-3, 1.96)):
+    for d, lam in ((0.55e-3, 1.66), (1.1e-3, 1.86)):
         flat = wf.Flat.rounded_relative(d, lam)
         tab = exact(flat)
         s, delta = sample(tab, rng)
@@ -86,7 +87,7 @@ def test_between_nodes_close_to_per_flat_table(rounded):
     (benchmarks/bench_family.py).
     """
     rng = np.random.default_rng(1)
-    for d, lam in ((0.7e-3, 1.86), (0.85e-3, 1.8)):
+    for d, lam in ((0.7e-3, 1.76), (0.85e-3, 1.7)):
         flat = wf.Flat.rounded_relative(d, lam)
         tab = exact(flat)
         s, delta = sample(tab, rng, n=200)
@@ -101,7 +102,7 @@ def test_between_nodes_close_to_per_flat_table(rounded):
 
 
 def test_two_stage_form_and_zero_below_onset(rounded):
-    d, length = 0.7e-3, 1.86 * l0(0.7e-3)
+    d, length = 0.7e-3, 1.76 * l0(0.7e-3)
     for s in (-0.03, 0.0, 0.012, 0.2):
         col = family.family_column(rounded, s, d, length)
         assert isinstance(col, tables.Column)
@@ -117,17 +118,17 @@ def test_two_stage_form_and_zero_below_onset(rounded):
 
 def test_far_from_flat_is_smooth_wheel(rounded):
     """Beyond the flat every node is the same smooth wheel: the family is exact there."""
-    tab = exact(wf.Flat.rounded_relative(0.7e-3, 1.86))
+    tab = exact(wf.Flat.rounded_relative(0.7e-3, 1.76))
     delta = 0.6 * float(tab.c_max)
     f_far = float(tables.table_force(tab, delta, 1.0))
-    for d, lam in ((0.55e-3, 1.77), (0.95e-3, 1.95)):
+    for d, lam in ((0.57e-3, 1.67), (1.05e-3, 1.85)):
         f = float(family.family_force(rounded, delta, 1.0, d, lam * l0(d)))
         assert f == pytest.approx(f_far, rel=1e-9)
 
 
 @pytest.mark.parametrize("arg", [3, 4])  # d/d depth, d/d length
 def test_gradient_matches_finite_difference(rounded, arg):
-    d, length = 0.72e-3, 1.87 * l0(0.72e-3)
+    d, length = 0.72e-3, 1.77 * l0(0.72e-3)
     for s in (-0.035, -0.01, 0.004):
         col = family.family_column(rounded, s, d, length)
         delta = float(col.onset) + 0.4 * float(col.c_max)
@@ -150,8 +151,8 @@ def test_gradient_matches_finite_difference(rounded, arg):
 
 
 def test_vmap_over_geometry_equals_loop(rounded):
-    depths = jnp.array([0.52e-3, 0.66e-3, 0.8e-3, 0.97e-3])
-    lengths = jnp.array([1.77, 1.83, 1.9, 1.95]) * jnp.sqrt(8 * R * depths)
+    depths = jnp.array([0.57e-3, 0.66e-3, 0.8e-3, 1.07e-3])
+    lengths = jnp.array([1.67, 1.73, 1.8, 1.85]) * jnp.sqrt(8 * R * depths)
     delta, s = 0.15e-3, -0.02
     col = family.family_column(rounded, s, depths[0], lengths[0])
     delta = float(col.onset) + 0.5 * float(col.c_max)
@@ -167,33 +168,55 @@ def test_vmap_over_geometry_equals_loop(rounded):
 
 
 def test_traced_geometry_outside_range_is_clamped(rounded):
-    s, d_hi = 0.01, 1e-3
-    col = family.family_column(rounded, s, d_hi, 1.9 * l0(d_hi))
+    s, d_hi = 0.01, 1.1e-3
+    col = family.family_column(rounded, s, d_hi, 1.8 * l0(d_hi))
     delta = float(col.onset) + 0.5 * float(col.c_max)
 
     def f(d):
-        return family.family_force(rounded, delta, s, d, 1.9 * jnp.sqrt(8 * R * d))
+        return family.family_force(rounded, delta, s, d, 1.8 * jnp.sqrt(8 * R * d))
 
     assert float(jax.jit(f)(1.3e-3)) == pytest.approx(float(jax.jit(f)(d_hi)), rel=1e-12)
     assert abs(float(jax.grad(f)(1.3e-3))) < 1e-6 * float(f(d_hi)) / d_hi
 
 
-def test_new_flat_family_at_node_and_far_field(cache):
-    spec = family.family_spec("new", [0.5e-3, 1e-3], None, R, R, MAT, element_size=H,
+@pytest.fixture(scope="module")
+def new(cache):
+    """New-flat family: depth nodes 0.55, 1.1 mm ("edges" s-map)."""
+    spec = family.family_spec("new", [0.6e-3, 1e-3], None, R, R, MAT, element_size=H,
                               max_force=F_MAX)
-    fam = family.build_family(spec, MAT, cache_dir=cache)
-    assert len(spec.depths) == 2 and float(fam.converged) == 1.0
-    tab = exact(wf.Flat.new(1e-3))
+    return family.build_family(spec, MAT, cache_dir=cache)
+
+
+def test_new_flat_family_at_node(new):
+    spec = new.spec
+    np.testing.assert_allclose(spec.depths, [0.55e-3, 1.1e-3])
+    assert spec.s_map == "edges" and float(new.converged) == 1.0
+    tab = exact(wf.Flat.new(1.1e-3))
     s, delta = sample(tab, np.random.default_rng(2), n=30)
-    np.testing.assert_allclose(vforce(fam, jnp.asarray(delta), jnp.asarray(s), 1e-3, None),
+    np.testing.assert_allclose(vforce(new, jnp.asarray(delta), jnp.asarray(s), 1.1e-3, None),
                                vtable(tab, jnp.asarray(delta), jnp.asarray(s)), rtol=2e-5,
                                atol=0.1)
-    g = jax.grad(family.family_force, argnums=3)(fam, float(delta[0]), float(s[0]), 0.7e-3)
+    g = jax.grad(family.family_force, argnums=3)(new, float(delta[0]), float(s[0]), 0.7e-3)
     assert np.isfinite(float(g))
 
 
+def test_new_flat_between_nodes(new):
+    """Between nodes: within 10 % of max(F, 100 kN) at 2 mm elements (measured 7.6 %).
+
+    At 2 mm elements the error is the grid's own scatter (a chord edge's sub-element phase
+    differs between the nodes and the flat); at 1 mm elements the "edges" s-map halves it
+    (benchmarks/bench_family.py)."""
+    d = 0.8e-3
+    tab = exact(wf.Flat.new(d))
+    s, delta = sample(tab, np.random.default_rng(3), n=300)
+    f_t = np.asarray(vtable(tab, jnp.asarray(delta), jnp.asarray(s)))
+    f_f = np.asarray(vforce(new, jnp.asarray(delta), jnp.asarray(s), d, None))
+    err = np.abs(f_f - f_t) / np.maximum(f_t, 100e3)
+    assert err.max() < 0.10, err.max()
+
+
 def test_cache_round_trip_and_corrupt_file_rebuilt(tmp_path, capsys, monkeypatch):
-    spec = family.family_spec("rounded", [0.5e-3], [1.76], R, R, MAT, element_size=H,
+    spec = family.family_spec("rounded", [0.55e-3], [1.66], R, R, MAT, element_size=H,
                               max_force=F_MAX)
     first = family.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
     assert "built" in capsys.readouterr().err

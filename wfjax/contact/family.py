@@ -32,13 +32,19 @@ Interpolation (documented scheme)
   s = j h (so the flat sits at the same sub-element phase in every column, as in the
   per-flat tables), t = sqrt(c / c_max), c = delta - onset, the same physical c_max
   (1.4 x the Hertz approach at ``max_force``) and n_t for every node.
-* A query (s, d, l) reads each node at the same scaled position sigma = s / half
-  (s_node = sigma half_node; Catmull-Rom over 4 of the node's columns) and at the same
-  physical compression c, so the node columns combine into one
-  :class:`wfjax.contact.tables.Column` without resampling along t. Far from the flat every
+* A query (s, d, l) reads each node at a node position s_node (Catmull-Rom over 4 of the
+  node's columns) and at the same physical compression c, so the node columns combine into
+  one :class:`wfjax.contact.tables.Column` without resampling along t. Far from the flat every
   node is the same smooth wheel at fixed c, so the combination is exact there. (Fixed
   *scaled* compression c/d would need each node to cover its neighbours' scaled range: up to
-  r^2 times the compression, and a larger grid, for a node ratio r.)
+  r^2 times the compression, and a larger grid, for a node ratio r.) Rounded flats
+  (``s_map="scaled"``): the same scaled position, s_node = (s / half) half_node. New flats
+  (``s_map="edges"``, see :func:`_node_position`): the physical s in a centre band
+  |s| <= b0 (~2 mm), where the nearly parallel flat touches along its whole chord and the
+  force falls within ~c R / (2 half) of s = 0 (0.2 mm at 30 um: a scaled position puts the
+  nodes at different points of that peak), the physical offset from the chord edge within
+  b1 (~5 mm) inside the edge and beyond it (the edge's transition and the smooth wheel's
+  patch have physical widths), and a C1 ramp in between (s = +-half -> +-half_node).
 * Along log(depth) and lambda: C1 piecewise-cubic Hermite with finite-difference node slopes
   (central differences inside, second-order one-sided differences at the end nodes; linear
   for two nodes, constant for one), over a 4-node window: it interpolates the nodes and is C1
@@ -100,6 +106,10 @@ LENGTH_FACTOR_STEP = 0.2
 MIN_LENGTH_FACTOR = math.pi / 2  # rounded flats: l >= pi/2 l0
 MAX_LENGTH_FACTOR = 8.0
 ONSET_MODES = ("columns", "exact")
+S_MAPS = ("scaled", "edges")
+CENTRE_BAND = 2e-3  # m; "edges" map: physical s for |s| <= this (capped at 0.15 x smallest half)
+EDGE_BAND = 5e-3  # m; "edges" map: physical edge offset within this of the edge (<= 0.3 half)
+_RAMP_ROUNDING = 0.25  # "edges" map: fraction of the ramp at each end rounded (C1)
 _ON_NODE = 1e-9  # relative distance below which a requested value is "on" a node
 
 
@@ -128,6 +138,11 @@ class FamilySpec(NamedTuple):
         onset: ``"columns"`` (default): the exact continuum onset of the traced flat at the
             4 element-spaced positions around s, Catmull-Rom in s, as the per-flat tables
             interpolate theirs; ``"exact"``: the exact onset at s.
+        s_map: how a query position s is read on each node: ``"scaled"`` (rounded flats'
+            default): s_node = (s / half) half_node; ``"edges"`` (new flats' default): the
+            physical s in the centre band |s| <= centre_band, the physical offset from the
+            chord edge for |s| >= half - edge_band, a C1 ramp between (see :func:`_node_position`).
+        centre_band, edge_band: band widths [m] of ``"edges"`` (0 for ``"scaled"``).
     """
 
     kind: str
@@ -145,6 +160,9 @@ class FamilySpec(NamedTuple):
     node_columns: tuple
     node_steps: tuple
     onset: str
+    s_map: str = "scaled"
+    centre_band: float = 0.0
+    edge_band: float = 0.0
 
     @property
     def depths(self) -> np.ndarray:
@@ -177,6 +195,13 @@ class FamilySpec(NamedTuple):
     def n_s(self) -> int:
         """Stored columns per node (mirrored, padded with the smooth-wheel end column)."""
         return 2 * self.n_half + 1
+
+    @property
+    def node_half(self) -> np.ndarray:
+        """[n_depth, n_length] half [m] of each node (l/2, or l0/2 of a new flat)."""
+        out = [_node_half(self.kind, d, _node_flat(self.kind, d, lam, self.wheel_radius).length,
+                          self.wheel_radius) for d, lam in self.nodes]
+        return np.array(out).reshape(len(self.depth_index), len(self.length_index))
 
     @property
     def column_scale(self) -> np.ndarray:
@@ -265,7 +290,9 @@ def _node_flat(kind: str, depth: float, length_factor: float, wheel_radius: floa
 def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.45,
                 rail_head_radius: float = 0.45, material: Material = _DEFAULT_MATERIAL,
                 element_size: float = 1e-3, max_force: float = 600e3, n_t: int = 16,
-                d_sigma: float = 0.0, onset: str = "columns") -> FamilySpec:
+                d_sigma: float = 0.0, onset: str = "columns", s_map: str | None = None,
+                centre_band: float | None = None, edge_band: float | None = None
+                ) -> FamilySpec:
     """Choose the lattice nodes and layout of a family covering the given geometries.
 
     Args:
@@ -282,6 +309,11 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
             (measured at a node, 1 mm elements, 1 mm rounded flat: 2-element columns are
             0.5 % off the per-flat table at 100-600 kN, 1-element columns 0.000 %).
         onset: ``"columns"`` or ``"exact"`` (see :class:`FamilySpec`).
+        s_map: ``"scaled"`` or ``"edges"`` (see :class:`FamilySpec`); default ``"edges"``
+            for new flats, ``"scaled"`` for rounded flats.
+        centre_band, edge_band: band widths [m] of ``"edges"``; default CENTRE_BAND and
+            EDGE_BAND, capped at 0.15 and 0.3 x the smallest node half (their sum must stay
+            below 0.6 x it).
 
     Returns:
         :class:`FamilySpec`.
@@ -333,6 +365,10 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
         raise ValueError(f"d_sigma must be >= 0, got {d_sigma!r}")
     if onset not in ONSET_MODES:
         raise ValueError(f"onset must be one of {ONSET_MODES}, got {onset!r}")
+    if s_map is None:
+        s_map = "edges" if kind == "new" else "scaled"
+    if s_map not in S_MAPS:
+        raise ValueError(f"s_map must be one of {S_MAPS}, got {s_map!r}")
     _, _, d_hertz, _ = kalker.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
                                              material)
     c_max = 1.4 * d_hertz
@@ -353,13 +389,23 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
             step = max(1, round(ds * half / h)) if ds > 0 else 1
             steps.append(step)
             columns.append(math.ceil(reach / (step * h)) + 1)
+    b0 = b1 = 0.0
+    if s_map == "edges":
+        half_min = min(_node_half(kind, lattice_depth(k), _node_flat(
+            kind, lattice_depth(k), lattice_length_factor(j), wheel_radius).length,
+            wheel_radius) for k in depth_index for j in length_index)
+        b0 = min(CENTRE_BAND, 0.15 * half_min) if centre_band is None else float(centre_band)
+        b1 = min(EDGE_BAND, 0.3 * half_min) if edge_band is None else float(edge_band)
+        if not (b0 >= 0 and b1 >= 0 and b0 + b1 < 0.6 * half_min):
+            raise ValueError(f"centre_band + edge_band must be in [0, 0.6 x the smallest node "
+                             f"half = {0.6 * half_min * 1e3:.3g} mm), got {b0!r}, {b1!r}")
     return FamilySpec(kind=kind, wheel_radius=float(wheel_radius),
                       rail_head_radius=float(rail_head_radius), element_size=h,
                       max_force=float(max_force), c_max=float(c_max), n_t=int(n_t),
                       d_sigma=ds, n_half=max(columns) - 1, depth_index=depth_index,
                       length_index=length_index, grids=tuple(grids),
                       node_columns=tuple(columns), node_steps=tuple(steps),
-                      onset=onset)
+                      onset=onset, s_map=s_map, centre_band=float(b0), edge_band=float(b1))
 
 
 @functools.partial(jax.jit, static_argnums=(0, 3))
@@ -528,6 +574,34 @@ def _geometry(spec: FamilySpec, depth, length):
     return depth, half, u_d, u_l
 
 
+def _ramp(x):
+    """C1 ramp 0 -> 1 on [0, 1] (0 below, 1 above): linear, rounded by quadratics over the
+    first and last _RAMP_ROUNDING of the interval; slope at most 1 / (1 - _RAMP_ROUNDING)."""
+    e = _RAMP_ROUNDING
+    x = jnp.clip(x, 0.0, 1.0)
+    k = 1.0 / (2 * e * (1 - e))
+    return jnp.where(x < e, k * x * x, jnp.where(x > 1 - e, 1 - k * (1 - x) ** 2,
+                                                 (x - e / 2) / (1 - e)))
+
+
+def _node_position(spec: FamilySpec, s, half, node_half):
+    """Position [m] at which a node of half ``node_half`` is read for the query (s, half).
+
+    ``"scaled"``: s node_half / half (the same scaled position sigma = s / half).
+    ``"edges"`` (new flats): s + (node_half - half) B((|s| - b0) / (half - b1 - b0)) sign(s),
+    B the C1 ramp of :func:`_ramp`: the physical s in the centre band |s| <= b0, where the
+    nearly parallel flat touches along its whole chord and the force falls within
+    ~c R / (2 half) of s = 0; the physical offset from the chord edge for |s| >= half - b1
+    (the edge's elastic transition and the smooth wheel's contact patch have physical sizes,
+    independent of the depth); s = +-half -> +-node_half.
+    """
+    if spec.s_map == "scaled":
+        return s / half * node_half
+    b0, b1 = spec.centre_band, spec.edge_band
+    a = jnp.abs(s)
+    return s + jnp.sign(s) * (node_half - half) * _ramp((a - b0) / (half - b1 - b0))
+
+
 def _exact_onset(spec: FamilySpec, s, depth, half, n_coarse: int = 129, n_fine: int = 65):
     """Continuum rigid contact onset min_x' gap(x', 0; s) [m] of the traced flat.
 
@@ -578,9 +652,11 @@ def family_column(family: FlatFamily, s, depth, length=None) -> tables.Column:
     n_d, n_l, n_s = family.onset.shape
     i_d, w_d = _axis_weights(u_d, n_d)
     i_l, w_l = _axis_weights(u_l, n_l)
-    # Each node at its own s = sigma half_node; column index sigma * half_node / spacing.
-    scale = jnp.asarray(spec.column_scale)[i_d[:, None], i_l[None, :]]
-    u_s = jnp.clip(s / half * scale + spec.n_half, 0.0, n_s - 1.0)  # [m_d, m_l]
+    # Each node at its own position (:func:`_node_position`); column index = position / spacing.
+    node_half = jnp.asarray(spec.node_half)[i_d[:, None], i_l[None, :]]
+    scale = jnp.asarray(spec.column_scale)[i_d[:, None], i_l[None, :]] / node_half
+    u_s = jnp.clip(_node_position(spec, s, half, node_half) * scale + spec.n_half, 0.0,
+                   n_s - 1.0)  # [m_d, m_l]
     c = jnp.clip(jnp.floor(u_s), 0, n_s - 2).astype(jnp.int32)
     w = (u_s - c)[..., None]
     w2, w3 = w * w, w * w * w
