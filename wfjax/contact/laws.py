@@ -219,10 +219,7 @@ class ParametricLaw(ContactLaw):
         n = (self.onsets.shape[0] - 1) // 2
         u = s / h
         i0 = jnp.floor(u)
-        w = u - i0
-        w2, w3 = w * w, w * w * w
-        weights = 0.5 * jnp.stack([-w3 + 2 * w2 - w, 3 * w3 - 5 * w2 + 2,
-                                   -3 * w3 + 4 * w2 + w, w3 - w2])
+        weights = tables.catmull_rom_weights(u - i0)
         idx = jnp.clip((i0 + n).astype(jnp.int32) + jnp.arange(-1, 3), 0, 2 * n)
         column = family.family_column(self.family, s, self.depth, self.length)
         return column._replace(onset=jnp.sum(weights * self.onsets[idx]))

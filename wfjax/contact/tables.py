@@ -261,15 +261,19 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
     return _build(spec, flat, material, float(tol), int(batch_size))
 
 
+def catmull_rom_weights(w):
+    """Catmull-Rom cubic weights [4, ...] of the nodes i-1, i, i+1, i+2 at fraction w in [0, 1)
+    of the interval [i, i+1] (uniform nodes; they sum to 1 and reproduce quadratics)."""
+    w2, w3 = w * w, w * w * w
+    return 0.5 * jnp.stack([-w3 + 2 * w2 - w, 3 * w3 - 5 * w2 + 2, -3 * w3 + 4 * w2 + w,
+                            w3 - w2])
+
+
 def _locate_s(table: ContactTable, s):
     n_s = table.onset.shape[0]
     u = jnp.clip((s - table.s_min) / table.ds, 0.0, n_s - 1.0)
     i = jnp.clip(jnp.floor(u), 0, n_s - 2).astype(jnp.int32)
-    w = u - i
-    # Catmull-Rom weights of columns i-1, i, i+1, i+2 (indices clamped at the ends).
-    w2, w3 = w * w, w * w * w
-    weights = 0.5 * jnp.stack([-w3 + 2 * w2 - w, 3 * w3 - 5 * w2 + 2, -3 * w3 + 4 * w2 + w,
-                               w3 - w2])
+    weights = catmull_rom_weights(u - i)  # columns i-1, i, i+1, i+2 (clamped at the ends)
     cols = jnp.clip(i + jnp.arange(-1, 3), 0, n_s - 1)
     return cols, weights
 
