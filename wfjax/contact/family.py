@@ -57,12 +57,25 @@ Interpolation (documented scheme)
   the exact onset and the table's differ by up to 0.085 um (0.75 % at 24 kN), so
   ``"columns"`` reproduces the per-flat table at node geometries to 1e-5.
 
-Accuracy (1 mm elements, R_W = R_R = 0.45 m, rounded flats l = 1.76 l0, depths between
-nodes): limited by the discretisation itself. At fixed compression and flat position the
-1 mm discrete force is not a smooth function of the depth: direct solves at the flat centre
-for 26 depths in 0.25-0.5 mm scatter about a smooth fit by +-1.1 % at 20 kN, +-0.5 % at
-100 kN (the contact edge crossing element rows), and no interpolation over depth can follow
-that; a node ratio of 2 and one of sqrt(2) gave the same errors (see benchmarks/bench_family.py).
+Accuracy (1 mm elements, R_W = R_R = 0.45 m, depths 0.25-2.00 mm between nodes, max relative
+force error against the exact per-flat tables over (delta, s), benchmarks/bench_family.py):
+rounded flats (l = 1.76 l0) 0.4-0.6 % at 100-300 kN. New flats, by force band 20-50 / 50-100 /
+100-300 / 300-600 kN: 11.9 / 3.3 / 1.9 / 0.6 % with the "edges" s-map (the scaled position gave
+12.6 / 7.0 / 4.5 / 2.4 %, its worst points at |s| < 2 mm). Limited by the discretisation
+itself. At fixed compression and flat position the 1 mm discrete force is not a smooth
+function of the depth: direct solves at the flat centre of a rounded flat for 26 depths in
+0.25-0.5 mm scatter about a smooth fit by +-1.1 % at 20 kN, +-0.5 % at 100 kN (the contact
+edge crossing element rows), and no interpolation over depth can follow that; a node ratio of
+2 and one of sqrt(2) gave the same errors. New flats scatter more, because a sharp chord edge
+bounds the patch and its sub-element phase frac(half / h) changes with the depth: at a fixed
+physical s = 5 mm, 41 depths in 1.0-2.2 mm scatter about a smooth fit by +-1.9 % at ~70 kN and
++-0.5 % at ~190 kN (s = 2 mm: +-2.0 % at 35 kN, +-0.8 % at 130 kN; s = 0, where both edges
+bound a long strip: +-0.25 %), and at a fixed depth the force wiggles with period h in s
+(1.5 mm: +-2.9 % at 50-100 kN) while a per-flat table samples that wiggle at its own phase.
+The worst new-flat depth (1.00 mm) is the one whose edges sit on element centres (phase 0;
+the nodes' are 0.25-0.73). Two depth nodes per octave (new flats) gave 12.1 / 3.5 / 1.9 /
+0.4 %: no gain. Closing the gap needs node data at the flat's own edge phase (node columns
+at sub-element spacing, or nodes at several phases per depth), several times the build.
 
 Outside the family's range, traced geometry is clamped to the range (the law of the nearest
 covered flat, zero gradient with respect to the clamped parameter); :func:`family_spec`
