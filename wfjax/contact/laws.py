@@ -195,44 +195,31 @@ class TableLaw(ContactLaw):
 
 
 @_pytree
-class ParametricLaw(ContactLaw):
+class ParametricLaw(TableLaw):
     """3D contact through the parametric family F3D(delta, s; depth, length) (:mod:`.family`).
 
+    Evaluated like an exact table (:class:`TableLaw`), on a table that :func:`parametric_law`
+    reads off the family once per flat at the element-spaced positions s_j = j h of the exact
+    per-flat tables (traced, differentiable in depth and length), so a time step costs what
+    the exact table costs.
+
     Attributes:
-        family: :class:`wfjax.contact.family.FlatFamily` (node tables, concrete).
+        table: :class:`wfjax.contact.tables.ContactTable` of the flat, from the family.
         depth, length: the flat's depth and length [m] (traced leaves: ``vmap`` and ``grad``).
-        onsets: [2 n + 1] rigid contact onset [m] of this flat at s_j = j h, |j| <= n (h the
-            element size), computed once by :func:`parametric_law` from the traced geometry:
-            the family's column onset is the Catmull-Rom of these four around s, exactly as
-            the family (and the per-flat table) evaluate it, without a 1D search per step.
     """
 
-    family: Any
+    table: Any
     depth: Any
     length: Any
-    onsets: Any
-
-    def point(self, s):
-        from . import family
-
-        h = self.family.spec.element_size
-        n = (self.onsets.shape[0] - 1) // 2
-        u = s / h
-        i0 = jnp.floor(u)
-        weights = tables.catmull_rom_weights(u - i0)
-        idx = jnp.clip((i0 + n).astype(jnp.int32) + jnp.arange(-1, 3), 0, 2 * n)
-        column = family.family_column(self.family, s, self.depth, self.length)
-        return column._replace(onset=jnp.sum(weights * self.onsets[idx]))
-
-    def point_force(self, point, delta):
-        return tables.column_force(point, delta)
 
 
 def parametric_law(family, depth, length) -> ParametricLaw:
     """:class:`ParametricLaw` of the flat (depth [m], length [m]; may be traced).
 
-    The onsets at the element-spaced positions are computed here (traced, differentiable) over
-    the family's whole reach; beyond it the onset is the smooth wheel's, 0.
+    The family is evaluated at s_j = j h, |j| <= n (h the element size; n covers the family's
+    largest flat and contact), onsets included (the continuum rigid onset at s_j, as in the
+    per-flat tables); beyond the range the end columns, the smooth wheel, apply. Pure jnp: no
+    contact problem is solved here.
     """
     from . import family as family_mod
 
@@ -245,7 +232,12 @@ def parametric_law(family, depth, length) -> ParametricLaw:
     d, half, _, _ = family_mod._geometry(spec, depth, length)
     s_j = jnp.arange(-n, n + 1) * spec.element_size
     onsets = jax.vmap(lambda sj: family_mod._exact_onset(spec, sj, d, half))(s_j)
-    return ParametricLaw(family, depth, length, onsets)
+    columns = jax.vmap(lambda sj: family_mod.family_column(family, sj, depth, length))(s_j)
+    table = tables.ContactTable(
+        s_min=jnp.asarray(-n * spec.element_size), ds=jnp.asarray(spec.element_size),
+        c_max=family.c_max, onset=onsets, force=columns.force, slope=columns.slope,
+        converged=family.converged)
+    return ParametricLaw(table, depth, length)
 
 
 def hertz_radius(wheel: Wheel, track: Track):
