@@ -181,40 +181,48 @@ def test_traced_geometry_outside_range_is_clamped(rounded):
     assert abs(float(jax.grad(f)(1.3e-3))) < 1e-6 * float(f(d_hi)) / d_hi
 
 
+H_NEW = 1e-3  # the new-flat tests use 1 mm elements on small depths (cheap nodes)
+
+
 @pytest.fixture(scope="module")
 def new(cache):
-    """New-flat family: depth nodes 0.55, 1.1 mm ("edges" s-map)."""
-    spec = family.family_spec("new", [0.6e-3, 1e-3], None, R, R, MAT, element_size=H,
-                              max_force=F_MAX)
+    """New-flat family at 1 mm elements: depth nodes 0.1375, 0.275 mm ("edges" s-map)."""
+    spec = family.family_spec("new", [0.15e-3, 0.25e-3], None, R, R, MAT,
+                              element_size=H_NEW, max_force=F_MAX)
     return family.build_family(spec, MAT, cache_dir=cache)
+
+
+def exact_new(d):
+    return tables.build_table_3d(wf.Flat.new(d), R, R, MAT, element_size=H_NEW,
+                                 max_force=F_MAX)
 
 
 def test_new_flat_family_at_node(new):
     spec = new.spec
-    np.testing.assert_allclose(spec.depths, [0.55e-3, 1.1e-3])
+    np.testing.assert_allclose(spec.depths, [0.1375e-3, 0.275e-3])
     assert spec.s_map == "edges" and float(new.converged) == 1.0
-    tab = exact(wf.Flat.new(1.1e-3))
+    tab = exact_new(0.275e-3)
     s, delta = sample(tab, np.random.default_rng(2), n=30)
-    np.testing.assert_allclose(vforce(new, jnp.asarray(delta), jnp.asarray(s), 1.1e-3, None),
+    np.testing.assert_allclose(vforce(new, jnp.asarray(delta), jnp.asarray(s), 0.275e-3, None),
                                vtable(tab, jnp.asarray(delta), jnp.asarray(s)), rtol=2e-5,
                                atol=0.1)
-    g = jax.grad(family.family_force, argnums=3)(new, float(delta[0]), float(s[0]), 0.7e-3)
+    g = jax.grad(family.family_force, argnums=3)(new, float(delta[0]), float(s[0]), 0.2e-3)
     assert np.isfinite(float(g))
 
 
 def test_new_flat_between_nodes(new):
-    """Between nodes: within 10 % of max(F, 100 kN) at 2 mm elements (measured 7.6 %).
-
-    At 2 mm elements the error is the grid's own scatter (a chord edge's sub-element phase
-    differs between the nodes and the flat); at 1 mm elements the "edges" s-map halves it
-    (benchmarks/bench_family.py)."""
-    d = 0.8e-3
-    tab = exact(wf.Flat.new(d))
-    s, delta = sample(tab, np.random.default_rng(3), n=300)
-    f_t = np.asarray(vtable(tab, jnp.asarray(delta), jnp.asarray(s)))
-    f_f = np.asarray(vforce(new, jnp.asarray(delta), jnp.asarray(s), d, None))
-    err = np.abs(f_f - f_t) / np.maximum(f_t, 100e3)
-    assert err.max() < 0.10, err.max()
+    """Between nodes (1 mm elements): within 1.9 % of max(F, 100 kN); measured 1.7 % with the
+    "edges" s-map, 2.1-2.4 % with the scaled position of rounded flats (s_map="scaled"), so
+    this fails if the new-flat reading falls back to it. The rest is the 1 mm grid's scatter
+    with the chord edges' sub-element phase (see the module docstring)."""
+    worst = 0.0
+    for k, d in enumerate((0.18e-3, 0.2e-3)):
+        tab = exact_new(d)
+        s, delta = sample(tab, np.random.default_rng(3 + k), n=400)
+        f_t = np.asarray(vtable(tab, jnp.asarray(delta), jnp.asarray(s)))
+        f_f = np.asarray(vforce(new, jnp.asarray(delta), jnp.asarray(s), d, None))
+        worst = max(worst, float(np.max(np.abs(f_f - f_t) / np.maximum(f_t, 100e3))))
+    assert worst < 0.019, worst
 
 
 def test_cache_round_trip_and_corrupt_file_rebuilt(tmp_path, capsys, monkeypatch):
