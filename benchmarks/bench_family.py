@@ -9,7 +9,8 @@ over a grid of (delta, s) with 20 kN < F < 600 kN (also by force band and as
 |dF| / max(F, 50 kN)), and the onset error.
 
 Run: ``python benchmarks/bench_family.py [--kinds rounded,new] [--element 1e-3]
-[--s-map edges|scaled]`` (default: each kind's default s-map).
+[--s-map edges|scaled] [--min-length-nodes 3]`` (default: each kind's default s-map, and
+two length-factor nodes, 1.66 and 1.86, for lambda = 1.76).
 """
 
 from __future__ import annotations
@@ -71,11 +72,13 @@ def main():
     ap.add_argument("--element", type=float, default=1e-3)
     ap.add_argument("--no-accuracy", action="store_true")
     ap.add_argument("--s-map", default=None, choices=family.S_MAPS)
+    ap.add_argument("--min-length-nodes", type=int, default=2)
     args = ap.parse_args()
     h = args.element
     for kind in args.kinds.split(","):
         lam = [LAMBDA] if kind == "rounded" else None
-        spec = family.family_spec(kind, DEPTHS, lam, element_size=h, s_map=args.s_map)
+        spec = family.family_spec(kind, DEPTHS, lam, element_size=h, s_map=args.s_map,
+                                  min_length_nodes=args.min_length_nodes)
         with tempfile.TemporaryDirectory() as cache:
             t0 = time.perf_counter()
             fam = family.build_family(spec, cache_dir=cache, progress=True)

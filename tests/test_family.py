@@ -66,6 +66,9 @@ def test_spec_lattice_and_layout(rounded):
     one = family.family_spec("rounded", [0.55e-3], [1.66], R, R, MAT, element_size=H,
                              max_force=F_MAX)
     assert one.depth_index == (-1,) and one.length_index == (0,)
+    three = family.family_spec("rounded", [0.6e-3], [1.76], R, R, MAT, element_size=H,
+                               max_force=F_MAX, min_length_nodes=3)
+    np.testing.assert_allclose(three.length_factors, [1.66, 1.86, 2.06])
     assert hash(spec) == hash(family.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], R,
                                                  R, MAT, element_size=H, max_force=F_MAX))
 

@@ -57,25 +57,35 @@ Interpolation (documented scheme)
   the exact onset and the table's differ by up to 0.085 um (0.75 % at 24 kN), so
   ``"columns"`` reproduces the per-flat table at node geometries to 1e-5.
 
-Accuracy (1 mm elements, R_W = R_R = 0.45 m, depths 0.25-2.00 mm between nodes, max relative
-force error against the exact per-flat tables over (delta, s), benchmarks/bench_family.py):
-rounded flats (l = 1.76 l0) 0.4-0.6 % at 100-300 kN. New flats, by force band 20-50 / 50-100 /
-100-300 / 300-600 kN: 11.9 / 3.3 / 1.9 / 0.6 % with the "edges" s-map (the scaled position gave
-12.6 / 7.0 / 4.5 / 2.4 %, its worst points at |s| < 2 mm). Limited by the discretisation
-itself. At fixed compression and flat position the 1 mm discrete force is not a smooth
-function of the depth: direct solves at the flat centre of a rounded flat for 26 depths in
-0.25-0.5 mm scatter about a smooth fit by +-1.1 % at 20 kN, +-0.5 % at 100 kN (the contact
-edge crossing element rows), and no interpolation over depth can follow that; a node ratio of
-2 and one of sqrt(2) gave the same errors. New flats scatter more, because a sharp chord edge
-bounds the patch and its sub-element phase frac(half / h) changes with the depth: at a fixed
-physical s = 5 mm, 41 depths in 1.0-2.2 mm scatter about a smooth fit by +-1.9 % at ~70 kN and
-+-0.5 % at ~190 kN (s = 2 mm: +-2.0 % at 35 kN, +-0.8 % at 130 kN; s = 0, where both edges
-bound a long strip: +-0.25 %), and at a fixed depth the force wiggles with period h in s
-(1.5 mm: +-2.9 % at 50-100 kN) while a per-flat table samples that wiggle at its own phase.
-The worst new-flat depth (1.00 mm) is the one whose edges sit on element centres (phase 0;
-the nodes' are 0.25-0.73). Two depth nodes per octave (new flats) gave 12.1 / 3.5 / 1.9 /
-0.4 %: no gain. Closing the gap needs node data at the flat's own edge phase (node columns
-at sub-element spacing, or nodes at several phases per depth), several times the build.
+Accuracy (1 mm elements, R_W = R_R = 0.45 m, the 8 depths 0.25-2.00 mm, all between depth
+nodes; max relative force error against the exact per-flat tables over (delta, s), by force
+band 20-50 / 50-100 / 100-300 / 300-600 kN; benchmarks/bench_family.py):
+
+* new flats, ``s_map="edges"``: 11.9 / 3.3 / 1.9 / 0.6 % (the scaled position gave 12.6 /
+  7.0 / 4.5 / 2.4 %, worst at |s| < 2 mm, where the force falls within ~c R / (2 half) of the
+  centre). Worst depth 1.00 mm; 0.25-0.5 mm: 2.7 / 1.0 / 0.6 / 0.5 %.
+* rounded flats, l = 1.76 l0 (between the length-factor nodes 1.66 and 1.86, so linear in
+  lambda): 4.4 / 3.5 / 3.2 / 2.7 %, worst at the conformal centre and growing with the depth;
+  ``min_length_nodes=3`` (adds 2.06; 15 nodes instead of 10): 3.2 / 2.1 / 1.9 / 1.4 %.
+  (0.4-0.6 % at 100-300 kN was measured with lambda = 1.76 on a node.)
+
+Both are limited by the discretisation itself. At fixed compression and flat position the
+1 mm discrete force is not a smooth function of the depth: direct solves at the flat centre of
+a rounded flat for 26 depths in 0.25-0.5 mm scatter about a smooth fit by +-1.1 % at 20 kN,
++-0.5 % at 100 kN (the contact edge crossing element rows), and no interpolation over depth
+can follow that; a node ratio of 2 and one of sqrt(2) gave the same errors. New flats scatter
+more, because a sharp chord edge bounds the patch and its sub-element phase frac(half / h)
+changes with the depth: at a fixed physical s = 5 mm, 41 depths in 1.0-2.2 mm scatter about a
+smooth fit by +-1.9 % at ~70 kN and +-0.5 % at ~190 kN (s = 2 mm: +-2.0 % at 35 kN, +-0.8 % at
+130 kN; s = 0, where both edges bound a long strip: +-0.25 %), and at a fixed depth the force
+wiggles with period h in s (1.5 mm: +-2.9 % at 50-100 kN) while a per-flat table samples that
+wiggle at its own phase. The worst new-flat depth (1.00 mm) has its edges on element centres
+(phase 0; the nodes' are 0.25-0.73). Tried for new flats and not kept: two depth nodes per
+octave (12.1 / 3.5 / 1.9 / 0.4 %, 1.6 x the nodes); interpolating log(F + F0) (13-29 % at
+F0 = 1-50 kN) or F / d^p (p = 0.25: no change; p >= 0.5 worse); node columns every h/4 (4 x the
+build) read at the query's own edge phase (smooth part and wiggle separated): 1.00 mm 1.9 ->
+0.9 % at 100-300 kN, but 1.5-1.75 mm worse at 20-100 kN (up to 15 % at 20-50 kN): the wiggle
+has element-entry jumps that 4 samples per element do not interpolate.
 
 Outside the family's range, traced geometry is clamped to the range (the law of the nearest
 covered flat, zero gradient with respect to the clamped parameter); :func:`family_spec`
@@ -304,8 +314,8 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                 rail_head_radius: float = 0.45, material: Material = _DEFAULT_MATERIAL,
                 element_size: float = 1e-3, max_force: float = 600e3, n_t: int = 16,
                 d_sigma: float = 0.0, onset: str = "columns", s_map: str | None = None,
-                centre_band: float | None = None, edge_band: float | None = None
-                ) -> FamilySpec:
+                centre_band: float | None = None, edge_band: float | None = None,
+                min_length_nodes: int = 2) -> FamilySpec:
     """Choose the lattice nodes and layout of a family covering the given geometries.
 
     Args:
@@ -327,6 +337,12 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
         centre_band, edge_band: band widths [m] of ``"edges"``; default CENTRE_BAND and
             EDGE_BAND, capped at 0.15 and 0.3 x the smallest node half (their sum must stay
             below 0.6 x it).
+        min_length_nodes: rounded flats whose length factors need two or more lattice nodes
+            get at least this many (extended upwards, then downwards, within [pi/2,
+            MAX_LENGTH_FACTOR]). With two the interpolation in lambda is linear: 1 mm, 0.275
+            mm depth (a node), lambda = 1.76 between 1.66 and 1.86: 2.2 / 2.0 / 1.4 / 0.7 %
+            at 20-50 / 50-100 / 100-300 / 300-600 kN, worst at the conformal centre; with a
+            third node (2.06): 1.0 / 1.0 / 0.5 / 0.2 %, for 1.5 x the nodes.
 
     Returns:
         :class:`FamilySpec`.
@@ -368,6 +384,18 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                 f"length_factors (l / l0) must be in [pi/2 = {MIN_LENGTH_FACTOR:.4f}, "
                 f"{MAX_LENGTH_FACTOR:g}], got {lam.min():.4g} to {lam.max():.4g}")
         length_index = _bracket((lam - LENGTH_FACTOR_ORIGIN) / LENGTH_FACTOR_STEP)
+        up = True
+        while 1 < len(length_index) < int(min_length_nodes):
+            hi, lo = length_index[-1] + 1, length_index[0] - 1
+            if up and lattice_length_factor(hi) <= MAX_LENGTH_FACTOR:
+                length_index = length_index + (hi,)
+            elif lattice_length_factor(lo) >= MIN_LENGTH_FACTOR - 1e-12:
+                length_index = (lo,) + length_index
+            elif lattice_length_factor(hi) <= MAX_LENGTH_FACTOR:
+                length_index = length_index + (hi,)
+            else:
+                break
+            up = not up
     else:
         if length_factors is not None:
             raise ValueError("length_factors apply to rounded flats only (new flats: "
