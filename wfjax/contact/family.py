@@ -699,21 +699,15 @@ def family_column(family: FlatFamily, s, depth, length=None) -> tables.Column:
     u_s = jnp.clip(_node_position(spec, s, half, node_half) * scale + spec.n_half, 0.0,
                    n_s - 1.0)  # [m_d, m_l]
     c = jnp.clip(jnp.floor(u_s), 0, n_s - 2).astype(jnp.int32)
-    w = (u_s - c)[..., None]
-    w2, w3 = w * w, w * w * w
     # Catmull-Rom weights of columns c-1, c, c+1, c+2 (clamped at the ends): [m_d, m_l, 4].
-    w_s = 0.5 * jnp.concatenate([-w3 + 2 * w2 - w, 3 * w3 - 5 * w2 + 2,
-                                 -3 * w3 + 4 * w2 + w, w3 - w2], axis=-1)
+    w_s = jnp.moveaxis(tables.catmull_rom_weights(u_s - c), 0, -1)
     i_s = jnp.clip(c[..., None] + jnp.arange(-1, 3), 0, n_s - 1)
     ix = (i_d[:, None, None], i_l[None, :, None], i_s)
     if spec.onset == "columns":
         h = spec.element_size
         u = s / h
         i0 = jnp.floor(u)
-        wv = u - i0
-        wv2, wv3 = wv * wv, wv * wv * wv
-        wo = 0.5 * jnp.stack([-wv3 + 2 * wv2 - wv, 3 * wv3 - 5 * wv2 + 2,
-                              -3 * wv3 + 4 * wv2 + wv, wv3 - wv2])
+        wo = tables.catmull_rom_weights(u - i0)
         sj = (i0 + jnp.arange(-1, 3)) * h
         onset = jnp.sum(wo * jax.vmap(lambda si: _exact_onset(spec, si, depth, half))(sj))
     else:
