@@ -490,8 +490,8 @@ def _build_node(spec: FamilySpec, idx: int, material: Material, tol: float, cach
 
     t0 = time.perf_counter()
     arrays = load_or_build("family-node", key, build, cache_dir)
-    if progress:
-        what = "built" if built else "cached"
+    if progress and built:  # cached nodes load in milliseconds: no line for them
+        what = "built"
         geo = f"depth {depth * 1e3:.4g} mm" + (f", l/l0 {lam:.4g}" if spec.kind == "rounded"
                                                else "")
         print(f"contact family ({spec.kind}) node {idx + 1}/{len(spec.grids)}: {geo}, "
@@ -514,7 +514,7 @@ def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache
         spec: a :func:`family_spec`.
         material: wheel and rail material (concrete).
         cache_dir: cache directory (see :func:`wfjax._cache.cache_directory`).
-        progress: print one line per node to stderr.
+        progress: print one line to stderr per node built (cached nodes are silent).
         tol: CG tolerance of the solves.
 
     Returns:
