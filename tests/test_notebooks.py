@@ -39,6 +39,6 @@ def test_quickstart_notebook():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["fig7_speed_sweep.ipynb", "fig8_depths.ipynb",
-                                  "fig9_10_contact_models.ipynb", "fit_flat_3d.ipynb"])
+                                  "fig9_10_contact_models.ipynb"])
 def test_figure_notebooks(name):
     _execute(name)
