@@ -166,3 +166,15 @@ def test_parametric_fig8_subset_matches_exact_tables():
     assert np.max(np.abs(ratio - 1)) < 0.005, ratio
     assert np.array_equal(runs["parametric"].loss_of_contact, runs["table"].loss_of_contact)
     assert runs["table"].loss_of_contact.any()  # the comparison includes loss of contact
+
+
+def test_table_cache_key_holds_the_builder_revision(tmp_path, monkeypatch):
+    """A builder change within one wfjax version is never served from an older cache file."""
+    flat = wf.Flat.rounded(0.5e-3, 0.08)
+    args = (flat, 0.45, 0.45, wf.Material(), 2.5e-3, tmp_path)
+    laws.cached_table_3d(*args)
+    laws.cached_table_3d(*args)  # loads
+    assert len(list(tmp_path.glob("table3d-*"))) == 1
+    monkeypatch.setattr(laws, "TABLE_BUILDER_REVISION", laws.TABLE_BUILDER_REVISION + 1)
+    laws.cached_table_3d(*args)  # a new key: built again, not the old file
+    assert len(list(tmp_path.glob("table3d-*"))) == 2

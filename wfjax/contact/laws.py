@@ -69,6 +69,9 @@ __all__ = [
 CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
 FLAT_MARGIN = 0.02  # m added to the flat's half extent on either side of its window
 TRAJECTORY_SPACING = 2e-5  # m between the samples of the tabulated wheel-centre trajectory
+# Part of every 3D table's cache key, so a change of the builder's results within one wfjax
+# version is never served from an old cache: 2 = new-flat onsets include the chord ends.
+TABLE_BUILDER_REVISION = 2
 
 
 class ContactLaw:
@@ -370,6 +373,6 @@ def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
     flat = dataclasses.replace(flat, extent_bound=None)
     key = {"flat_kind": flat.kind, "flat": [np.asarray(v) for v in leaves],
            "wheel_radius": wheel_radius, "rail_head_radius": rail_head_radius,
-           "element_size": element_size}
+           "element_size": element_size, "builder_revision": TABLE_BUILDER_REVISION}
     arrays = load_or_build("table3d", key, lambda: build()._asdict(), cache_dir)
     return tables.ContactTable(**{k: jnp.asarray(v) for k, v in arrays.items()})
