@@ -709,9 +709,13 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
             break
 
     # uncertainty (Gauss-Newton, force residuals in N)
-    jac_fn = jax.jacfwd if mode == "forward" else jax.jacrev
-    J = np.asarray(jax.jit(jac_fn(residuals))(theta)) * scale
-    pred = np.asarray(jax.jit(lambda th: model(par.to_flat(th)))(theta))
+    if mode == "forward":  # the Jacobian of the last evaluation, no second compilation
+        J_rel, r_rel = value_and_grad.jacobian(theta)
+        J = np.asarray(J_rel) * scale
+        pred = np.asarray(r_rel) * scale + y
+    else:
+        J = np.asarray(jax.jit(jax.jacrev(residuals))(theta)) * scale
+        pred = np.asarray(jax.jit(lambda th: model(par.to_flat(th)))(theta))
     r = pred - y
     G = np.asarray(jax.jacfwd(par.physical)(theta))
     cov = _gauss_newton(J, r, G)
@@ -751,11 +755,17 @@ def _objective(model: ForceModel, par, y_j, scale: float, mode: str):
         return jnp.mean(r**2) + par.penalty(theta)
 
     if mode == "forward":
-        def value_and_grad(theta):
+        @jax.jit
+        def evaluate(theta):
             J, r = jax.jacfwd(lambda th: (residuals(th),) * 2, has_aux=True)(theta)
             pen, g_pen = jax.value_and_grad(par.penalty)(theta)
-            return jnp.mean(r**2) + pen, 2 * J.T @ r / r.size + g_pen
-        return residuals, jax.jit(value_and_grad), jax.jit(loss)
+            return jnp.mean(r**2) + pen, 2 * J.T @ r / r.size + g_pen, J, r
+
+        def value_and_grad(theta):
+            return evaluate(theta)[:2]
+
+        value_and_grad.jacobian = lambda theta: evaluate(theta)[2:]  # (J, r): one compile
+        return residuals, value_and_grad, jax.jit(loss)
     return residuals, jax.jit(jax.value_and_grad(loss)), jax.jit(loss)
 
 
