@@ -22,7 +22,6 @@ Run: ``python benchmarks/bench_fig8.py [--accuracy] [--quick]``. Prints Markdown
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import resource
@@ -44,11 +43,10 @@ def _peak_mib() -> float:
 
 def fig8_flats(depths_mm):
     """The Fig. 8 flats, all with the batch's window bound (identical windows per mode)."""
-    import wfjax as wf
+    from wfjax.commands.figures import fig8_flats as paper_flats
+    from wfjax.sweeps import common_extent
 
-    flats = [wf.Flat.rounded_relative(d * 1e-3, 1.76) for d in depths_mm]
-    bound = max(f.half_extent for f in flats)
-    return [dataclasses.replace(f, extent_bound=bound) for f in flats]
+    return common_extent(paper_flats(depths_mm))
 
 
 def run_sweep(mode: str, depths_mm, speeds_kmh, positions: int):

@@ -13,7 +13,7 @@ import wfjax as wf
 from wfjax import interaction as it
 from wfjax.contact import laws
 from wfjax.params import _pytree
-from wfjax.sweeps import _batched, prepare_batch
+from wfjax.sweeps import _batched, common_extent, prepare_batch
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 MODEL = (wf.Wheel(), wf.Track.comparison(), wf.Material(), COARSE)
@@ -24,11 +24,9 @@ FLATS = [wf.Flat.rounded(0.6e-3, 0.08), wf.Flat.rounded(0.9e-3, 0.1),
 @pytest.mark.parametrize("contact", ["hertz-trajectory", "hertz-profile", "2d"])
 def test_batched_laws_equal_one_law_per_flat(contact):
     """vmap over prepare() gives, flat by flat, the law prepared for that flat alone."""
-    laws_b, window = prepare_batch(contact, FLATS, *MODEL)
-    bound = window.half_extent
-    for i, flat in enumerate(FLATS):
-        single = laws.prepare(contact, dataclasses.replace(flat, extent_bound=bound), *MODEL,
-                              max_depth=1.2e-3)
+    laws_b, _ = prepare_batch(contact, FLATS, *MODEL)
+    for i, flat in enumerate(common_extent(FLATS)):
+        single = laws.prepare(contact, flat, *MODEL, max_depth=1.2e-3)
         picked = jax.tree.map(lambda a, i=i: a[i], laws_b)
         for delta in (50e-6, 0.2e-3, 0.6e-3):
             for s in (-0.06, -0.01, 0.0, 0.013, 0.05):
@@ -43,14 +41,12 @@ def test_sweep_over_depths_is_one_program_equal_to_single_runs():
     sw = wf.sweep(FLATS, speeds, positions, contact="hertz-trajectory", track=MODEL[1],
                   config=COARSE, progress=False)
     assert _batched.cache_info().misses - before <= 1
-    bound = max(f.half_extent for f in FLATS)
-    n_steps = max(it.n_steps_for(dataclasses.replace(FLATS[0], extent_bound=bound), float(v),
-                                 COARSE)[0] for v in speeds)
-    for i, flat in enumerate(FLATS):
+    sized = common_extent(FLATS)
+    n_steps = max(it.n_steps_for(sized[0], float(v), COARSE)[0] for v in speeds)
+    for i, flat in enumerate(sized):
         for j, v in enumerate(speeds):
-            r = wf.simulate(dataclasses.replace(flat, extent_bound=bound), float(v),
-                            contact="hertz-trajectory", impact_position=0.2, track=MODEL[1],
-                            config=COARSE, n_steps=n_steps)
+            r = wf.simulate(flat, float(v), contact="hertz-trajectory", impact_position=0.2,
+                            track=MODEL[1], config=COARSE, n_steps=n_steps)
             assert sw.max_force[i, j, 0] == pytest.approx(float(r.max_force), rel=1e-9)
     assert np.allclose(sw.depths, [f.depth for f in FLATS])
     assert "depth_mm" in sw.to_csv().splitlines()[0]
@@ -155,9 +151,7 @@ def test_parametric_fig8_subset_matches_exact_tables():
     """Fig. 8 flats between family nodes (0.75, 1.5 mm; l = 1.76 l0): batched through the
     parametric family, max force within 0.5 % of each flat's exact table and the same loss
     of contact (the full set is benchmarks/bench_fig8.py --accuracy)."""
-    flats = [wf.Flat.rounded_relative(d, 1.76) for d in (0.75e-3, 1.5e-3)]
-    bound = max(f.half_extent for f in flats)
-    flats = [dataclasses.replace(f, extent_bound=bound) for f in flats]
+    flats = common_extent([wf.Flat.rounded_relative(d, 1.76) for d in (0.75e-3, 1.5e-3)])
     speeds = np.array([40.0, 100.0, 160.0, 220.0]) / 3.6
     runs = {mode: wf.sweep(flats, speeds, 4, contact="3d", track=wf.Track.comparison(),
                            config=wf.SimConfig(contact_mode_3d=mode), progress=False)

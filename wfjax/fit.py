@@ -43,13 +43,14 @@ backward pass holds one time history at a time.
 3D contact
 ----------
 ``contact="3d"`` evaluates the paper's own contact model through the parametric family
-F(delta, s; depth, length) of :mod:`wfjax.contact.family`, built once over the range a fit may
-visit (:func:`fit_range`: depth d0 / 2.5 to 2.5 d0 and, for rounded flats, l / l0 within a
-factor 2.5 of the start; node tables cached on disk). Every evaluation is then an
-interpolation with the geometry traced: forward-mode Jacobians as for the Hertz models, and no
-contact table is rebuilt. A fit that ends outside the family's range is flagged (not
-converged). Measured profiles (:class:`ProfileParam`) use their exact table, rebuilt at every
-evaluation with implicit-function gradients (slow).
+F(delta, s; depth, length) of :mod:`wfjax.contact.family`, built over a box around the start
+(:func:`fit_range`: depth within a factor ``FIT_DEPTH_FACTOR`` and, for rounded flats, l / l0
+within ``FIT_LENGTH_FACTOR``; node tables cached on disk). A fit that leaves the box is
+restarted from there on a box around that point, up to ``MAX_FAMILY_ROUNDS`` times. Every
+evaluation is an interpolation with the geometry traced: forward-mode Jacobians as for the
+Hertz models, and no contact table is rebuilt. A fit that still ends outside its family's
+range is flagged (not converged). Measured profiles (:class:`ProfileParam`) use their exact
+table, rebuilt at every evaluation with implicit-function gradients (slow).
 
 Uncertainty
 -----------
@@ -435,16 +436,6 @@ def _reference_flat(flat: Flat, extent_bound: float | None) -> Flat:
     return dataclasses.replace(flat, extent_bound=bound)
 
 
-def _windows(ref: Flat, speeds, config: SimConfig):
-    """Common step count, per-speed dt [s], s_start [m] and run-in step counts."""
-    n_steps = max(it.n_steps_for(ref, float(v), config)[0] for v in speeds)
-    s0 = np.array([it.simulation_window(ref, float(v), config)[0] for v in speeds])
-    s1 = np.array([it.simulation_window(ref, float(v), config)[1] for v in speeds])
-    dt = (s1 - s0) / np.asarray(speeds) / (n_steps - 1)
-    run_in = np.floor(0.5 * it.RUN_IN_TIME / dt).astype(int)
-    return n_steps, dt, s0, run_in
-
-
 def _batch_runs(setup: _Setup, law, n_steps, speeds, dt, x_start, impact, checkpoint: bool):
     """Force histories [batch, n_steps] of runs batched over (speed, dt, x_start, impact)."""
     max_iter = setup.config.newton_iterations
@@ -493,7 +484,7 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
     spacing = float(setup.track.sleeper_spacing)
     pos = (impact_positions_grid(impact_positions, spacing) if np.ndim(impact_positions) == 0
            else np.asarray(impact_positions, dtype=float))
-    n_steps, dt, s0, run_in = _windows(ref, v, setup.config)
+    n_steps, dt, s0, run_in = it.batch_windows(ref, v, setup.config)
     vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
     dd, ss, rr = (np.repeat(a, pos.size) for a in (dt, s0, run_in))
     after = jnp.asarray(np.arange(n_steps)[None, :] >= rr[:, None])
@@ -525,7 +516,7 @@ def history_model(t, speed: float, reference: Flat, contact: str = "hertz-trajec
     pos = float(impact_position)
     if not 0 <= pos < spacing:
         raise ValueError(f"impact_position must be in [0, {spacing:g}) m, got {pos!r}")
-    n_steps, dt, s0, _ = _windows(ref, [speed], setup.config)
+    n_steps, dt, s0, _ = it.batch_windows(ref, [speed], setup.config)
     t = np.asarray(t, dtype=float)
     t_first, t_last = s0[0] / speed, s0[0] / speed + dt[0] * (n_steps - 1)
     if t.min() < t_first or t.max() > t_last:
@@ -697,11 +688,12 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
     theta, history, gnorms = jnp.asarray(theta0), [], []
     for _ in range(MAX_FAMILY_ROUNDS):
         model = build(jax.tree_util.tree_map(np.asarray, par.to_flat(theta)))
-        residuals, value_and_grad, loss_j = _objective(model, par, y_j, scale, mode)
+        value_and_grad, loss_j, jacobian = _objective(model, par, y_j, scale, mode)
         theta, h, g, message, converged = _optimise(
             value_and_grad, loss_j, theta, method, int(max_iter) - len(history), learning_rate,
             gtol, ftol, xtol, max_step, report)
-        history, gnorms = history + list(h[len(history) > 0:]), gnorms + list(g[len(gnorms) > 0:])
+        restart = 1 if history else 0  # a restart's first entry repeats the last one
+        history, gnorms = history + list(h[restart:]), gnorms + list(g[restart:])
         family = model.setup.family
         inside = family is None or _inside_family(family.spec, _concrete_flat(
             jax.tree_util.tree_map(np.asarray, par.to_flat(theta))))
@@ -709,13 +701,9 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
             break
 
     # uncertainty (Gauss-Newton, force residuals in N)
-    if mode == "forward":  # the Jacobian of the last evaluation, no second compilation
-        J_rel, r_rel = value_and_grad.jacobian(theta)
-        J = np.asarray(J_rel) * scale
-        pred = np.asarray(r_rel) * scale + y
-    else:
-        J = np.asarray(jax.jit(jax.jacrev(residuals))(theta)) * scale
-        pred = np.asarray(jax.jit(lambda th: model(par.to_flat(th)))(theta))
+    J_rel, r_rel = jacobian(theta)
+    J = np.asarray(J_rel) * scale
+    pred = np.asarray(r_rel) * scale + y
     r = pred - y
     G = np.asarray(jax.jacfwd(par.physical)(theta))
     cov = _gauss_newton(J, r, G)
@@ -730,8 +718,7 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
                     f"exceeds extent_bound {par.extent_bound * 1e3:.1f} mm, refit with a "
                     f"larger extent_bound")
         converged = False
-    family = model.setup.family
-    if family is not None and not _inside_family(family.spec, flat):
+    if not inside:
         lo, hi = family.spec.depth_range
         message += (f"; WARNING: after {MAX_FAMILY_ROUNDS} rounds the fitted flat lies outside "
                     f"the 3D family's range (depth {lo * 1e3:.3g}-{hi * 1e3:.3g} mm), where the "
@@ -746,7 +733,11 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
 
 
 def _objective(model: ForceModel, par, y_j, scale: float, mode: str):
-    """(residuals, jitted value_and_grad, jitted loss) of theta for ``model`` and data y_j."""
+    """(value_and_grad, loss, jacobian) of theta for ``model`` and data y_j, all jitted.
+
+    ``jacobian(theta)`` is (J, r): the relative residuals and their Jacobian, for the
+    Gauss-Newton uncertainty. In forward mode it is the iterations' own compiled evaluation.
+    """
     def residuals(theta):
         return (model(par.to_flat(theta)) - y_j) / scale
 
@@ -761,12 +752,10 @@ def _objective(model: ForceModel, par, y_j, scale: float, mode: str):
             pen, g_pen = jax.value_and_grad(par.penalty)(theta)
             return jnp.mean(r**2) + pen, 2 * J.T @ r / r.size + g_pen, J, r
 
-        def value_and_grad(theta):
-            return evaluate(theta)[:2]
-
-        value_and_grad.jacobian = lambda theta: evaluate(theta)[2:]  # (J, r): one compile
-        return residuals, value_and_grad, jax.jit(loss)
-    return residuals, jax.jit(jax.value_and_grad(loss)), jax.jit(loss)
+        return (lambda theta: evaluate(theta)[:2]), jax.jit(loss), (
+            lambda theta: evaluate(theta)[2:])
+    jacobian = jax.jit(lambda theta: (jax.jacrev(residuals)(theta), residuals(theta)))
+    return jax.jit(jax.value_and_grad(loss)), jax.jit(loss), jacobian
 
 
 def _inside_family(spec, flat: Flat) -> bool:

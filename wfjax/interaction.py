@@ -68,6 +68,7 @@ __all__ = [
     "simulate",
     "impact_position_from_angle",
     "simulation_window",
+    "batch_windows",
 ]
 
 RUN_IN_TIME = 0.02  # s of travel before the flat's window, from static equilibrium
@@ -127,6 +128,22 @@ def n_steps_for(flat: Flat, speed: float, config: SimConfig) -> tuple[int, float
     dt = config.time_step_for(speed)
     n = int(math.ceil(duration / dt)) + 1
     return n, duration / (n - 1)
+
+
+def batch_windows(flat: Flat, speeds, config: SimConfig):
+    """Windows of a batch of runs at ``speeds`` [m/s] that share one compiled step count.
+
+    Every speed gets the step count of the one that needs the most and its own time step.
+
+    Returns:
+        (n_steps, dt [n_speeds] s, s_start [n_speeds] m, run_in [n_speeds] steps before the
+        max/min summaries start).
+    """
+    speeds = np.asarray(speeds, dtype=float)
+    n_steps = max(n_steps_for(flat, float(v), config)[0] for v in speeds)
+    s0, s1 = np.array([simulation_window(flat, float(v), config) for v in speeds]).T
+    dt = (s1 - s0) / speeds / (n_steps - 1)
+    return n_steps, dt, s0, np.floor(0.5 * RUN_IN_TIME / dt).astype(int)
 
 
 # -- the time loop -----------------------------------------------------------------------------

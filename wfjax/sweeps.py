@@ -36,7 +36,7 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .contact.laws import CONTACT_MODELS, prepare, prepare_family, resolve_mode_3d
-from .interaction import RUN_IN_TIME, n_steps_for, run_scan, simulation_window, structure
+from .interaction import batch_windows, run_scan, structure
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import summarise
 
@@ -329,6 +329,13 @@ def batch_groups(flats: Sequence[Flat], contact: str, config: SimConfig) -> list
     return list(kinds.values()) + singles
 
 
+def common_extent(flats: Sequence[Flat]) -> list[Flat]:
+    """``flats`` with the largest half extent as ``extent_bound``: the same simulation windows
+    for every flat, as :func:`prepare_batch` gives a batch (geometry unchanged)."""
+    bound = max(f.half_extent for f in flats)
+    return [dataclasses.replace(f, extent_bound=bound) for f in flats]
+
+
 def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Track,
                   material: Material, config: SimConfig, cache_dir=None,
                   progress: bool = False):
@@ -342,8 +349,7 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
     Returns:
         (laws with leaves [n_flats, ...], the flat that sizes the simulation windows).
     """
-    bound = max(f.half_extent for f in flats)
-    sized = [dataclasses.replace(f, extent_bound=bound) for f in flats]
+    sized = common_extent(flats)
     family = None
     if contact == "3d":
         if resolve_mode_3d(config, batched=len(flats) > 1) != "parametric":
@@ -353,6 +359,7 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
         family = prepare_family(flats, wheel, track, material, config, cache_dir, progress)
     max_depth = max(float(np.max(np.asarray(f.depth))) for f in flats)
     stacked = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *sized)
+
     def prepare_one(flat, family):
         return prepare(contact, flat, wheel, track, material, config, cache_dir, family=family,
                        max_depth=max_depth)
@@ -367,13 +374,10 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
 def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: SimConfig,
                mesh: Mesh, chunk_size: int, bar: _Progress) -> list[np.ndarray]:
     """Summaries [n_flats, n_speeds, n_positions] of one batch of laws, chunked and sharded."""
-    n_steps = max(n_steps_for(window_flat, float(s), config)[0] for s in v)
-    ff, vv, pp = (a.ravel() for a in np.meshgrid(np.arange(n_flats), v, pos, indexing="ij"))
-    windows = {float(s): simulation_window(window_flat, float(s), config) for s in v}
-    s_start = np.array([windows[float(s)][0] for s in vv])
-    s_end = np.array([windows[float(s)][1] for s in vv])
-    dt = (s_end - s_start) / vv / (n_steps - 1)
-    run_in = np.floor(0.5 * RUN_IN_TIME / dt).astype(int)
+    n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
+    ff, jj, kk = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
+                                                 np.arange(pos.size), indexing="ij"))
+    vv, pp, dt, s_start, run_in = v[jj], pos[kk], dt_v[jj], s0_v[jj], run_in_v[jj]
     program = _batched(mesh, n_steps, config.newton_iterations)
     results = []
     step, width = _chunk_layout(vv.size, chunk_size, mesh.devices.size)

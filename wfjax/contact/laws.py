@@ -107,7 +107,7 @@ class ContactLaw:
         """
         frozen = jax.lax.stop_gradient(self)
         point = self.point(s)
-        point_ng = frozen.point(jax.lax.stop_gradient(s))
+        point_ng = jax.lax.stop_gradient(point)
         delta, f, r = solve_contact_step(
             lambda d: self.point_force(point, d), delta_free, compliance, max_iter,
             loop_force_fn=lambda d: frozen.point_force(point_ng, d))
@@ -220,9 +220,9 @@ def parametric_law(family, depth, length) -> ParametricLaw:
     """:class:`ParametricLaw` of the flat (depth [m], length [m]; may be traced).
 
     The family is evaluated at s_j = j h, |j| <= n (h the element size; n covers the family's
-    largest flat and contact), onsets included (the continuum rigid onset at s_j, as in the
-    per-flat tables); beyond the range the end columns, the smooth wheel, apply. Pure jnp: no
-    contact problem is solved here.
+    largest flat and contact), onsets included (at s_j the family's onset is the continuum
+    rigid onset there, as in the per-flat tables); beyond the range the end columns, the
+    smooth wheel, apply. Pure jnp: no contact problem is solved here.
     """
     from . import family as family_mod
 
@@ -232,13 +232,11 @@ def parametric_law(family, depth, length) -> ParametricLaw:
                if spec.kind == "rounded" else math.sqrt(2 * spec.wheel_radius * d_hi))
     reach = half_hi + math.sqrt(2 * spec.wheel_radius * d_hi) + 4 * spec.element_size
     n = math.ceil(reach / spec.element_size)
-    d, half, _, _ = family_mod._geometry(spec, depth, length)
     s_j = jnp.arange(-n, n + 1) * spec.element_size
-    onsets = jax.vmap(lambda sj: family_mod._exact_onset(spec, sj, d, half))(s_j)
     columns = jax.vmap(lambda sj: family_mod.family_column(family, sj, depth, length))(s_j)
     table = tables.ContactTable(
         s_min=jnp.asarray(-n * spec.element_size), ds=jnp.asarray(spec.element_size),
-        c_max=family.c_max, onset=onsets, force=columns.force, slope=columns.slope,
+        c_max=family.c_max, onset=columns.onset, force=columns.force, slope=columns.slope,
         converged=family.converged)
     return ParametricLaw(table, depth, length)
 
@@ -283,13 +281,13 @@ def prepare(contact: str, flat: Flat, wheel: Wheel, track: Track, material: Mate
     """
     if contact not in CONTACT_MODELS:
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
-    c_h = hertz.hertz_constant(material, hertz_radius(wheel, track))
     if contact == "hertz-profile":
-        return HertzProfileLaw(c_h, flat)
+        return HertzProfileLaw(hertz.hertz_constant(material, hertz_radius(wheel, track)), flat)
     if contact == "hertz-trajectory":
         half = flat.half_extent + FLAT_MARGIN
         grid = jnp.linspace(-half, half, int(2 * half / TRAJECTORY_SPACING) + 1)
-        return HertzTrajectoryLaw(c_h, grid, -geometry.centre_trajectory(flat, grid), flat)
+        return HertzTrajectoryLaw(hertz.hertz_constant(material, hertz_radius(wheel, track)),
+                                  grid, -geometry.centre_trajectory(flat, grid), flat)
     if contact == "2d":
         if max_depth is None and not _is_concrete(flat.depth):
             max_depth = MAX_FLAT_DEPTH
