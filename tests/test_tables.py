@@ -171,3 +171,29 @@ def test_column_two_stage_equals_table_force(coarse):
         fd = (tables.column_force(col, d0 + eps) - tables.column_force(col, d0 - eps)) / (2 * eps)
         assert float(g) == pytest.approx(float(fd), rel=1e-5)
         assert float(jax.grad(tables.column_force, argnums=1)(col, float(col.onset) - 1e-6)) == 0
+
+
+@pytest.mark.parametrize("flat, rail_radius", [
+    (FLAT, R),
+    (wf.Flat.new(0.9e-3), 0.3),
+    (wf.Flat.from_profile(np.linspace(-0.04, 0.04, 41),
+                          0.8e-3 * np.cos(np.linspace(-0.5, 0.5, 41) * np.pi) ** 2 *
+                          (1 + 0.3 * np.linspace(-0.04, 0.04, 41) / 0.04)), R),
+])
+def test_windowed_build_equals_whole_grid(flat, rail_radius):
+    """Each solve on the window around its rigid overlap is the whole-grid problem: the
+    forces agree to 1e-9 relative (tight CG tolerance, so the solver's own error is below)."""
+    spec = tables.table_spec(flat, R, rail_radius, MAT, element_size=1.5e-3,
+                             max_force=300e3, n_t=8)
+    plan = tables.window_plan(spec, flat, spec.s)
+    assert max(wx * wy for wx, wy in plan.sizes) < spec.nx * spec.ny  # windows are smaller
+    assert len(plan.sizes) <= tables.MAX_WINDOW_SIZES
+    whole = tables.build_table_3d(flat, R, rail_radius, MAT, spec=spec, tol=1e-12,
+                                  windows=False)
+    windowed = tables.build_table_3d(flat, R, rail_radius, MAT, spec=spec, tol=1e-12)
+    assert float(windowed.converged) == 1.0
+    scale = float(np.max(whole.force))
+    np.testing.assert_allclose(windowed.force, whole.force, rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(windowed.slope, whole.slope, rtol=0,
+                               atol=1e-9 * float(np.max(whole.slope)))
+    np.testing.assert_array_equal(windowed.onset, whole.onset)

@@ -449,13 +449,21 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                       onset=onset, s_map=s_map, centre_band=float(b0), edge_band=float(b1))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 3))
-def _node_build(tspec: tables.TableSpec, flat: Flat, material: Material, tol: float):
-    """Columns s_j = j ds, j < n_s, of one node (ds = s_max / (n_s - 1))."""
+@functools.partial(jax.jit, static_argnums=(0, 3, 4))
+def _node_build_jit(tspec: tables.TableSpec, flat: Flat, material: Material, tol: float,
+                    sizes: tuple, plan_arrays):
     s = np.linspace(0.0, tspec.s_max, tspec.n_s)
-    onset, force, slope, ok = jax.lax.map(
-        lambda si: tables._column(tspec, flat, material, si, tol), jnp.asarray(s))
+    onset, force, slope, ok = tables.build_columns(
+        tspec, flat, material, s, tol, plan=tables.WindowPlan(sizes, *plan_arrays))
     return onset, force, slope, jnp.all(ok)
+
+
+def _node_build(tspec: tables.TableSpec, flat: Flat, material: Material, tol: float):
+    """Columns s_j = j ds, j < n_s, of one node (ds = s_max / (n_s - 1)), every solve on the
+    window around its rigid overlap (:func:`wfjax.contact.tables.window_plan`)."""
+    plan = tables.window_plan(tspec, flat, np.linspace(0.0, tspec.s_max, tspec.n_s))
+    return _node_build_jit(tspec, flat, material, tol, plan.sizes,
+                           (plan.size_index, plan.x0, plan.y0))
 
 
 def _build_node(spec: FamilySpec, idx: int, material: Material, tol: float, cache_dir,

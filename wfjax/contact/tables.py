@@ -191,13 +191,12 @@ def _onset(spec: TableSpec, flat: Flat, s):
 
 
 def _column(spec: TableSpec, flat: Flat, material: Material, s, tol: float):
-    """Forces, stiffnesses and convergence along the t axis for one flat position s."""
+    """Forces, stiffnesses and convergence along the t axis for one flat position s
+    (every solve on the whole table grid)."""
     x, y = spec.x, spec.y
     h = spec.element_size
     gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
     onset = _onset(spec, flat, s)
-    t = np.linspace(0.0, 1.0, spec.n_t)[1:]
-    cs = spec.c_max * t**2
     cfg = kalker._Config(spec.nx, spec.ny, h, h, "fft", tol, 1000)
 
     def step(carry, c):
@@ -207,23 +206,243 @@ def _column(spec: TableSpec, flat: Flat, material: Material, s, tol: float):
         return (r.pressure, z), (r.force, r.stiffness, r.diagnostics.converged)
 
     p0 = jnp.zeros((spec.nx, spec.ny), gap.dtype)
-    _, (f, k, ok) = jax.lax.scan(step, (p0, p0), jnp.asarray(cs))
-    zero = jnp.zeros((1,), f.dtype)
-    force = jnp.concatenate([zero, f])
-    slope = jnp.concatenate([zero, k * 2 * spec.c_max * t / (spec.n_t - 1)])
-    return onset, force, slope, jnp.all(ok)
+    _, (f, k, ok) = jax.lax.scan(step, (p0, p0), jnp.asarray(_compressions(spec)))
+    return (onset,) + _column_outputs(spec, f, k) + (jnp.all(ok),)
 
 
-@functools.partial(jax.jit, static_argnums=(0, 3, 4))
-def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_size: int):
-    s_all = spec.s
-    if spec.symmetric:
-        s_solve = s_all[spec.n_s // 2:]
-    else:
-        s_solve = s_all
-    onset, force, slope, ok = jax.lax.map(
-        lambda s: _column(spec, flat, material, s, tol), jnp.asarray(s_solve),
-        batch_size=batch_size)
+def _compressions(spec: TableSpec) -> np.ndarray:
+    """[n_t - 1] compressions c_j = c_max t_j^2 of the solved t nodes (t_0 = 0 is F = 0)."""
+    return spec.c_max * np.linspace(0.0, 1.0, spec.n_t)[1:] ** 2
+
+
+def _column_outputs(spec: TableSpec, f, k):
+    """Node forces and slopes dF/du [..., n_t] from the solved forces f and stiffnesses k
+    [..., n_t - 1]."""
+    t = np.linspace(0.0, 1.0, spec.n_t)[1:]
+    zero = jnp.zeros(f.shape[:-1] + (1,), f.dtype)
+    return (jnp.concatenate([zero, f], axis=-1),
+            jnp.concatenate([zero, k * 2 * spec.c_max * t / (spec.n_t - 1)], axis=-1))
+
+
+# ----------------------------------------------------------------------------------------
+# Potential contact areas: every solve on a window around its own rigid overlap
+# ----------------------------------------------------------------------------------------
+
+
+class WindowPlan(NamedTuple):
+    """Where each solve of a table build runs: a window of the table grid around its rigid
+    overlap (concrete numbers).
+
+    The contact at approach delta lies inside the rigid overlap {gap < delta} (the surface
+    displacements are >= 0), so a solve on a window that contains the overlap is the same
+    problem as on the whole grid: the elements left out carry no pressure there. The windows
+    come in a few static sizes, one compiled solver each, chosen per solve by ``lax.switch``.
+
+    Attributes:
+        sizes: the window sizes (wx, wy) [elements], cheapest first (static).
+        size_index: [n_columns, n_t - 1] which size each solve uses.
+        x0, y0: [n_columns, n_t - 1] grid index of each window's first element along x, y.
+    """
+
+    sizes: tuple[tuple[int, int], ...]
+    size_index: np.ndarray
+    x0: np.ndarray
+    y0: np.ndarray
+
+
+WINDOW_MARGIN = 2  # elements between the rigid overlap's bounding box and the window edge
+MAX_WINDOW_SIZES = 4  # static window sizes per build, at most
+# One more window size (one more compiled solver, about 1 s on the 2-core CPU) must save at
+# least this much modelled solve cost (FFT size m times log m, summed over the solves):
+# measured 5e-8 s per unit there (81 x 81 grid, 1230 solves, 17 s).
+COST_PER_WINDOW_SIZE = 2e7
+
+
+@functools.lru_cache(maxsize=8)
+def _fft_lengths(n_max: int) -> np.ndarray:
+    """[n_max + 1] FFT length of a window of n elements, n = 0..n_max."""
+    return np.array([kalker._fft_length(max(n, 1)) for n in range(n_max + 1)])
+
+
+def _solve_cost(wx, wy):
+    """Modelled cost of a solve on a wx x wy window: its FFT size m times log m (arrays)."""
+    lengths = _fft_lengths(1024 * (1 + int(max(np.max(wx), np.max(wy))) // 1024))
+    m = (lengths[wx] * lengths[wy]).astype(float)
+    return m * np.log(m)
+
+
+@functools.lru_cache(maxsize=256)
+def _size_ladder(n: int) -> tuple[int, ...]:
+    """Window lengths worth using along an axis of n elements: for each FFT length the largest
+    window it serves (a longer window costs nothing more in FFTs), and n itself."""
+    return tuple(sorted({min(n, (kalker._fft_length(w) + 1) // 2) for w in range(1, n + 1)}))
+
+
+def _merge_sizes(needed: dict[tuple[int, int], int], max_sizes: int,
+                 cost_per_size: float) -> list[tuple[int, int]]:
+    """Window sizes covering ``needed`` (size -> solve count): greedily join the two sizes
+    whose union (elementwise max) adds the least cost while more than ``max_sizes`` remain,
+    or while the join costs less than ``cost_per_size``."""
+    w = np.array(list(needed), dtype=int).reshape(-1, 2)
+    count = np.array(list(needed.values()), dtype=float)
+    while len(w) > 1:
+        ux, uy = np.maximum.outer(w[:, 0], w[:, 0]), np.maximum.outer(w[:, 1], w[:, 1])
+        own = count * _solve_cost(w[:, 0], w[:, 1])
+        extra = (count[:, None] + count[None, :]) * _solve_cost(ux, uy) - own[:, None] \
+            - own[None, :]
+        extra[np.tril_indices(len(w))] = np.inf
+        a, b = np.unravel_index(np.argmin(extra), extra.shape)
+        if len(w) <= max_sizes and extra[a, b] > cost_per_size:
+            break
+        keep = np.ones(len(w), bool)
+        keep[[a, b]] = False
+        w = np.concatenate([w[keep], [[ux[a, b], uy[a, b]]]])
+        count = np.concatenate([count[keep], [count[a] + count[b]]])
+        w, inverse = np.unique(w, axis=0, return_inverse=True)  # a union may equal a size
+        count = np.bincount(inverse.ravel(), weights=count, minlength=len(w))
+    order = np.argsort(_solve_cost(w[:, 0], w[:, 1]), kind="stable")
+    return [(int(wx), int(wy)) for wx, wy in w[order]]
+
+
+def _relative_gaps(spec: TableSpec, flat: Flat, s_values) -> np.ndarray:
+    """[n, nx, ny] gap minus its minimum on the grid [m] at concrete flat positions.
+
+    The grid minimum is >= the continuum onset, so {gap - min < c} contains the rigid overlap
+    at compression c (a window from it is never too small).
+    """
+    def one(s):
+        g = kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius, spec.rail_head_radius)
+        return g - jnp.min(g)
+
+    return np.asarray(jax.jit(jax.vmap(one))(jnp.asarray(s_values)))
+
+
+def window_plan(spec: TableSpec, flat: Flat, s_values, margin: int = WINDOW_MARGIN,
+                max_sizes: int = MAX_WINDOW_SIZES,
+                cost_per_size: float = COST_PER_WINDOW_SIZE) -> WindowPlan:
+    """Windows of the solves of a table build for ``flat`` (concrete) at columns ``s_values``.
+
+    Each solve's window covers the bounding box of its rigid overlap {gap - min(gap) < c} on
+    the table grid plus ``margin`` elements (clipped to the grid); the sizes are rounded up to
+    the largest window of their FFT length, then merged (:func:`_merge_sizes`).
+
+    Args:
+        spec: the table layout (its grid bounds every window).
+        flat: the flat (concrete).
+        s_values: [n] flat positions of the columns [m].
+        margin: elements added on each side of the overlap's bounding box.
+        max_sizes: static window sizes allowed.
+        cost_per_size: modelled solve cost one more size must save (its compile time).
+
+    Returns:
+        :class:`WindowPlan` for the n columns x (n_t - 1) compressions.
+    """
+    rel = _relative_gaps(spec, flat, np.asarray(s_values, dtype=float))
+    cs = _compressions(spec)
+    boxes = []
+    for axis, n in ((2, spec.nx), (1, spec.ny)):
+        line_min = rel.min(axis=axis)  # [n_columns, n] along x (then y)
+        inside = line_min[:, None, :] < cs[None, :, None]  # [n_columns, n_c, n]
+        first = np.argmax(inside, axis=2)
+        last = n - 1 - np.argmax(inside[:, :, ::-1], axis=2)
+        lo, hi = np.maximum(first - margin, 0), np.minimum(last + margin, n - 1)
+        ladder = np.asarray(_size_ladder(n))
+        boxes.append((lo, hi, ladder[np.searchsorted(ladder, hi - lo + 1)]))
+    (xa, xb, wx), (ya, yb, wy) = boxes
+    sizes, counts = np.unique(np.stack([wx, wy], -1).reshape(-1, 2), axis=0, return_counts=True)
+    sizes = _merge_sizes({(int(a), int(b)): int(c) for (a, b), c in zip(sizes, counts)},
+                         max_sizes, cost_per_size)
+    w = np.asarray(sizes)
+    cost = _solve_cost(w[:, 0], w[:, 1])
+    fits = (w[None, None, :, 0] >= (xb - xa + 1)[..., None]) & \
+        (w[None, None, :, 1] >= (yb - ya + 1)[..., None])
+    size_index = np.argmin(np.where(fits, cost, np.inf), axis=-1).astype(np.int32)
+    sx, sy = w[size_index, 0], w[size_index, 1]
+    x0 = np.clip((xa + xb + 1) // 2 - sx // 2, 0, spec.nx - sx).astype(np.int32)
+    y0 = np.clip((ya + yb + 1) // 2 - sy // 2, 0, spec.ny - sy).astype(np.int32)
+    return WindowPlan(tuple(sizes), size_index, x0, y0)
+
+
+def _windowed_column(spec: TableSpec, sizes, flat: Flat, material: Material, s, tol: float,
+                     size_index, x0, y0):
+    """:func:`_column` with every solve on its window (see :class:`WindowPlan`)."""
+    h = spec.element_size
+    x_all, y_all = jnp.asarray(spec.x), jnp.asarray(spec.y)
+    onset = _onset(spec, flat, s)
+    dtype = jnp.result_type(onset.dtype, float)
+
+    def branch(size):
+        wx, wy = size
+        cfg = kalker._Config(wx, wy, h, h, "fft", tol, 1000)
+
+        def solve(p_full, z_full, c, i0, j0):
+            x = jax.lax.dynamic_slice(x_all, (i0,), (wx,))
+            y = jax.lax.dynamic_slice(y_all, (j0,), (wy,))
+            gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
+            p_prev = jax.lax.dynamic_slice(p_full, (i0, j0), (wx, wy))
+            z_prev = jax.lax.dynamic_slice(z_full, (i0, j0), (wx, wy))
+            r, z = kalker._solve_impl(cfg, gap, material, onset + c, None, p_prev, 50, True,
+                                      False, z_init=z_prev)
+            zeros = jnp.zeros_like(p_full)
+            return (jax.lax.dynamic_update_slice(zeros, r.pressure.astype(dtype), (i0, j0)),
+                    jax.lax.dynamic_update_slice(zeros, z.astype(dtype), (i0, j0)),
+                    r.force.astype(dtype), r.stiffness.astype(dtype), r.diagnostics.converged)
+
+        return solve
+
+    branches = [branch(size) for size in sizes]
+
+    def step(carry, inputs):
+        c, k, i0, j0 = inputs
+        p_full, z_full, force, stiff, ok = jax.lax.switch(k, branches, *carry, c, i0, j0)
+        return (p_full, z_full), (force, stiff, ok)
+
+    p0 = jnp.zeros((spec.nx, spec.ny), dtype)
+    _, (f, k, ok) = jax.lax.scan(step, (p0, p0), (jnp.asarray(_compressions(spec)), size_index,
+                                                   x0, y0))
+    return (onset,) + _column_outputs(spec, f, k) + (jnp.all(ok),)
+
+
+def build_columns(spec: TableSpec, flat: Flat, material: Material, s_values, tol: float,
+                  batch_size: int = 1, plan: WindowPlan | None = None):
+    """Solve the columns of a table at flat positions ``s_values`` [n] [m] (traceable).
+
+    With a ``plan`` every solve runs on its window (sequential over the columns; several
+    times faster); without one on the whole grid (``batch_size`` > 1 then vmaps chunks of
+    columns, for wide devices).
+
+    Returns:
+        (onset [n] [m], force [n, n_t] [N], slope [n, n_t] [N], converged [n]) as in
+        :class:`ContactTable`.
+    """
+    s_values = jnp.asarray(s_values)
+    if plan is None:
+        return jax.lax.map(lambda s: _column(spec, flat, material, s, tol), s_values,
+                           batch_size=batch_size)
+
+    def one(args):
+        return _windowed_column(spec, plan.sizes, flat, material, args[0], tol, *args[1:])
+
+    return jax.lax.map(one, (s_values, jnp.asarray(plan.size_index), jnp.asarray(plan.x0),
+                             jnp.asarray(plan.y0)))
+
+
+def _solve_positions(spec: TableSpec) -> np.ndarray:
+    """Flat positions [m] of the solved columns (s >= 0 only for symmetric flats)."""
+    return spec.s[spec.n_s // 2:] if spec.symmetric else spec.s
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3, 4, 5))
+def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_size: int,
+           sizes: tuple, plan_arrays):
+    plan = None if plan_arrays is None else WindowPlan(sizes, *plan_arrays)
+    onset, force, slope, ok = build_columns(spec, flat, material, _solve_positions(spec), tol,
+                                            batch_size, plan)
+    return _assemble(spec, onset, force, slope, jnp.all(ok))
+
+
+def _assemble(spec: TableSpec, onset, force, slope, ok) -> ContactTable:
+    """The table from its solved columns (mirrored for symmetric flats)."""
     if spec.symmetric:
         def mirror(a):
             return jnp.concatenate([a[:0:-1], a], axis=0)
@@ -232,14 +451,18 @@ def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_si
     return ContactTable(
         s_min=jnp.asarray(-spec.s_max), ds=jnp.asarray(2 * spec.s_max / (spec.n_s - 1)),
         c_max=jnp.asarray(spec.c_max), onset=onset, force=force, slope=slope,
-        converged=jnp.all(ok).astype(force.dtype))
+        converged=jnp.asarray(ok).astype(force.dtype))
+
+
+def _is_concrete(tree) -> bool:
+    return all(kalker._is_concrete(v) for v in jax.tree_util.tree_leaves(tree))
 
 
 def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
                    material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
                    max_force: float = 600e3, ds: float | None = None, n_t: int = 16,
                    spec: TableSpec | None = None, tol: float = 1e-8,
-                   batch_size: int = 1) -> ContactTable:
+                   batch_size: int = 1, windows: bool = True) -> ContactTable:
     """Build the 3D contact table F3D(delta, s) of ``flat`` (see the module docstring).
 
     Args:
@@ -251,6 +474,11 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
         ds: column spacing [m] (default ``element_size``); n_t: nodes along the compression.
         spec: a precomputed :func:`table_spec` (required when ``flat`` holds tracers).
         tol: CG tolerance of the solves.
+        batch_size: columns solved together by ``vmap`` (> 1 for wide devices; then every
+            solve runs on the whole grid).
+        windows: solve each compression on a window around its rigid overlap
+            (:func:`window_plan`; same forces, several times faster) when the flat is
+            concrete and ``batch_size`` is 1; False: always the whole grid.
 
     Returns:
         :class:`ContactTable` with n_s columns of n_t nodes.
@@ -258,7 +486,11 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
     if spec is None:
         spec = table_spec(flat, wheel_radius, rail_head_radius, material, element_size,
                           max_force, ds, n_t)
-    return _build(spec, flat, material, float(tol), int(batch_size))
+    if windows and int(batch_size) == 1 and _is_concrete(flat):
+        plan = window_plan(spec, flat, _solve_positions(spec))
+        return _build(spec, flat, material, float(tol), 1, plan.sizes,
+                      (plan.size_index, plan.x0, plan.y0))
+    return _build(spec, flat, material, float(tol), int(batch_size), (), None)
 
 
 def catmull_rom_weights(w):
