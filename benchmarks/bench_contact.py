@@ -11,7 +11,8 @@ Run: python benchmarks/bench_contact.py [--quick]
    of 0.5 mm through the flat's edge), force-controlled at 118 kN: wfjax warm-started from the
    previous pressure inside ``lax.scan``; Tamaas re-solving each position (a fresh solver per
    position, its pressure initial guess is its own).
-3. Table build time for the flats in use.
+3. Table build time for the flats in use, each solve on the window around its rigid overlap
+   (the default) and on the table's whole grid, in the same run (times include compilation).
 
 Compile time is excluded (reported separately); times are medians of repeats, after
 ``block_until_ready``.
@@ -154,11 +155,20 @@ def table_builds(quick):
     out = []
     for name, flat, rr in cases:
         spec = tables.table_spec(flat, R, rr, MAT)
-        t0 = time.perf_counter()
-        tab = jax.block_until_ready(tables.build_table_3d(flat, R, rr, MAT, spec=spec))
-        dt = time.perf_counter() - t0
-        out.append(dict(flat=name, seconds=dt, grid=f"{spec.nx}x{spec.ny}", n_s=spec.n_s,
-                        n_t=spec.n_t, converged=float(tab.converged),
+        times, built = {}, {}
+        for windows in (True, False):  # each solve on its overlap's window / the whole grid
+            t0 = time.perf_counter()
+            built[windows] = jax.block_until_ready(
+                tables.build_table_3d(flat, R, rr, MAT, spec=spec, windows=windows))
+            times[windows] = time.perf_counter() - t0
+        tab = built[True]
+        plan = tables.window_plan(spec, flat, tables._solve_positions(spec))
+        out.append(dict(flat=name, seconds=times[True], whole_grid_seconds=times[False],
+                        speedup=times[False] / times[True], grid=f"{spec.nx}x{spec.ny}",
+                        window_sizes=plan.sizes, n_s=spec.n_s, n_t=spec.n_t,
+                        converged=float(tab.converged),
+                        max_rel_diff=float(np.max(np.abs(tab.force - built[False].force))
+                                           / np.max(built[False].force)),
                         min_force_at_cmax_kN=float(tab.force[:, -1].min()) / 1e3))
         print(out[-1], flush=True)
     return out
