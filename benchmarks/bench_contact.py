@@ -11,7 +11,9 @@ Run: python benchmarks/bench_contact.py [--quick]
    of 0.5 mm through the flat's edge), force-controlled at 118 kN: wfjax warm-started from the
    previous pressure inside ``lax.scan``; Tamaas re-solving each position (a fresh solver per
    position, its pressure initial guess is its own).
-3. Table build time for the flats in use, each solve on the window around its rigid overlap
+3. The reference case of CONTACT (issue 20): a rounded flat at 0.25 mm elements, ten
+   positions, each on the grid cropped to its overlap; plain vs preconditioned CG and Tamaas.
+4. Table build time for the flats in use, each solve on the window around its rigid overlap
    (the default) and on the table's whole grid, in the same run (times include compilation).
 
 Compile time is excluded (reported separately); times are medians of repeats, after
@@ -145,6 +147,50 @@ def sequence(n, steps=20):
                 cg_cold=float(np.mean(it_c)))
 
 
+def contact_case(quick):
+    """The reference case of the field's program CONTACT (issue 20): rounded flat 0.9 mm x
+    100 mm, R_W = 0.45 m, R_R = 0.30 m, 0.25 mm elements, 118 kN, ten flat positions s = -60
+    ... 0 mm, each solved cold on the grid cropped to its rigid overlap at 0.15 mm (+2
+    elements): wfjax with plain and with preconditioned CG, and Tamaas on the same grids."""
+    flat = wf.Flat.rounded(0.9e-3, 0.1)
+    h, rr = 0.25e-3, 0.30
+    x_all, y_all = np.arange(-400, 401) * h, np.arange(-120, 121) * h
+    rows = []
+    for s in np.linspace(-0.06, 0.0, 4 if quick else 10):
+        g = np.asarray(kalker.gap_3d(flat, s, x_all, y_all, R, rr))
+        inside = g - g.min() < 0.15e-3
+        ii, jj = np.nonzero(inside.any(1))[0], np.nonzero(inside.any(0))[0]
+        g = jnp.asarray(g[ii[0] - 2:ii[-1] + 3, jj[0] - 2:jj[-1] + 3])
+        nx, ny = g.shape
+        row = dict(s_mm=float(s) * 1e3, nx=nx, ny=ny)
+        for precondition in (False, True):
+            cfg = kalker._Config(nx, ny, h, h, "fft", TOL, 1000, precondition)
+            f = jax.jit(lambda g, cfg=cfg: kalker._solve_impl(cfg, g, MAT, None, F, None, 50,
+                                                              False, True)[0])
+            r = jax.block_until_ready(f(g))
+            name = "pcg" if precondition else "cg"
+            row[f"{name}_ms"] = _median_time(lambda f=f: f(g), 3) * 1e3
+            row[f"{name}_iterations"] = int(r.diagnostics.cg_iterations)
+            row[f"{name}_outer"] = int(r.diagnostics.iterations)
+            row[f"{name}_approach_um"] = float(r.approach) * 1e6
+        row["contact_elements"] = int(r.contact.sum())
+        try:
+            row["tamaas_ms"] = tamaas_solve(np.asarray(g), h)[0] * 1e3
+        except ImportError:
+            row["tamaas_ms"] = float("nan")
+        rows.append(row)
+        print(row, flush=True)
+    n_el = sum(r["nx"] * r["ny"] for r in rows)
+    summary = dict(elements_mean=n_el / len(rows),
+                   cg_ms_mean=statistics.mean(r["cg_ms"] for r in rows),
+                   pcg_ms_mean=statistics.mean(r["pcg_ms"] for r in rows),
+                   tamaas_ms_mean=statistics.mean(r["tamaas_ms"] for r in rows),
+                   pcg_us_per_element=sum(r["pcg_ms"] for r in rows) * 1e3 / n_el,
+                   contact_program_us_per_element=60e3 / 7800)
+    print(summary, flush=True)
+    return dict(rows=rows, summary=summary)
+
+
 def table_builds(quick):
     cases = [("rounded d=0.9 l=100, R_R=0.45", wf.Flat.rounded(0.9e-3, 0.1), 0.45),
              ("new d=0.9, R_R=0.30", wf.Flat.new(0.9e-3), 0.30)]
@@ -195,8 +241,9 @@ def main():
     for n in [64, 128]:
         seq.append(sequence(n))
         print(seq[-1], flush=True)
+    contact = contact_case(args.quick)
     builds = table_builds(args.quick)
-    result = dict(cold=cold, sequence=seq, tables=builds)
+    result = dict(cold=cold, sequence=seq, contact_case=contact, tables=builds)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(result, fh, indent=1)

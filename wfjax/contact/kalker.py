@@ -210,6 +210,32 @@ def _unit_operator(nx: int, ny: int, dx: float, dy: float, method: str):
     raise ValueError(f"method must be 'fft' or 'dense', got {method!r}")
 
 
+PRECONDITIONER_FLOOR = 1e-3  # spectrum values below this x its maximum are raised to it
+
+
+@functools.lru_cache(maxsize=64)
+def _inverse_kernel_fft(nx: int, ny: int, dx: float, dy: float) -> np.ndarray:
+    """1 / (the real spectrum of the embedded unit kernel), floored (see the preconditioner)."""
+    khat = _unit_kernel_fft(nx, ny, dx, dy).real  # symmetric kernel: the spectrum is real
+    return 1.0 / np.maximum(khat, PRECONDITIONER_FLOOR * khat.max())
+
+
+def _unit_preconditioner(nx: int, ny: int, dx: float, dy: float):
+    """An approximate inverse of the unit influence operator on the whole grid: the inverse
+    of its circulant embedding (one FFT pair, like the operator itself).
+
+    The influence kernel is a smoothing operator (symbol ~ 1/|k|), so CG on C_AA converges in
+    O(sqrt(condition)) ~ grid-size iterations; multiplying by this inverse (symbol ~ |k|)
+    removes most of that growth (the idea of Vollebregt's FFT-based preconditioner, J. Comput.
+    Phys. 257 (2014)). Measured on the final active sets of the 0.25 mm flat case (2,200 to
+    10,500 elements): 25-40 CG iterations -> 8-10. The embedding's spectrum can dip slightly
+    below zero; it is floored at PRECONDITIONER_FLOOR of its maximum.
+    """
+    inv = jnp.asarray(_inverse_kernel_fft(nx, ny, dx, dy))
+    shape = (_fft_length(nx), _fft_length(ny))
+    return lambda r: jnp.fft.irfft2(jnp.fft.rfft2(r, s=shape) * inv, s=shape)[..., :nx, :ny]
+
+
 # ----------------------------------------------------------------------------------------
 # Conjugate gradients on the active set
 # ----------------------------------------------------------------------------------------
@@ -219,38 +245,52 @@ def _dot(a, b):
     return jnp.sum(a * b)
 
 
-def _cg(op, b, x0, mask, tol, max_iter):
-    """Solve C_AA x_A = b_A (x = 0 off A) by CG from x0. Returns (x, iterations, converged)."""
+def _cg(op, b, x0, mask, tol, max_iter, prec=None):
+    """Solve C_AA x_A = b_A (x = 0 off A) by preconditioned CG from x0.
+
+    ``prec`` (default identity) approximates C^-1 on the whole grid; it is applied as
+    mask * prec(mask * r), symmetric positive on the active set. The stopping test is on the
+    unpreconditioned residual |r| <= tol |b_A| either way. Returns (x, iterations, converged).
+    """
+    prec = _identity if prec is None else prec
     x = mask * x0
     r = mask * (b - op(x))
+    z = mask * prec(r)
     bb = _dot(mask * b, mask * b)
-    rr = _dot(r, r)
     thresh = tol**2 * bb
 
     def cond(s):
-        _, _, _, rr, k = s
-        return (rr > thresh) & (k < max_iter)
+        return (s[4] > thresh) & (s[5] < max_iter)
 
     def body(s):
-        x, r, d, rr, k = s
+        x, r, d, rz, _, k = s
         ad = mask * op(d)
-        alpha = rr / _dot(d, ad)
+        alpha = rz / _dot(d, ad)
         x = x + alpha * d
         r = r - alpha * ad
-        rr_new = _dot(r, r)
-        d = r + (rr_new / rr) * d
-        return x, r, d, rr_new, k + 1
+        z = mask * prec(r)
+        rz_new = _dot(r, z)
+        d = z + (rz_new / rz) * d
+        return x, r, d, rz_new, _dot(r, r), k + 1
 
-    x, _, _, rr, k = jax.lax.while_loop(cond, body, (x, r, r, rr, jnp.int32(0)))
+    x, _, _, _, rr, k = jax.lax.while_loop(cond, body,
+                                           (x, r, z, _dot(r, z), _dot(r, r), jnp.int32(0)))
     return x, k, rr <= thresh
 
 
-def _cg_fixed_sum(op, g, total, x0, mask, tol, max_iter):
-    """Solve C_AA x_A = mu 1 - g_A with sum(x) = total by projected CG.
+def _identity(v):
+    return v
 
+
+def _cg_fixed_sum(op, g, total, x0, mask, tol, max_iter, prec=None):
+    """Solve C_AA x_A = mu 1 - g_A with sum(x) = total by projected (preconditioned) CG.
+
+    The search stays in {sum(x) = total} through the projection P onto zero-sum vectors on
+    the active set; the preconditioner is applied as P prec(P r) (``prec`` default identity).
     Returns (x, mu, iterations, converged); mu is the Lagrange multiplier (the approach in the
     forward problem).
     """
+    prec = _identity if prec is None else prec
     n = jnp.maximum(jnp.sum(mask), 1.0)
 
     def proj(v):
@@ -261,25 +301,26 @@ def _cg_fixed_sum(op, g, total, x0, mask, tol, max_iter):
     x = x + mask * (total - jnp.sum(x)) / n
     cx = op(x)
     r = proj(-g - cx)
+    z = proj(prec(r))
     ref = _dot(mask * cx, mask * cx) + _dot(proj(g), proj(g))
     thresh = tol**2 * ref
-    rr = _dot(r, r)
 
     def cond(s):
-        _, _, _, rr, k = s
-        return (rr > thresh) & (k < max_iter)
+        return (s[4] > thresh) & (s[5] < max_iter)
 
     def body(s):
-        x, r, d, rr, k = s
+        x, r, d, rz, _, k = s
         cd = op(d)
-        alpha = rr / _dot(d, cd)
+        alpha = rz / _dot(d, cd)
         x = x + alpha * d
         r = r - alpha * proj(cd)
-        rr_new = _dot(r, r)
-        d = r + (rr_new / rr) * d
-        return x, r, d, rr_new, k + 1
+        z = proj(prec(r))
+        rz_new = _dot(r, z)
+        d = z + (rz_new / rz) * d
+        return x, r, d, rz_new, _dot(r, r), k + 1
 
-    x, _, _, rr, k = jax.lax.while_loop(cond, body, (x, r, r, rr, jnp.int32(0)))
+    x, _, _, _, rr, k = jax.lax.while_loop(cond, body,
+                                           (x, r, z, _dot(r, z), _dot(r, r), jnp.int32(0)))
     mu = jnp.sum(mask * (op(x) + g)) / n
     return x, mu, k, rr <= thresh
 
@@ -297,9 +338,15 @@ class _Config(NamedTuple):
     method: str
     tol: float
     cg_max_iter: int
+    precondition: bool = True
 
     def op(self):
         return _unit_operator(self.nx, self.ny, self.dx, self.dy, self.method)
+
+    def prec(self):
+        """The CG preconditioner (None: plain CG)."""
+        return (_unit_preconditioner(self.nx, self.ny, self.dx, self.dy) if self.precondition
+                else None)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
@@ -316,7 +363,7 @@ def _attach_approach_fwd(cfg, g, delta, q_star, maskf):
 def _attach_approach_bwd(cfg, res, q_bar):
     maskf, g, delta = res
     lam, _, _ = _cg(cfg.op(), maskf * q_bar, jnp.zeros_like(q_bar), maskf, cfg.tol,
-                    cfg.cg_max_iter)
+                    cfg.cg_max_iter, cfg.prec())
     return (-lam, jnp.sum(lam).astype(jnp.result_type(delta)), jnp.zeros_like(q_bar),
             jnp.zeros_like(maskf))
 
@@ -341,7 +388,7 @@ def _attach_force_bwd(cfg, res, cot):
     maskf, total = res
     q_bar, delta_bar = cot
     w1, mu, _, _ = _cg_fixed_sum(cfg.op(), -maskf * q_bar, -delta_bar, jnp.zeros_like(q_bar),
-                                 maskf, cfg.tol, cfg.cg_max_iter)
+                                 maskf, cfg.tol, cfg.cg_max_iter, cfg.prec())
     return (-w1, (-mu).astype(jnp.result_type(total)), jnp.zeros_like(q_bar),
             jnp.zeros_like(delta_bar), jnp.zeros_like(maskf))
 
@@ -401,15 +448,16 @@ def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_i
     tolerance ``LOOSE_TOL`` (the set update only needs the sign pattern); once the set is
     stable the CG tightens to ``cfg.tol`` and the set is checked again.
     """
-    op = cfg.op()
+    op, prec = cfg.op(), cfg.prec()
     loose = max(cfg.tol, LOOSE_TOL)
     gmin = jnp.min(g)
 
     def inner(q, mask, delta, tol):
         if force_mode:
-            q, delta, k, ok = _cg_fixed_sum(op, g, target, q, mask, tol, cfg.cg_max_iter)
+            q, delta, k, ok = _cg_fixed_sum(op, g, target, q, mask, tol, cfg.cg_max_iter,
+                                            prec)
         else:
-            q, k, ok = _cg(op, delta - g, q, mask, tol, cfg.cg_max_iter)
+            q, k, ok = _cg(op, delta - g, q, mask, tol, cfg.cg_max_iter, prec)
         return q, delta, k, ok
 
     def cond(s):
@@ -485,7 +533,7 @@ def _solve_impl(cfg: _Config, g, material, approach, force, p_init, max_iter, st
     force_out = area * jnp.sum(pressure)
     if stiffness:
         z0 = jnp.zeros_like(q) if z_init is None else jax.lax.stop_gradient(z_init)
-        z, k2, ok2 = _cg(cfg.op(), maskf, z0, maskf, cfg.tol, cfg.cg_max_iter)
+        z, k2, ok2 = _cg(cfg.op(), maskf, z0, maskf, cfg.tol, cfg.cg_max_iter, cfg.prec())
         stiff = jax.lax.stop_gradient(area * estar * jnp.sum(z))
         cg_it = cg_it + k2
         conv = conv & ok2
