@@ -195,3 +195,25 @@ def test_non_finite_result_writes_nothing(tmp_path, capsys, monkeypatch):
     assert main(["sweep", *TINY, "--flat", "new", "--out", str(out)]) == 1
     assert "non-finite max_force" in _one_line_error(capsys)
     assert not list(out.iterdir())
+
+
+def test_figure_flats_follow_the_case_wheel_radius():
+    """figures/compare build their flats on the case's wheel (a 0.46 m wheel used to clash
+    with flats made for the default 0.45 m one)."""
+    from wfjax.commands.compare import comparison_flats
+    from wfjax.commands.figures import fig7_flats, fig8_flats
+
+    flats = fig7_flats(0.46) + fig8_flats((0.5, 1.0), 0.46) + comparison_flats([0.9], 0.46)
+    assert all(float(f.wheel_radius) == 0.46 for f in flats)
+    assert float(fig8_flats((1.0,), 0.46)[0].length) == pytest.approx(
+        1.76 * np.sqrt(8 * 0.46 * 1e-3))
+
+
+def test_sweep_figure_marks_the_sweeps_static_load():
+    from wfjax.plotting import sweep_figure
+
+    res = wf.sweep(wf.Flat.new(0.9e-3), [60 / 3.6], 1, contact="hertz-trajectory",
+                   wheel=wf.Wheel(preload=90e3), progress=False)
+    ax = sweep_figure(res, preload=90e3).axes[0]
+    static = [line for line in ax.get_lines() if line.get_label() == "static load"]
+    assert len(static) == 1 and static[0].get_ydata()[0] == pytest.approx(90.0)

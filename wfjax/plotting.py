@@ -51,14 +51,17 @@ def default_fig5_flats(depth: float = 0.9e-3, wheel_radius: float = 0.45) -> dic
     }
 
 
-def sweep_figure(result, title: str | None = None):
+def sweep_figure(result, title: str | None = None, preload: float = 118e3):
     """Fig. 7 style: max and min contact force [kN] against speed [km/h] for every flat.
 
     The band shows the spread over impact positions, the line the envelope (max of max,
-    min of min); filled markers where loss of contact occurs at some position.
+    min of min); filled markers where loss of contact occurs at some position; a dotted line
+    at the static wheel load.
 
     Args:
         result: a :class:`wfjax.SweepResult`.
+        title: figure title (default: positions and contact model).
+        preload: static wheel load P [N] of the sweep (the dotted line).
     """
     v = np.asarray(result.speeds) * 3.6
     fig, ax = plt.subplots(figsize=(8, 5))
@@ -74,7 +77,7 @@ def sweep_figure(result, title: str | None = None):
         ax.plot(v, mx.max(-1), "-", marker=m, mfc="none", color=color, label=f"{label}: max")
         ax.plot(v, mn.min(-1), "--", marker=m, mfc="none", color=color, label=f"{label}: min")
         ax.plot(v[lost], mn.min(-1)[lost], m, color=color, ls="none")
-    ax.axhline(118.0, color="k", lw=0.8, ls=":")
+    ax.axhline(float(preload) / 1e3, color="k", lw=0.8, ls=":", label="static load")
     ax.set_xlabel("train speed [km/h]")
     ax.set_ylabel("contact force [kN]")
     ax.set_title(title or f"Max/min contact force over {len(result.impact_positions)} impact "

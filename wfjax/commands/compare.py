@@ -55,12 +55,13 @@ def comparison_flat(kind: str, depth_mm: float, wheel_radius: float = 0.45) -> F
     return Flat.rounded_relative(depth, LENGTH_FACTOR, wheel_radius)
 
 
-def comparison_flats(depths_mm=COMPARISON_DEPTHS_MM) -> list[Flat]:
-    """[rounded d1, new d1, rounded d2, new d2, ...]: the panel order of Figs. 9 and 10."""
+def comparison_flats(depths_mm=COMPARISON_DEPTHS_MM, wheel_radius: float = 0.45) -> list[Flat]:
+    """[rounded d1, new d1, rounded d2, new d2, ...]: the panel order of Figs. 9 and 10, on a
+    wheel of radius ``wheel_radius`` [m]."""
     depths = [float(d) for d in np.atleast_1d(depths_mm)]
     if not depths or not all(np.isfinite(d) and 0 < d <= 5 for d in depths):
         raise ValueError(f"--depths-mm must be depths in (0, 5] mm, got {depths_mm!r}")
-    return [comparison_flat(k, d) for d in depths for k in ("rounded", "new")]
+    return [comparison_flat(k, d, wheel_radius) for d in depths for k in ("rounded", "new")]
 
 
 def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=CONTACT_MODELS,
@@ -245,9 +246,10 @@ def run(args) -> int:
     speeds = case.speeds()
     positions = case["run.impact_positions"]
     depths = case["compare.depths_mm"]
-    flats = comparison_flats(depths if isinstance(depths, list) else [depths])
     models = parse_models(",".join(case["compare.models"]))
     wheel, track, material, config = case.model()
+    flats = comparison_flats(depths if isinstance(depths, list) else [depths],
+                             float(wheel.radius))
     out = prepare_out(args.out)
     print(f"wfjax compare: {len(models)} models x {len(flats)} flats x {speeds.size} speeds x "
           f"{positions} positions, R_R = {float(track.rail_head_radius)} m")

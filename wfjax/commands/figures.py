@@ -52,14 +52,17 @@ FAST = {"speeds_kmh": "40,100,160", "positions": 2, "fig8_depths_mm": (0.5, 2.0)
         "compare_depths_mm": (0.9,)}
 
 
-def fig7_flats() -> list[Flat]:
-    """The flats of Fig. 7: rounded 0.9 mm with l = 100 mm, and new 0.9 mm."""
-    return [comparison_flat("rounded", 0.9), comparison_flat("new", 0.9)]
+def fig7_flats(wheel_radius: float = 0.45) -> list[Flat]:
+    """The flats of Fig. 7: rounded 0.9 mm with l = 100 mm, and new 0.9 mm, on a wheel of
+    radius ``wheel_radius`` [m]."""
+    return [comparison_flat("rounded", 0.9, wheel_radius),
+            comparison_flat("new", 0.9, wheel_radius)]
 
 
-def fig8_flats(depths_mm=FIG8_DEPTHS_MM) -> list[Flat]:
-    """The rounded flats of Fig. 8: depth d [mm] each, l = 1.76 l0."""
-    return [Flat.rounded_relative(d * 1e-3, 1.76) for d in depths_mm]
+def fig8_flats(depths_mm=FIG8_DEPTHS_MM, wheel_radius: float = 0.45) -> list[Flat]:
+    """The rounded flats of Fig. 8: depth d [mm] each, l = 1.76 l0, on a wheel of radius
+    ``wheel_radius`` [m]."""
+    return [Flat.rounded_relative(d * 1e-3, 1.76, wheel_radius) for d in depths_mm]
 
 
 def _write_sweep(out, name: str, result, elapsed: float, case) -> dict:
@@ -120,17 +123,19 @@ def run(args) -> int:
     if "7" in wanted:
         print(f"Fig. 7: 0.9 mm rounded and new flats, 3D, {rr}", file=sys.stderr)
         t0 = time.perf_counter()
-        res = sweep(fig7_flats(), speeds, pos7, contact="3d", **model)
+        res = sweep(fig7_flats(float(wheel.radius)), speeds, pos7, contact="3d", **model)
         report["fig7"] = _write_sweep(out, "fig7", res, time.perf_counter() - t0, case)
         save_figure(sweep_figure(res, title=f"Fig. 7: 0.9 mm flats, 3D contact, max/min over "
-                                            f"{pos7} impact positions; filled: loss of contact"),
+                                            f"{pos7} impact positions; filled: loss of contact",
+                                 preload=float(wheel.preload)),
                     out / "fig7_speed_sweep.png")
         written += ["fig7.csv", "fig7.json", "fig7.npz", "fig7_speed_sweep.png"]
 
     if "8" in wanted:
         print(f"Fig. 8: {len(depths8)} rounded flats (l = 1.76 l0), 3D, {rr}", file=sys.stderr)
         t0 = time.perf_counter()
-        res = sweep(fig8_flats(depths8), speeds, pos8, contact="3d", **model)
+        res = sweep(fig8_flats(depths8, float(wheel.radius)), speeds, pos8, contact="3d",
+                    **model)
         report["fig8"] = _write_sweep(out, "fig8", res, time.perf_counter() - t0, case)
         save_figure(depth_family_figure(res, depths_mm=np.asarray(depths8)),
                     out / "fig8_depths.png")
@@ -139,7 +144,8 @@ def run(args) -> int:
     if "9" in wanted:
         print(f"Figs. 9/10: four contact models, {rr}", file=sys.stderr)
         t0 = time.perf_counter()
-        results = run_comparison(comparison_flats(depths9), speeds, pos8, **model)
+        results = run_comparison(comparison_flats(depths9, float(wheel.radius)), speeds, pos8,
+                                 **model)
         summary = write_comparison(out, results, float(track.rail_head_radius),
                                    extra={"wall_time_s": time.perf_counter() - t0}, case=case)
         report["fig9_10"] = summary["per_kind"]

@@ -154,7 +154,7 @@ def run(args) -> int:
     summary["precision"] = case["run.precision"]
     write_summary(out / "sweep.json", summary, case,
                   {"profile_csv": case.get("flat.profile_csv")})
-    save_figure(sweep_figure(result), out / "sweep.png")
+    save_figure(sweep_figure(result, preload=float(wheel.preload)), out / "sweep.png")
     for label, s in summary["flats"].items():
         loss = s["first_loss_of_contact_kmh"]
         loss_text = f"from {loss:.0f} km/h" if loss is not None else "none"
