@@ -217,3 +217,16 @@ def test_sweep_figure_marks_the_sweeps_static_load():
     ax = sweep_figure(res, preload=90e3).axes[0]
     static = [line for line in ax.get_lines() if line.get_label() == "static load"]
     assert len(static) == 1 and static[0].get_ydata()[0] == pytest.approx(90.0)
+
+
+def test_profile_fit_with_too_few_speeds_fails_before_work(tmp_path, capsys, no_work):
+    """8 bump amplitudes need 9 speeds: a one-line error, nothing fitted or written."""
+    data = tmp_path / "data.csv"
+    data.write_text("speed_kmh,max_force_kN\n" + "".join(
+        f"{v},{200 + v}\n" for v in (40, 60, 80, 100, 120)))
+    out = tmp_path / "fit"
+    assert main(["fit", "--data", str(data), "--flat", "new", "--profile-basis", "8",
+                 "--out", str(out)]) == 2
+    err = _one_line_error(capsys)
+    assert "at least 9 speeds" in err
+    assert not out.exists()

@@ -200,6 +200,9 @@ def run(args) -> int:
     from .. import fit
 
     flat, par = _initial_flat(case)
+    # The data must suffice for the parameters before any output or work (a measured
+    # profile's 8 bump amplitudes need 9 speeds).
+    fit._validate_data(data, len((par or fit.parametrisation_for(flat)).names))
     wheel, track, material, config = case.model()
     contact = case["run.contact"]
     out = prepare_out(args.out)
