@@ -172,3 +172,28 @@ def test_table_cache_key_holds_the_builder_revision(tmp_path, monkeypatch):
     monkeypatch.setattr(laws, "TABLE_BUILDER_REVISION", laws.TABLE_BUILDER_REVISION + 1)
     laws.cached_table_3d(*args)  # a new key: built again, not the old file
     assert len(list(tmp_path.glob("table3d-*"))) == 2
+
+
+def test_sweep_prefetches_one_table_per_single_flat_group_concurrently(monkeypatch):
+    """The exact 3D tables of one-flat groups are built before the groups run, in threads."""
+    import importlib
+    import threading
+
+    sweeps = importlib.import_module("wfjax.sweeps")
+    calls = []
+
+    def fake(flat, wheel_radius, rail_head_radius, material, element_size, cache_dir=None):
+        calls.append((flat.kind, threading.get_ident()))
+
+    monkeypatch.setattr(sweeps, "cached_table_3d", fake)
+    flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
+    args = (wf.Wheel(), wf.Track(), wf.Material())
+    assert sweeps.prefetch_tables(flats, "3d", *args, wf.SimConfig()) == 2
+    assert sorted(k for k, _ in calls) == ["new", "rounded"]
+    assert all(t != threading.get_ident() for _, t in calls)  # worker threads
+    calls.clear()
+    assert sweeps.prefetch_tables(flats, "hertz-trajectory", *args, wf.SimConfig()) == 0
+    direct = dataclasses.replace(wf.SimConfig(), contact_mode_3d="direct")
+    assert sweeps.prefetch_tables(flats, "3d", *args, direct) == 0
+    assert sweeps.prefetch_tables(flats[:1], "3d", *args, wf.SimConfig()) == 0
+    assert calls == []
