@@ -248,6 +248,11 @@ def test_cache_round_trip_and_corrupt_file_rebuilt(tmp_path, capsys, monkeypatch
     assert _cache._read(files[0]) is None
     third = family.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
     assert "built" in capsys.readouterr().err
+    # a new builder revision is a new key: built again, the old file is not served
+    monkeypatch.setattr(family, "NODE_BUILDER_REVISION", family.NODE_BUILDER_REVISION + 1)
+    family.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
+    assert "built" in capsys.readouterr().err
+    assert len(list(tmp_path.glob("family-node-*.npz.sha256"))) == 2
     np.testing.assert_array_equal(third.force, first.force)
 
 

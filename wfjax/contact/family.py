@@ -134,6 +134,9 @@ CENTRE_BAND = 2e-3  # m; "edges" map: physical s for |s| <= this (capped at 0.15
 EDGE_BAND = 5e-3  # m; "edges" map: physical edge offset within this of the edge (<= 0.3 half)
 _RAMP_ROUNDING = 0.25  # "edges" map: fraction of the ramp at each end rounded (C1)
 _ON_NODE = 1e-9  # relative distance below which a requested value is "on" a node
+# Part of every node's cache key: raise it when the node builder's results change, so a cache
+# written by an older builder of the same wfjax version is never served.
+NODE_BUILDER_REVISION = 1
 
 
 class FamilySpec(NamedTuple):
@@ -487,7 +490,8 @@ def _build_node(spec: FamilySpec, idx: int, material: Material, tol: float, cach
            "rail_head_radius": spec.rail_head_radius, "element_size": spec.element_size,
            "c_max": spec.c_max, "n_t": spec.n_t, "step": step, "n_cols": n_cols,
            "nx": nx, "ny": ny, "youngs_modulus": float(material.youngs_modulus),
-           "poisson_ratio": float(material.poisson_ratio), "tol": tol}
+           "poisson_ratio": float(material.poisson_ratio), "tol": tol,
+           "builder_revision": NODE_BUILDER_REVISION}
     built = []
 
     def build():
