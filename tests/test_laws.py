@@ -197,3 +197,36 @@ def test_sweep_prefetches_one_table_per_single_flat_group_concurrently(monkeypat
     assert sweeps.prefetch_tables(flats, "3d", *args, direct) == 0
     assert sweeps.prefetch_tables(flats[:1], "3d", *args, wf.SimConfig()) == 0
     assert calls == []
+
+
+def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
+    """The direct 3D mode solves each iterate on a window of its overlap: the same forces as
+    on the whole grid, through an impact, and beyond the table's compression range (where the
+    window falls back to the whole grid)."""
+    from wfjax.contact import direct3d, kalker
+
+    wheel, track = wf.Wheel(), wf.Track.comparison()
+    config = dataclasses.replace(wf.SimConfig(), contact_element=2.5e-3,
+                                 contact_mode_3d="direct")
+    flat = wf.Flat.rounded(0.9e-3, 0.1)
+    law = direct3d.prepare_direct(flat, wheel, track, wf.Material(), config, tmp_path)
+    assert max(w[0] * w[1] for w in law.window_sizes) < law.layout.nx * law.layout.ny
+    whole = dataclasses.replace(
+        law, window_sizes=((law.layout.nx, law.layout.ny),),
+        window_index=jnp.zeros_like(law.window_index), window_x0=jnp.zeros_like(law.window_x0),
+        window_y0=jnp.zeros_like(law.window_y0))
+    layout = law.layout
+    for s, c in [(-0.06, 1e-4), (-0.02, 3e-4), (0.0, 2e-4), (0.03, 2 * layout.c_max)]:
+        delta = float(laws.tables.table_onset(law.table, s)) + c
+        p0 = jnp.zeros((layout.nx, layout.ny))
+        f_w = float(law._evaluate(s, delta, p0)[0])
+        gap = kalker.gap_3d(flat, s, layout.x, layout.y, layout.wheel_radius,
+                            layout.rail_head_radius)
+        ref = kalker.solve(gap, layout.element_size, layout.element_size, wf.Material(),
+                           approach=delta, tol=direct3d.KALKER_TOL, validate=False)
+        assert f_w == pytest.approx(float(ref.force), rel=1e-8), (s, c)
+    struct = it.structure(wheel, track, config)
+    runs = [np.asarray(it.run_scan(lw, struct, 80 / 3.6, 1e-4, 0.0, 0.12, 150,
+                                   config.newton_iterations)["force"]) for lw in (law, whole)]
+    assert runs[0].max() > 1.3 * 118e3  # through the impact
+    np.testing.assert_allclose(runs[0], runs[1], rtol=0, atol=1e-8 * runs[1].max())

@@ -10,6 +10,12 @@ solver's contact stiffness. Outside that reach the flat cannot touch the grid an
 is the smooth wheel's, which the table holds exactly (its outer columns are direct solves on
 the same grid), so the table is used there.
 
+Each solve runs on the window of the table's build plan (:func:`wfjax.contact.tables.
+window_plan`) for the nearest column and the next tabulated compression at or above the
+iterate's: the window contains the rigid overlap, so the solve is the whole-grid problem. When
+the overlap reaches the window's edge (a compression beyond the table's range) the solve falls
+back to the whole grid.
+
 Not differentiated (a reference); forward results only.
 """
 
@@ -19,6 +25,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..params import Flat, Material, SimConfig, Track, Wheel, _pytree
 from . import kalker, tables
@@ -30,38 +37,75 @@ __all__ = ["Direct3DLaw", "prepare_direct"]
 KALKER_TOL = 1e-10  # relative CG tolerance of the per-step solves
 
 
-@_pytree(static=("layout",))
+@_pytree(static=("layout", "window_sizes"))
 class Direct3DLaw(TableLaw):
     """A Kalker solve per Newton iterate near the flat; the exact table elsewhere.
 
     Attributes:
         table: the flat's :class:`wfjax.contact.tables.ContactTable` (far field, start).
         flat: the flat (concrete: it fixes the grid). material: wheel and rail material.
+        window_index, window_x0, window_y0: [n_s, n_t] the window (size index, first grid
+            indices) of every column and tabulated compression (node 0: node 1's).
         layout (static): the table's :class:`wfjax.contact.tables.TableSpec` (grid, reach).
+        window_sizes (static): the windows' sizes (wx, wy) [elements].
     """
 
     table: Any
     flat: Flat
     material: Material
+    window_index: Any
+    window_x0: Any
+    window_y0: Any
     layout: tables.TableSpec
+    window_sizes: tuple
 
     def init_state(self):
         return jnp.zeros((self.layout.nx, self.layout.ny))
 
+    def _evaluate(self, s, delta, pressure):
+        """Force [N], stiffness [N/m] and the whole-grid pressure of one solve at (delta, s)."""
+        layout = self.layout
+        h = layout.element_size
+        x_all, y_all = jnp.asarray(layout.x), jnp.asarray(layout.y)
+        n_s, n_t = self.window_index.shape
+        j = jnp.clip(jnp.round((s + layout.s_max) / (2 * layout.s_max) * (n_s - 1)), 0,
+                     n_s - 1).astype(jnp.int32)
+        c = delta - tables.table_onset(self.table, s)
+        k = jnp.clip(jnp.ceil(jnp.sqrt(jnp.maximum(c, 0.0) / layout.c_max) * (n_t - 1)), 1,
+                     n_t - 1).astype(jnp.int32)
+
+        def solve_on(nx, ny, i0, j0):
+            x = jax.lax.dynamic_slice(x_all, (i0,), (nx,))
+            y = jax.lax.dynamic_slice(y_all, (j0,), (ny,))
+            gap = kalker.gap_3d(self.flat, s, x, y, layout.wheel_radius, layout.rail_head_radius)
+            cfg = kalker._Config(nx, ny, h, h, "fft", KALKER_TOL, 1000)
+            p0 = jax.lax.dynamic_slice(pressure, (i0, j0), (nx, ny))
+            res, _ = kalker._solve_impl(cfg, gap, self.material, delta, None, p0, 50, True,
+                                        False)
+            # The window holds the contact unless the overlap {gap < delta} reaches its edge.
+            edge = jnp.minimum(jnp.minimum(gap[0].min(), gap[-1].min()),
+                               jnp.minimum(gap[:, 0].min(), gap[:, -1].min()))
+            full = jax.lax.dynamic_update_slice(jnp.zeros_like(pressure), res.pressure,
+                                                (i0, j0))
+            return res.force, res.stiffness, full, (edge > delta) | (nx == layout.nx) & (
+                ny == layout.ny)
+
+        branches = [lambda i0, j0, size=size: solve_on(*size, i0, j0)
+                    for size in self.window_sizes]
+        force, stiff, full, inside = jax.lax.switch(
+            self.window_index[j, k], branches, self.window_x0[j, k], self.window_y0[j, k])
+
+        def whole_grid(_):
+            return solve_on(layout.nx, layout.ny, 0, 0)[:3]
+
+        return jax.lax.cond(inside, lambda _: (force, stiff, full), whole_grid, None)
+
     def step(self, delta_free, compliance, s, state, max_iter: int = 30):
         layout = self.layout
-        x, y = jnp.asarray(layout.x), jnp.asarray(layout.y)
-        h = layout.element_size
-        cfg = kalker._Config(layout.nx, layout.ny, h, h, "fft", KALKER_TOL, 1000)
 
         def near(delta_free, compliance, s, pressure):
-            gap = kalker.gap_3d(self.flat, s, x, y, layout.wheel_radius,
-                                layout.rail_head_radius)
-
             def evaluate(delta, p):
-                res, _ = kalker._solve_impl(cfg, gap, self.material, delta, None, p, 50, True,
-                                            False)
-                return res.force, res.stiffness, res.pressure
+                return self._evaluate(s, delta, p)
 
             delta, r, pressure = bracketed_newton(evaluate, delta_free, compliance, pressure,
                                                   max_iter, 1e-14)
@@ -84,4 +128,10 @@ def prepare_direct(flat: Flat, wheel: Wheel, track: Track, material: Material,
                                element_size=config.contact_element)
     table = cached_table_3d(flat, radius, rail_radius, material, config.contact_element,
                             cache_dir)
-    return Direct3DLaw(table, flat, material, layout)
+    plan = tables.window_plan(layout, flat, layout.s)
+
+    def per_node(a):  # [n_s, n_t - 1] -> [n_t]: node 0 (F = 0) takes node 1's window
+        return jnp.asarray(np.concatenate([a[:, :1], a], axis=1))
+
+    return Direct3DLaw(table, flat, material, per_node(plan.size_index), per_node(plan.x0),
+                       per_node(plan.y0), layout, plan.sizes)
