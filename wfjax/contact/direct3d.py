@@ -35,6 +35,7 @@ from .newton import bracketed_newton
 __all__ = ["Direct3DLaw", "prepare_direct"]
 
 KALKER_TOL = 1e-10  # relative CG tolerance of the per-step solves
+DIRECT_WINDOW_SIZES = 2  # static window sizes of the per-step solves (plus the whole grid)
 
 
 @_pytree(static=("layout", "window_sizes"))
@@ -128,7 +129,9 @@ def prepare_direct(flat: Flat, wheel: Wheel, track: Track, material: Material,
                                element_size=config.contact_element)
     table = cached_table_3d(flat, radius, rail_radius, material, config.contact_element,
                             cache_dir)
-    plan = tables.window_plan(layout, flat, layout.s)
+    # Two window sizes: every size is one more compiled Kalker solver inside the Newton loop
+    # (about 3-4 s of compilation each here), and a direct run is usually a single run.
+    plan = tables.window_plan(layout, flat, layout.s, max_sizes=DIRECT_WINDOW_SIZES)
 
     def per_node(a):  # [n_s, n_t - 1] -> [n_t]: node 0 (F = 0) takes node 1's window
         return jnp.asarray(np.concatenate([a[:, :1], a], axis=1))
