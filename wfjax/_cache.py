@@ -99,6 +99,15 @@ def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
         raise
 
 
+def store(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write ``arrays`` to the cache file ``path`` (:func:`cache_path`) atomically; a cache
+    directory that cannot be written is skipped silently (the caller keeps its arrays)."""
+    try:
+        _write(path, {k: np.asarray(v) for k, v in arrays.items()})
+    except OSError:
+        pass
+
+
 def load_or_build(name: str, key: dict, build: Callable[[], dict[str, np.ndarray]],
                   cache_dir: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
     """Load the arrays cached under ``name``/``key``, or build, store and return them.
@@ -118,8 +127,5 @@ def load_or_build(name: str, key: dict, build: Callable[[], dict[str, np.ndarray
     if cached is not None:
         return cached
     arrays = {k: np.asarray(v) for k, v in build().items()}
-    try:
-        _write(path, arrays)
-    except OSError:
-        pass
+    store(path, arrays)
     return arrays

@@ -93,7 +93,7 @@ raises ``ValueError`` for concrete geometries outside the lattice.
 
 Build and cache: each node table is built by ``lax.map`` over its columns (s >= 0, mirrored)
 and a warm-started ``lax.scan`` over the compression (the per-flat builder's column routine),
-and cached on disk by itself through :func:`wfjax._cache.load_or_build` (atomic, verified), so
+and cached on disk by itself (:mod:`wfjax._cache`: atomic, verified), so
 families over overlapping ranges share node tables. Nodes are built concurrently, one thread
 per CPU core (deepest first).
 """
@@ -452,64 +452,92 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                       onset=onset, s_map=s_map, centre_band=float(b0), edge_band=float(b1))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 3, 4))
-def _node_build_jit(tspec: tables.TableSpec, flat: Flat, material: Material, tol: float,
-                    sizes: tuple, plan_arrays):
-    s = np.linspace(0.0, tspec.s_max, tspec.n_s)
-    onset, force, slope, ok = tables.build_columns(
-        tspec, flat, material, s, tol, plan=tables.WindowPlan(sizes, *plan_arrays))
-    return onset, force, slope, jnp.all(ok)
+FAMILY_WINDOW_SIZES = 6  # window sizes of a family build: one compilation serves every node
 
 
-def _node_build(tspec: tables.TableSpec, flat: Flat, material: Material, tol: float):
-    """Columns s_j = j ds, j < n_s, of one node (ds = s_max / (n_s - 1)), every solve on the
-    window around its rigid overlap (:func:`wfjax.contact.tables.window_plan`)."""
-    plan = tables.window_plan(tspec, flat, np.linspace(0.0, tspec.s_max, tspec.n_s))
-    return _node_build_jit(tspec, flat, material, tol, plan.sizes,
-                           (plan.size_index, plan.x0, plan.y0))
-
-
-def _build_node(spec: FamilySpec, idx: int, material: Material, tol: float, cache_dir,
-                progress: bool) -> dict[str, np.ndarray]:
-    from .._cache import load_or_build
-
+def _node_geometry(spec: FamilySpec, idx: int):
+    """(depth [m], l / l0, flat, s [n_cols] m) of node ``idx``: columns s_j = j step h >= 0
+    (mirrored by build_family)."""
     n_l = len(spec.length_index)
     k, j = spec.depth_index[idx // n_l], spec.length_index[idx % n_l]
     depth, lam = lattice_depth(k), lattice_length_factor(j)
-    nx, ny = spec.grids[idx]
-    n_cols, step = spec.node_columns[idx], spec.node_steps[idx]
     flat = _node_flat(spec.kind, depth, lam, spec.wheel_radius)
-    # Columns s_j = j step h, j < n_cols (s >= 0; mirrored by build_family).
-    tspec = tables.TableSpec(nx=nx, ny=ny, element_size=spec.element_size,
-                             s_max=(n_cols - 1) * step * spec.element_size, n_s=n_cols,
-                             c_max=spec.c_max, n_t=spec.n_t, symmetric=True,
-                             wheel_radius=spec.wheel_radius,
-                             rail_head_radius=spec.rail_head_radius)
-    key = {"kind": spec.kind, "depth": depth, "length_factor": lam if spec.kind == "rounded"
-           else None, "wheel_radius": spec.wheel_radius,
-           "rail_head_radius": spec.rail_head_radius, "element_size": spec.element_size,
-           "c_max": spec.c_max, "n_t": spec.n_t, "step": step, "n_cols": n_cols,
-           "nx": nx, "ny": ny, "youngs_modulus": float(material.youngs_modulus),
-           "poisson_ratio": float(material.poisson_ratio), "tol": tol,
-           "builder_revision": NODE_BUILDER_REVISION}
-    built = []
+    s = np.arange(spec.node_columns[idx]) * spec.node_steps[idx] * spec.element_size
+    return depth, lam, flat, s
 
-    def build():
-        built.append(True)
-        onset, force, slope, ok = _node_build(tspec, flat, material, tol)
-        return {"onset": np.asarray(onset) / depth, "force": np.asarray(force),
-                "slope": np.asarray(slope), "converged": np.asarray(ok, dtype=float)}
 
-    t0 = time.perf_counter()
-    arrays = load_or_build("family-node", key, build, cache_dir)
-    if progress and built:  # cached nodes load in milliseconds: no line for them
-        what = "built"
-        geo = f"depth {depth * 1e3:.4g} mm" + (f", l/l0 {lam:.4g}" if spec.kind == "rounded"
-                                               else "")
-        print(f"contact family ({spec.kind}) node {idx + 1}/{len(spec.grids)}: {geo}, "
-              f"grid {nx}x{ny}, {n_cols} columns: {what} in {time.perf_counter() - t0:.1f} s",
-              file=sys.stderr, flush=True)
-    return arrays
+def _node_key(spec: FamilySpec, idx: int, material: Material, tol: float) -> dict:
+    depth, lam, _, _ = _node_geometry(spec, idx)
+    nx, ny = spec.grids[idx]
+    return {"kind": spec.kind, "depth": depth,
+            "length_factor": lam if spec.kind == "rounded" else None,
+            "wheel_radius": spec.wheel_radius, "rail_head_radius": spec.rail_head_radius,
+            "element_size": spec.element_size, "c_max": spec.c_max, "n_t": spec.n_t,
+            "step": spec.node_steps[idx], "n_cols": spec.node_columns[idx], "nx": nx, "ny": ny,
+            "youngs_modulus": float(material.youngs_modulus),
+            "poisson_ratio": float(material.poisson_ratio), "tol": tol,
+            "builder_revision": NODE_BUILDER_REVISION}
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3, 4))
+def _node_build_jit(tspec: tables.TableSpec, flat: Flat, material: Material, tol: float,
+                    sizes: tuple, s, plan_arrays, active):
+    onset, force, slope, ok = tables.build_columns(
+        tspec, flat, material, s, tol, plan=tables.WindowPlan(sizes, *plan_arrays),
+        active=active)
+    return onset, force, slope, jnp.all(ok | ~active)
+
+
+class _SharedBuilder:
+    """One compiled program for every node of a family that is built (not loaded).
+
+    The nodes share a grid (the largest node grid: it holds every node's overlaps, and with
+    windows its size costs nothing), a column count (shorter nodes pad with skipped columns)
+    and the window sizes (merged over all their solves), so the program compiles once
+    instead of once per node (each compilation ~1 s per window size on the 2-core CPU).
+    """
+
+    def __init__(self, spec: FamilySpec, indices, material: Material, tol: float):
+        self.geometry = {i: _node_geometry(spec, i) for i in indices}
+        self.n = max(len(g[3]) for g in self.geometry.values())
+        self.tspec = tables.TableSpec(
+            nx=max(spec.grids[i][0] for i in indices), ny=max(spec.grids[i][1] for i in indices),
+            element_size=spec.element_size, s_max=(self.n - 1) * spec.element_size,
+            n_s=self.n, c_max=spec.c_max, n_t=spec.n_t, symmetric=True,
+            wheel_radius=spec.wheel_radius, rail_head_radius=spec.rail_head_radius)
+        self.boxes = {i: tables.overlap_boxes(self.tspec, g[2], g[3])
+                      for i, g in self.geometry.items()}
+        self.sizes = tuple(tables._merge_sizes(tables.needed_sizes(list(self.boxes.values())),
+                                               FAMILY_WINDOW_SIZES,
+                                               tables.COST_PER_WINDOW_SIZE))
+        self.material, self.tol = material, tol
+        first = self._inputs(indices[0])
+        self.compiled = _node_build_jit.lower(self.tspec, first[0], material, tol, self.sizes,
+                                              *first[1:]).compile()
+
+    def _inputs(self, idx: int):
+        _, _, flat, s = self.geometry[idx]
+        plan = tables.assign_windows(self.tspec, self.boxes[idx], self.sizes)
+        pad = self.n - len(s)
+
+        def padded(a):
+            return np.concatenate([a, np.repeat(a[-1:], pad, axis=0)], axis=0)
+
+        return (flat, padded(s), (padded(plan.size_index), padded(plan.x0), padded(plan.y0)),
+                np.arange(self.n) < len(s))
+
+    def __call__(self, idx: int):
+        flat, s, plan_arrays, active = self._inputs(idx)
+        onset, force, slope, ok = self.compiled(flat, self.material, s, plan_arrays, active)
+        m = len(self.geometry[idx][3])
+        return np.asarray(onset)[:m], np.asarray(force)[:m], np.asarray(slope)[:m], bool(ok)
+
+
+def _node_build(builder: _SharedBuilder, idx: int) -> dict[str, np.ndarray]:
+    """The arrays of node ``idx`` as cached: onset / depth, force, slope, converged."""
+    onset, force, slope, ok = builder(idx)
+    return {"onset": onset / builder.geometry[idx][0], "force": force, "slope": slope,
+            "converged": np.asarray(ok, dtype=float)}
 
 
 def _mirror_padded(v: np.ndarray, pad: int) -> np.ndarray:
@@ -541,15 +569,40 @@ def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache
     force = np.zeros((n_d, n_l, n_s, n_t))
     slope = np.zeros((n_d, n_l, n_s, n_t))
     ok = True
-    # Node builds are independent, and one XLA CPU computation keeps about one core busy: run
-    # one per core (threads release the GIL inside XLA), the most expensive (deepest) first.
-    order = sorted(range(n_d * n_l), key=lambda idx: -spec.grids[idx][0] * spec.grids[idx][1]
-                   * spec.node_columns[idx])
-    workers = max(1, min(len(order), os.cpu_count() or 1))
-    with concurrent.futures.ThreadPoolExecutor(workers) as pool:
-        built = dict(zip(order, pool.map(
-            lambda idx: _build_node(spec, idx, material, float(tol), cache_dir, progress),
-            order), strict=True))
+    from .. import _cache
+
+    paths = {idx: _cache.cache_path("family-node", _node_key(spec, idx, material, float(tol)),
+                                    cache_dir) for idx in range(n_d * n_l)}
+    built = {idx: _cache._read(path) for idx, path in paths.items()}
+    missing = [idx for idx, arrays in built.items() if arrays is None]
+    if missing:
+        # Node builds are independent, and one XLA CPU computation keeps about one core busy:
+        # one thread per core (XLA releases the GIL), the most expensive (deepest) first.
+        missing.sort(key=lambda idx: -spec.grids[idx][0] * spec.grids[idx][1]
+                     * spec.node_columns[idx])
+        t0 = time.perf_counter()
+        builder = _SharedBuilder(spec, missing, material, float(tol))
+        if progress:
+            print(f"contact family ({spec.kind}): {len(missing)} of {n_d * n_l} nodes to "
+                  f"build, window sizes {builder.sizes}, compiled in "
+                  f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+
+        def build(idx):
+            t1 = time.perf_counter()
+            arrays = _node_build(builder, idx)
+            _cache.store(paths[idx], arrays)
+            if progress:
+                depth, lam, _, s = builder.geometry[idx]
+                geo = f"depth {depth * 1e3:.4g} mm" + (
+                    f", l/l0 {lam:.4g}" if spec.kind == "rounded" else "")
+                print(f"contact family ({spec.kind}) node {idx + 1}/{n_d * n_l}: {geo}, "
+                      f"{len(s)} columns: built in {time.perf_counter() - t1:.1f} s",
+                      file=sys.stderr, flush=True)
+            return arrays
+
+        workers = max(1, min(len(missing), os.cpu_count() or 1))
+        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+            built.update(zip(missing, pool.map(build, missing), strict=True))
     for idx in range(n_d * n_l):
         a = built[idx]
         n_cols = a["onset"].shape[0]

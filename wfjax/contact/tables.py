@@ -341,6 +341,27 @@ def window_plan(spec: TableSpec, flat: Flat, s_values, margin: int = WINDOW_MARG
     Returns:
         :class:`WindowPlan` for the n columns x (n_t - 1) compressions.
     """
+    boxes = overlap_boxes(spec, flat, s_values, margin)
+    sizes = _merge_sizes(needed_sizes([boxes]), max_sizes, cost_per_size)
+    return assign_windows(spec, boxes, sizes)
+
+
+class OverlapBoxes(NamedTuple):
+    """Bounding boxes of the solves' rigid overlaps on a table grid, [n_columns, n_t - 1]
+    each: first/last grid index along x (xa, xb) and y (ya, yb), margin included, and the
+    box's size rounded up to the largest window of its FFT length (wx, wy)."""
+
+    xa: np.ndarray
+    xb: np.ndarray
+    ya: np.ndarray
+    yb: np.ndarray
+    wx: np.ndarray
+    wy: np.ndarray
+
+
+def overlap_boxes(spec: TableSpec, flat: Flat, s_values,
+                  margin: int = WINDOW_MARGIN) -> OverlapBoxes:
+    """The :class:`OverlapBoxes` of ``flat`` (concrete) at columns ``s_values`` [n] [m]."""
     rel = _relative_gaps(spec, flat, np.asarray(s_values, dtype=float))
     cs = _compressions(spec)
     boxes = []
@@ -353,18 +374,28 @@ def window_plan(spec: TableSpec, flat: Flat, s_values, margin: int = WINDOW_MARG
         ladder = np.asarray(_size_ladder(n))
         boxes.append((lo, hi, ladder[np.searchsorted(ladder, hi - lo + 1)]))
     (xa, xb, wx), (ya, yb, wy) = boxes
-    sizes, counts = np.unique(np.stack([wx, wy], -1).reshape(-1, 2), axis=0, return_counts=True)
-    sizes = _merge_sizes({(int(a), int(b)): int(c) for (a, b), c in zip(sizes, counts)},
-                         max_sizes, cost_per_size)
+    return OverlapBoxes(xa, xb, ya, yb, wx, wy)
+
+
+def needed_sizes(boxes: list[OverlapBoxes]) -> dict[tuple[int, int], int]:
+    """Window size (wx, wy) -> number of solves that need it, over several builds."""
+    w = np.concatenate([np.stack([b.wx, b.wy], -1).reshape(-1, 2) for b in boxes])
+    sizes, counts = np.unique(w, axis=0, return_counts=True)
+    return {(int(a), int(b)): int(c) for (a, b), c in zip(sizes, counts, strict=True)}
+
+
+def assign_windows(spec: TableSpec, boxes: OverlapBoxes, sizes) -> WindowPlan:
+    """Each solve's cheapest window of ``sizes`` that holds its box, centred on the box and
+    clipped to the grid of ``spec``."""
     w = np.asarray(sizes)
     cost = _solve_cost(w[:, 0], w[:, 1])
-    fits = (w[None, None, :, 0] >= (xb - xa + 1)[..., None]) & \
-        (w[None, None, :, 1] >= (yb - ya + 1)[..., None])
+    fits = (w[None, None, :, 0] >= (boxes.xb - boxes.xa + 1)[..., None]) & \
+        (w[None, None, :, 1] >= (boxes.yb - boxes.ya + 1)[..., None])
     size_index = np.argmin(np.where(fits, cost, np.inf), axis=-1).astype(np.int32)
     sx, sy = w[size_index, 0], w[size_index, 1]
-    x0 = np.clip((xa + xb + 1) // 2 - sx // 2, 0, spec.nx - sx).astype(np.int32)
-    y0 = np.clip((ya + yb + 1) // 2 - sy // 2, 0, spec.ny - sy).astype(np.int32)
-    return WindowPlan(tuple(sizes), size_index, x0, y0)
+    x0 = np.clip((boxes.xa + boxes.xb + 1) // 2 - sx // 2, 0, spec.nx - sx).astype(np.int32)
+    y0 = np.clip((boxes.ya + boxes.yb + 1) // 2 - sy // 2, 0, spec.ny - sy).astype(np.int32)
+    return WindowPlan(tuple((int(a), int(b)) for a, b in w), size_index, x0, y0)
 
 
 def _windowed_column(spec: TableSpec, sizes, flat: Flat, material: Material, s, tol: float,
@@ -408,12 +439,13 @@ def _windowed_column(spec: TableSpec, sizes, flat: Flat, material: Material, s, 
 
 
 def build_columns(spec: TableSpec, flat: Flat, material: Material, s_values, tol: float,
-                  batch_size: int = 1, plan: WindowPlan | None = None):
+                  batch_size: int = 1, plan: WindowPlan | None = None, active=None):
     """Solve the columns of a table at flat positions ``s_values`` [n] [m] (traceable).
 
     With a ``plan`` every solve runs on its window (sequential over the columns; several
     times faster); without one on the whole grid (``batch_size`` > 1 then vmaps chunks of
-    columns, for wide devices).
+    columns, for wide devices). ``active`` [n] bool (with a plan): columns left False are
+    skipped and return zeros (padding, so builds of different lengths share one program).
 
     Returns:
         (onset [n] [m], force [n, n_t] [N], slope [n, n_t] [N], converged [n]) as in
@@ -427,8 +459,17 @@ def build_columns(spec: TableSpec, flat: Flat, material: Material, s_values, tol
     def one(args):
         return _windowed_column(spec, plan.sizes, flat, material, args[0], tol, *args[1:])
 
-    return jax.lax.map(one, (s_values, jnp.asarray(plan.size_index), jnp.asarray(plan.x0),
-                             jnp.asarray(plan.y0)))
+    columns = (s_values, jnp.asarray(plan.size_index), jnp.asarray(plan.x0),
+               jnp.asarray(plan.y0))
+    if active is None:
+        return jax.lax.map(one, columns)
+    shapes = jax.eval_shape(one, jax.tree.map(lambda a: a[0], columns))
+
+    def skip(_):
+        return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+
+    return jax.lax.map(lambda args: jax.lax.cond(args[0], lambda c: one(c), skip, args[1]),
+                       (jnp.asarray(active), columns))
 
 
 def _solve_positions(spec: TableSpec) -> np.ndarray:
