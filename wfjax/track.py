@@ -295,6 +295,9 @@ class ModalModel(NamedTuple):
         sleeper_spacing: L_S [m].
         element_phi: Timoshenko shear parameter 12 EI/(kGA Le^2) of the rail elements (needed
             by the shape functions in :func:`mode_shapes_at`).
+        sleeper_shapes: complex [n_modes, n_bays - 1] the same modes' sleeper displacements
+            (interior sleepers, left to right; sleeper ``i`` sits at ``(i + 1 - n_bays // 2)
+            L_S``), read by the sensors (:mod:`wfjax.sensors`).
     """
 
     poles: jax.Array
@@ -305,6 +308,7 @@ class ModalModel(NamedTuple):
     residual: jax.Array
     sleeper_spacing: float
     element_phi: float = 0.0
+    sleeper_shapes: jax.Array | None = None
 
 
 def mode_shapes_at(model: ModalModel, x) -> jax.Array:
@@ -416,6 +420,7 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     n_nodes = fe.node_x.size
     shapes = np.zeros((poles.size, n_nodes, 2), dtype=complex)
     shapes[:, 1:-1, :] = u[: fe.n_rail_dof].T.reshape(poles.size, n_nodes - 2, 2)
+    sleeper_shapes = u[fe.n_rail_dof:].T  # [n_modes, n_sleepers]
 
     # static correction of the truncated modes across the central bay
     ls = float(track.sleeper_spacing)
@@ -428,7 +433,7 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     residual = full - kept
     return {"poles": poles, "weights": weights, "node_x": fe.node_x, "shapes": shapes,
             "residual_x": res_x, "residual": residual, "sleeper_spacing": np.array(ls),
-            "element_phi": np.array(fe.phi)}
+            "element_phi": np.array(fe.phi), "sleeper_shapes": sleeper_shapes}
 
 
 def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
@@ -462,7 +467,7 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
 
     if use_cache:
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
-               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 1}
+               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 2}
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
     else:
         arrays = build()
@@ -470,7 +475,8 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
         jnp.asarray(arrays["poles"]), jnp.asarray(arrays["weights"]),
         jnp.asarray(arrays["node_x"]), jnp.asarray(arrays["shapes"]),
         jnp.asarray(arrays["residual_x"]), jnp.asarray(arrays["residual"]),
-        float(arrays["sleeper_spacing"]), float(arrays["element_phi"]))
+        float(arrays["sleeper_spacing"]), float(arrays["element_phi"]),
+        jnp.asarray(arrays["sleeper_shapes"]))
 
 
 # --------------------------------------------------------------------------------------------
