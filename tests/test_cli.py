@@ -195,3 +195,21 @@ def test_non_finite_result_writes_nothing(tmp_path, capsys, monkeypatch):
     assert main(["sweep", *TINY, "--flat", "new", "--out", str(out)]) == 1
     assert "non-finite max_force" in _one_line_error(capsys)
     assert not list(out.iterdir())
+
+
+def test_detector_command_writes_files_and_rejects_bad_sensors(tmp_path, capsys):
+    """``wfjax detector``: CSV/JSON/PNG; the case keys round-trip; bad sensors fail first."""
+    out = tmp_path / "det"
+    assert main(["detector", "--contact", "hertz-trajectory", "--speeds-kmh", "60",
+                 "--positions", "1", "--sensors-m", "0,0.325", "--bays", "2",
+                 "--out", str(out)]) == 0
+    rows = list(csv.DictReader((out / "detector.csv").open()))
+    assert [r["bay"] for r in rows] == ["-1", "0"]
+    assert float(rows[1]["detector_peak_kN"]) > 118.0
+    summary = json.loads((out / "detector.json").read_text())
+    assert summary["case"]["detector"]["n_bays"] == 2
+    assert len((out / "sensors.csv").read_text().splitlines()) == 3
+    assert (out / "detector.png").stat().st_size > 0
+    capsys.readouterr()
+    assert main(["detector", "--sensors-m", "25", "--out", str(tmp_path / "x")]) == 2
+    assert "allowed range" in _one_line_error(capsys)

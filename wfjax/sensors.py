@@ -77,7 +77,7 @@ def check_positions(positions, track: Track, name: str = "sensor position") -> n
                          f"{positions!r}")
     for xi in x:
         if not math.isfinite(xi) or abs(xi) > half:
-            raise ValueError(f"{name} {xi!r} m is outside the allowed range [-{half:g}, "
+            raise ValueError(f"{name} {float(xi):g} m is outside the allowed range [-{half:g}, "
                              f"{half:g}] m ({END_BAYS} bays clear of the clamped ends of the "
                              f"{track.n_bays}-bay track)")
     return x
