@@ -108,7 +108,7 @@ def test_transfer_receptance_matches_direct_solve(model_20k, quantity):
         a = row * phi
         h.append(np.where(pair, 0.5 * (a / (s - lam) + np.conj(a) / (s - np.conj(lam))),
                           a / (s - lam)).sum(axis=1))
-    h = np.stack(h, 1) + np.asarray(S._interp_nodal(model, spec.direct, x_force))
+    h = np.stack(h, 1) + np.asarray(T.interpolate_nodal(model, spec.direct, x_force))
     fe = T.assemble(tr)
     b = T._load_vector(fe, x_force).toarray()[:, 0]
     if quantity == "rail_disp":
@@ -203,6 +203,24 @@ def test_sweep_sensors_equal_simulate():
     np.testing.assert_allclose(r.detector_peak[0, 0, 0], s.detector_peak, rtol=1e-9)
     assert s.detector_peak[0] > 1.2 * P  # the impact bay reads the impact
     assert "sensor_m" in r.sensors_to_csv().splitlines()[0]
+    # a subset of the quantities: the same values
+    sub = wfjax.sweep(flat, [25.0], [0.2], contact="hertz-trajectory", sensors=xs,
+                      detector=det, sensor_quantities=("seat_force", "shear"), progress=False)
+    assert sub.sensor_quantities == ("seat_force", "shear")
+    np.testing.assert_allclose(sub.sensor_max[0, 0, 0, 0], s.sensor_max["seat_force"],
+                               rtol=1e-9)
+
+
+def test_sweep_result_with_sensors_round_trips_npz(tmp_path):
+    flat = wfjax.Flat.rounded(0.9e-3, 0.1)
+    r = wfjax.sweep(flat, [30.0], [0.3], contact="hertz-trajectory", sensors=[0.0],
+                    sensor_quantities=("shear",), detector=S.Detector(n_bays=1, first_bay=0),
+                    progress=False)
+    r.save_npz(tmp_path / "r.npz")
+    back = wfjax.SweepResult.load_npz(tmp_path / "r.npz")
+    assert back.sensor_quantities == ("shear",)
+    np.testing.assert_array_equal(back.detector_peak, r.detector_peak)
+    np.testing.assert_array_equal(back.sensor_max, r.sensor_max)
 
 
 @pytest.mark.parametrize("bad", [[30.0], [-19.6], [np.nan], []])

@@ -178,13 +178,7 @@ def _rail_terms(model, node_major, x):
     Same interpolation as :func:`wfjax.track.mode_shapes_at` (tested equal), on node-major
     shapes so the per-step gather reads contiguous memory.
     """
-    node_x = model.node_x
-    le = node_x[1] - node_x[0]
-    xc = jnp.clip(x, node_x[0], node_x[-1])
-    e = jnp.clip(jnp.floor((xc - node_x[0]) / le).astype(jnp.int32), 0, node_x.shape[0] - 2)
-    n1, n2, n3, n4 = track_mod.shape_functions((xc - node_x[e]) / le, model.element_phi, le)
-    a, b = node_major[e], node_major[e + 1]
-    phi = n1 * a[0] + n2 * a[1] + n3 * b[0] + n4 * b[1]
+    phi = track_mod.interpolate_nodal(model, node_major, x)
     return phi, track_mod.residual_compliance_at(model, x)
 
 
@@ -304,7 +298,8 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
              wheel: Wheel | None = None, track: Track | None = None,
              material: Material | None = None, config: SimConfig | None = None,
              angle0: float | None = None, cache_dir=None,
-             n_steps: int | None = None, sensors=None, detector=None) -> SimResult:
+             n_steps: int | None = None, sensors=None, detector=None,
+             sensor_quantities=sensor_mod.QUANTITIES) -> SimResult:
     """Simulate a wheel with ``flat`` rolling at ``speed`` over the discretely supported track.
 
     Args:
@@ -324,6 +319,8 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
         sensors: [n_s] fixed rail positions [m] (x = 0 at the middle sleeper; within
             :func:`wfjax.sensors.allowed_range`): every quantity of
             :data:`wfjax.sensors.QUANTITIES` at each, as time histories.
+        sensor_quantities: the subset of :data:`wfjax.sensors.QUANTITIES` to compute (each
+            costs one modal dot product per sensor and step).
         detector: a :class:`wfjax.sensors.Detector`: its per-bay load estimate and peaks.
             The run's window is lengthened (``run_in``/``run_out``) so that the wheel
             crosses every instrumented bay.
@@ -363,13 +360,14 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
     law = prepare(contact, flat, wheel, track, material, config, cache_dir)
     run_in_steps = int(0.5 * RUN_IN_TIME / dt)
     sensor_spec = (None if sensors is None
-                   else sensor_mod.sensor_spec(sensors, track, struct.track))
+                   else sensor_mod.sensor_spec(sensors, track, struct.track, sensor_quantities))
     det_spec = (None if detector is None
                 else sensor_mod.detector_spec(detector, track, struct.track))
     hist = run_scan(law, struct, v, dt, x_imp + s_start, x_imp, int(n_steps),
                     config.newton_iterations, sensors=sensor_spec, detector=det_spec,
                     run_in_steps=run_in_steps)
-    return summarise(hist, v, x_imp, dt, run_in_steps, sensor_mod.QUANTITIES, struct.preload)
+    quantities = () if sensor_spec is None else sensor_spec.quantities
+    return summarise(hist, v, x_imp, dt, run_in_steps, quantities, struct.preload)
 
 
 def detector_config(detector, track: Track, config: SimConfig) -> SimConfig:

@@ -204,17 +204,6 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
                       quantities)
 
 
-def _interp_nodal(model, nodal, x):
-    """Nodal fields [n_nodes, 2, k] interpolated at rail position ``x`` [m] -> [k]."""
-    node_x = model.node_x
-    le = node_x[1] - node_x[0]
-    xc = jnp.clip(x, node_x[0], node_x[-1])
-    e = jnp.clip(jnp.floor((xc - node_x[0]) / le).astype(jnp.int32), 0, node_x.shape[0] - 2)
-    n1, n2, n3, n4 = track_mod.shape_functions((xc - node_x[e]) / le, model.element_phi, le)
-    a, b = nodal[e], nodal[e + 1]
-    return n1 * a[0] + n2 * a[1] + n3 * b[0] + n4 * b[1]
-
-
 def evaluate(spec: SensorSpec, model, q, force, x) -> jax.Array:
     """Sensor readings [n_quantities, n_s] from the track's modal state (pure ``jnp``).
 
@@ -224,7 +213,7 @@ def evaluate(spec: SensorSpec, model, q, force, x) -> jax.Array:
         x: rail position of the contact [m].
     """
     y = spec.c_re @ jnp.real(q) - spec.c_im @ jnp.imag(q)
-    y = y + force * _interp_nodal(model, spec.direct, x)
+    y = y + force * track_mod.interpolate_nodal(model, spec.direct, x)
     n_s = spec.positions.shape[0]
     y = y.reshape(len(spec.quantities), n_s)
     if "shear" not in spec.quantities and "moment" not in spec.quantities:

@@ -39,7 +39,7 @@ from .contact.laws import CONTACT_MODELS, prepare, prepare_family, resolve_mode_
 from .interaction import batch_windows, detector_config, run_scan, structure
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import summarise
-from .sensors import detector_spec, sensor_spec
+from .sensors import QUANTITIES, detector_spec, sensor_spec
 
 __all__ = ["SweepResult", "sweep", "impact_positions_grid"]
 
@@ -60,7 +60,8 @@ class SweepResult(NamedTuple):
             the chord l0 of a new one, the support of a measured profile).
         sensor_positions: [n_s] sensor positions [m] (``sweep(sensors=...)``), or None.
         sensor_max, sensor_min: [n_flats, n_speeds, n_positions, n_quantities, n_s] extremes
-            after the run-in of :data:`wfjax.sensors.QUANTITIES` (SI units), or None.
+            after the run-in of ``sensor_quantities`` (SI units), or None.
+        sensor_quantities: names of the quantity axis (:data:`wfjax.sensors.QUANTITIES`).
         detector_bays: [n_bays] bay indices of the detector (``sweep(detector=...)``), or None.
         detector_peak: [n_flats, n_speeds, n_positions, n_bays] detector reading per bay [N].
         detector_ratio: the same divided by the static wheel load P.
@@ -83,6 +84,7 @@ class SweepResult(NamedTuple):
     detector_bays: Any = None
     detector_peak: Any = None
     detector_ratio: Any = None
+    sensor_quantities: tuple = ()
 
     def envelope(self) -> dict[str, np.ndarray]:
         """Max over positions of max_force, min over positions of min_force: [n_flats, n_speeds]."""
@@ -114,17 +116,15 @@ class SweepResult(NamedTuple):
 
     def sensors_to_csv(self) -> str:
         """One row per (flat, speed, position, sensor): max and min of every quantity (SI)."""
-        from .sensors import QUANTITIES
-
         if self.sensor_max is None:
             raise ValueError("this sweep has no sensors (sweep(..., sensors=[...]))")
         buf = io.StringIO()
         w = csv.writer(buf)
         w.writerow(["flat", "speed_kmh", "impact_position_mm", "sensor_m"]
-                   + [f"{q}_{e}" for q in QUANTITIES for e in ("max", "min")])
+                   + [f"{q}_{e}" for q in self.sensor_quantities for e in ("max", "min")])
         for (i, j, k), _ in np.ndenumerate(self.max_force):
             for m, x in enumerate(np.asarray(self.sensor_positions)):
-                vals = [f"{a[i, j, k, n, m]:.9g}" for n in range(len(QUANTITIES))
+                vals = [f"{a[i, j, k, n, m]:.9g}" for n in range(len(self.sensor_quantities))
                         for a in (self.sensor_max, self.sensor_min)]
                 w.writerow([self.flats[i], f"{self.speeds[j] * 3.6:.6g}",
                             f"{self.impact_positions[k] * 1e3:.6g}", f"{x:.6g}", *vals])
@@ -145,6 +145,8 @@ class SweepResult(NamedTuple):
         with np.load(path) as data:
             fields = {k: data[k] for k in cls._fields
                       if k not in ("flats", "contact") and k in data}
+            if "sensor_quantities" in fields:
+                fields["sensor_quantities"] = tuple(str(q) for q in fields["sensor_quantities"])
             return cls(flats=tuple(str(s) for s in data["flats"]),
                        contact=str(data["contact"]), **fields)
 
@@ -284,7 +286,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
           wheel: Wheel | None = None, track: Track | None = None,
           material: Material | None = None, config: SimConfig | None = None,
           chunk_size: int = 64, progress: bool = True, cache_dir=None, sensors=None,
-          detector=None) -> SweepResult:
+          detector=None, sensor_quantities=QUANTITIES) -> SweepResult:
     """Max/min contact force for every flat x speed x impact position.
 
     Args:
@@ -298,7 +300,8 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             is padded to a multiple of the device count and sharded across the devices.
         progress: print progress with ETA to stderr.
         sensors: [n_s] fixed rail positions [m] (as :func:`wfjax.simulate`): the max and min
-            of every :data:`wfjax.sensors.QUANTITIES` at each, per run.
+            of each of ``sensor_quantities`` (default every one of
+            :data:`wfjax.sensors.QUANTITIES`) at each, per run.
         detector: a :class:`wfjax.sensors.Detector`: its reading per bay, per run (the runs'
             windows are lengthened so that the wheel crosses every bay).
 
@@ -330,7 +333,8 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     mesh = _device_mesh()
     struct_host = structure(wheel, track, config, cache_dir)
     struct = _replicate(struct_host, mesh)
-    extras = _replicate(_sensor_extras(sensors, detector, track, struct_host.track), mesh)
+    extras = _replicate(_sensor_extras(sensors, sensor_quantities, detector, track,
+                                       struct_host.track), mesh)
     keys = ["max", "min", "lost", "lost_t", "res"] + [
         k for k, on in (("s_max", sensors is not None), ("s_min", sensors is not None),
                         ("det", detector is not None)) if on]
@@ -355,7 +359,8 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
                "detector_ratio": out["det"] / float(wheel.preload)}
     if sensors is not None:
         det |= {"sensor_positions": np.asarray(extras["sensors"].positions),
-                "sensor_max": out["s_max"], "sensor_min": out["s_min"]}
+                "sensor_max": out["s_max"], "sensor_min": out["s_min"],
+                "sensor_quantities": extras["sensors"].quantities}
     return SweepResult(
         speeds=v, impact_positions=pos, max_force=out["max"], min_force=out["min"],
         loss_of_contact=out["lost"].astype(bool), loss_of_contact_duration=out["lost_t"],
@@ -365,9 +370,10 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     )
 
 
-def _sensor_extras(sensors, detector, track: Track, model) -> dict:
+def _sensor_extras(sensors, quantities, detector, track: Track, model) -> dict:
     """The compiled program's sensor and detector specs (None where not asked for)."""
-    return {"sensors": None if sensors is None else sensor_spec(sensors, track, model),
+    return {"sensors": (None if sensors is None
+                        else sensor_spec(sensors, track, model, quantities)),
             "detector": None if detector is None else detector_spec(detector, track, model)}
 
 

@@ -51,6 +51,7 @@ __all__ = [
     "static_deflection",
     "modal_model",
     "mode_shapes_at",
+    "interpolate_nodal",
     "residual_compliance_at",
     "modal_receptance",
     "moving_greens",
@@ -333,6 +334,22 @@ def mode_shapes_at(model: ModalModel, x) -> jax.Array:
     t2 = jnp.moveaxis(s[:, e + 1, 1], 0, -1)
     return (n1[..., None] * w1 + n2[..., None] * t1 + n3[..., None] * w2
             + n4[..., None] * t2)
+
+
+def interpolate_nodal(model: ModalModel, nodal, x) -> jax.Array:
+    """Rail nodal fields ``nodal`` [n_nodes, 2, k] (w-like, theta-like) at position ``x`` [m]
+    (scalar) with the element's Timoshenko shape functions -> [k]; clamps to the rail ends.
+
+    The interpolation of :func:`mode_shapes_at` on node-major data (each call gathers two
+    contiguous rows). Pure ``jax.numpy``.
+    """
+    node_x = model.node_x
+    le = node_x[1] - node_x[0]
+    xc = jnp.clip(x, node_x[0], node_x[-1])
+    e = jnp.clip(jnp.floor((xc - node_x[0]) / le).astype(jnp.int32), 0, node_x.shape[0] - 2)
+    n1, n2, n3, n4 = shape_functions((xc - node_x[e]) / le, model.element_phi, le)
+    a, b = nodal[e], nodal[e + 1]
+    return n1 * a[0] + n2 * a[1] + n3 * b[0] + n4 * b[1]
 
 
 def residual_compliance_at(model: ModalModel, x) -> jax.Array:

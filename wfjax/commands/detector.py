@@ -27,7 +27,7 @@ from ._common import (
 from .geometry import add_flat_arguments
 from .sweep import FLAT_FLAGS, MODEL_FLAGS, add_model_arguments, add_profile_arguments
 
-HELP = "detector readings (crib shear, N bays) vs true peak contact force over speed (CSV, JSON, PNG)"
+HELP = "detector readings (crib shear over N bays) vs true peak contact force (CSV, JSON, PNG)"
 
 FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "speeds_kmh": ("run.speeds_kmh", 1.0),
          "positions": ("run.impact_positions", 1.0), "sensors_m": ("run.sensors", 1.0),
@@ -79,8 +79,8 @@ def run(args) -> int:
 
     case = resolve_case(args, "detector", FLAGS)
     set_precision(case["run.precision"])
-    from ..plotting import detector_figure
     from ..case import parse_number_list
+    from ..plotting import detector_figure
     from ..sensors import Detector, check_positions
     from ..sweeps import sweep
 
