@@ -6,7 +6,8 @@ Run: ``python benchmarks/bench_sensor_convergence.py``. Rounded 0.9 mm / 100 mm 
 0.65 m); sensors at 0.65 m (shear 5 cm past that sleeper and its seat force: sensor at
 0.7 m) and the 3-bay detector. Each history is compared with the finest run on the
 reference's time grid (linear interpolation): max of the seat force, max |difference| / max
-of the reference. Prints Markdown (the table of docs/convergence.md).
+of the reference (for the shear, away from the +-3 mm where the wheel passes the sensor
+and the shear jumps by F). Prints Markdown (the table of docs/convergence.md).
 """
 
 from __future__ import annotations
@@ -24,7 +25,9 @@ RUNS = {  # label -> (max_travel_step [m], max_time_step [s], track_max_frequenc
     "0.5 mm, 12.5 us, 10 kHz": (0.5e-3, 12.5e-6, 10e3),
     "0.25 mm, 6.25 us, 10 kHz": (0.25e-3, 6.25e-6, 10e3),
     "1 mm, 25 us, 5 kHz": (1e-3, 25e-6, 5e3),
+    "1 mm, 25 us, 15 kHz": (1e-3, 25e-6, 15e3),
     "1 mm, 25 us, 20 kHz": (1e-3, 25e-6, 20e3),
+    "1 mm, 25 us, all 1187 modes": (1e-3, 25e-6, 1e6),
     "0.25 mm, 6.25 us, 20 kHz (reference)": (0.25e-3, 6.25e-6, 20e3),
 }
 
@@ -48,8 +51,10 @@ def main() -> None:
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for label, (s, h) in out.items():
         errs = []
+        # the shear jumps by F as the wheel passes the sensor: leave out +-3 mm around it
+        away = np.abs(s_ref + 0.3 - SENSORS[0]) > 3e-3
         for key in ("seat", "shear", "sleeper_acc"):
-            diff = np.interp(s_ref, s, h[key]) - ref[key]
+            diff = np.where(away, np.interp(s_ref, s, h[key]) - ref[key], 0.0)
             errs.append(f"{100 * np.max(np.abs(diff)) / np.max(np.abs(ref[key])):.2f} %")
         print(f"| {label} | {np.max(h['seat']) / 1e3:.2f} | {' | '.join(errs)} | "
               f"{h['reading'] / 1e3:.2f} | {h['force'] / 1e3:.2f} |")

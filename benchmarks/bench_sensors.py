@@ -3,8 +3,9 @@
 
 Run: ``python benchmarks/bench_sensors.py [--repeats N]``. The default ``wfjax sweep`` (rounded
 0.9 mm/100 mm and new 0.9 mm flats, 20-300 km/h in 10 km/h steps, 10 positions, 3D contact)
-without sensors, with eight sensors (every quantity of :data:`wfjax.sensors.QUANTITIES`) and
-with the 3-bay detector alone. Each variant is compiled by a first call, then timed ``N``
+without sensors and with eight sensors computing every quantity of
+:data:`wfjax.sensors.QUANTITIES`, two of them or one (``--detector``: also the 3-bay
+detector alone). Each variant is compiled by a first call, then timed ``N``
 times interleaved with the others (the machine is shared: the ratio of medians is reported).
 Prints Markdown.
 """
@@ -28,9 +29,15 @@ SPEEDS = np.arange(20.0, 300.1, 10.0) / 3.6
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--detector", action="store_true",
+                        help="also time the 3-bay detector (its longer windows dominate)")
     args = parser.parse_args()
-    variants = {"no sensors": {}, "8 sensors": {"sensors": SENSORS},
-                "detector (3 bays)": {"detector": Detector()}}
+    variants = {"no sensors": {}, "8 sensors x 9 quantities": {"sensors": SENSORS},
+                "8 sensors x (shear, seat_force)": {
+                    "sensors": SENSORS, "sensor_quantities": ("shear", "seat_force")},
+                "8 sensors x shear": {"sensors": SENSORS, "sensor_quantities": ("shear",)}}
+    if args.detector:
+        variants["detector (3 bays)"] = {"detector": Detector()}
     times = {k: [] for k in variants}
     for kw in variants.values():  # compile
         wf.sweep(FLATS, SPEEDS, 10, progress=False, **kw)

@@ -92,8 +92,9 @@ def model_20k():
 @pytest.mark.parametrize("quantity", ["rail_disp", "shear"])
 def test_transfer_receptance_matches_direct_solve(model_20k, quantity):
     """Sensor response to a harmonic force elsewhere: modal sensor rows vs a direct sparse
-    frequency-domain FE solve, 20 Hz - 2 kHz, within 1 % with modes to 20 kHz (the default
-    10 kHz truncation gives up to 6 % on the shear near 300 Hz: docs/detector.md)."""
+    frequency-domain FE solve, 20 Hz - 2 kHz, within 1 % with modes to 20 kHz (cutoffs of
+    5-12.5 kHz, the default 10 kHz included, give 5-6 % on the shear near 300 Hz, 15 kHz
+    0.35 %: docs/convergence.md)."""
     model = model_20k
     tr = wfjax.Track()
     x_force, x_s = 0.3, np.array([1.0, -0.45])
