@@ -174,6 +174,9 @@ def test_fit_new_flat_recovers_truth_from_noisy_data():
     ({"speeds": [10.0, 20.0, 30.0], "max_force": [1e5, 2e5]}, "equal length"),
     ({"t": np.linspace(0, 1e-2, 5), "force": np.ones(5), "speed": 20.0}, "at least 10"),
     ({"t": -np.linspace(0, 1e-2, 20), "force": np.ones(20), "speed": 20.0}, "increasing"),
+    ({"speeds": [10.0, 20.0, 30.0], "peak": np.full((3, 3), 2e5)}, "impact_position"),
+    ({"speeds": [10.0, 20.0, 30.0], "peak": np.full((3, 2), 2e5)}, "n_bays"),
+    ({"speeds": [10.0, 20.0, 30.0], "peak": [2e5, -1.0, 2e5]}, "> 0 N"),
 ])
 def test_bad_data_raises(bad, match):
     with pytest.raises(ValueError, match=match):

@@ -163,6 +163,16 @@ def _finite_1d(name: str, value) -> np.ndarray:
     return a
 
 
+def _check_data_speeds(v: np.ndarray, n_params: int, what: str) -> None:
+    """Enough speeds [m/s] in (0, 150] for ``n_params`` parameters of ``what`` data."""
+    need = max(MIN_POINTS_MAX_FORCE, n_params + 1)
+    if v.size < need:
+        raise ValueError(f"{what} data needs at least {need} speeds to fit {n_params} "
+                         f"parameter(s), got {v.size}")
+    if np.any(v <= 0) or np.any(v > 150):
+        raise ValueError(f"speeds must be in (0, 150] m/s, got {v!r}")
+
+
 def _validate_data(measured, n_params: int):
     """Check ``measured`` and return it as :class:`MaxForceData` or :class:`HistoryData`."""
     if isinstance(measured, dict):
@@ -178,12 +188,7 @@ def _validate_data(measured, n_params: int):
         if f.shape != v.shape:
             raise ValueError(f"speeds and max_force must have equal length, got {v.size} and "
                              f"{f.size}")
-        need = max(MIN_POINTS_MAX_FORCE, n_params + 1)
-        if v.size < need:
-            raise ValueError(f"max-force data needs at least {need} speeds to fit {n_params} "
-                             f"parameter(s), got {v.size}")
-        if np.any(v <= 0) or np.any(v > 150):
-            raise ValueError(f"speeds must be in (0, 150] m/s, got {v!r}")
+        _check_data_speeds(v, n_params, "max-force")
         if np.any(f <= 0):
             raise ValueError(f"max_force must be > 0 N, got min {f.min():.6g} N")
         return MaxForceData(v, f)
@@ -203,12 +208,7 @@ def _validate_data(measured, n_params: int):
                              f"{v.size}, got shape {peak.shape}")
         if not np.all(np.isfinite(peak)) or np.any(peak <= 0):
             raise ValueError("peak readings must be finite and > 0 N")
-        need = max(MIN_POINTS_MAX_FORCE, n_params + 1)
-        if v.size < need:
-            raise ValueError(f"detector data needs at least {need} speeds to fit {n_params} "
-                             f"parameter(s), got {v.size}")
-        if np.any(v <= 0) or np.any(v > 150):
-            raise ValueError(f"speeds must be in (0, 150] m/s, got {v!r}")
+        _check_data_speeds(v, n_params, "detector")
         if peak.ndim == 2 and measured.impact_position is None:
             raise ValueError("per-bay detector data needs impact_position [m]")
         return DetectorData(v, peak, det, measured.impact_position)
