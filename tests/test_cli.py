@@ -213,3 +213,16 @@ def test_detector_command_writes_files_and_rejects_bad_sensors(tmp_path, capsys)
     capsys.readouterr()
     assert main(["detector", "--sensors-m", "25", "--out", str(tmp_path / "x")]) == 2
     assert "allowed range" in _one_line_error(capsys)
+
+
+def test_simulate_sensors_csv(tmp_path):
+    """``wfjax simulate --sensors-m``: the sensors' histories next to the force history."""
+    out = tmp_path / "sim"
+    assert main(["simulate", "--contact", "hertz-trajectory", "--speed-kmh", "80",
+                 "--sensors-m", "0,0.325", "--out", str(out)]) == 0
+    rows = list(csv.reader((out / "sensors.csv").open()))
+    assert rows[0][:3] == ["t_s", "x_m", "rail_disp@0m"]
+    assert len(rows[0]) == 2 + 2 * 9
+    assert len(rows) == len((out / "simulate.csv").read_text().splitlines())
+    seat = [float(r[rows[0].index("seat_force@0m")]) for r in rows[1:]]
+    assert max(seat) > 0.3 * 118e3  # the sleeper under the first sensor carries the wheel

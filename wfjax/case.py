@@ -204,7 +204,7 @@ _OTHER_KEYS = [
         commands=("sweep", "fit", "compare", "detector")),
     Key("run", "sensors", "floats", "m", -500.0, 500.0,
         doc="fixed rail sensor positions (x = 0 at the middle sleeper; docs/detector.md)",
-        commands=("detector",)),
+        commands=("detector", "simulate")),
     Key("detector", "n_bays", "int", "", 1, 60,
         doc="instrumented consecutive sleeper bays of the detector", commands=("detector",)),
     Key("detector", "first_bay", "int", "", -30, 30,

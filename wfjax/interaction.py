@@ -366,8 +366,10 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
     hist = run_scan(law, struct, v, dt, x_imp + s_start, x_imp, int(n_steps),
                     config.newton_iterations, sensors=sensor_spec, detector=det_spec,
                     run_in_steps=run_in_steps)
-    quantities = () if sensor_spec is None else sensor_spec.quantities
-    return summarise(hist, v, x_imp, dt, run_in_steps, quantities, struct.preload)
+    if sensor_spec is None:
+        return summarise(hist, v, x_imp, dt, run_in_steps, (), struct.preload)
+    res = summarise(hist, v, x_imp, dt, run_in_steps, sensor_spec.quantities, struct.preload)
+    return res._replace(sensor_positions=np.asarray(sensor_spec.positions))
 
 
 def detector_config(detector, track: Track, config: SimConfig) -> SimConfig:

@@ -43,6 +43,7 @@ class SimResult(NamedTuple):
         detector_peak: [n_bays] its peak while the wheel is between the bay's bridges [N]
             (-inf for a bay the run did not cross), or None.
         detector_ratio: [n_bays] detector_peak / static wheel load P, or None.
+        sensor_positions: [n_s] the sensors' rail positions [m], or None.
     """
 
     t: Any
@@ -66,6 +67,7 @@ class SimResult(NamedTuple):
     detector_load: Any = None
     detector_peak: Any = None
     detector_ratio: Any = None
+    sensor_positions: Any = None
 
     def summary(self) -> dict:
         """JSON-ready summary with practical units (kN, km/h, mm, ms)."""
@@ -99,6 +101,21 @@ class SimResult(NamedTuple):
         w.writerow(["t_s", "x_m", "s_m", "force_N", "approach_m", "wheel_disp_m", "rail_disp_m"])
         cols = [np.asarray(getattr(self, k)) for k in
                 ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp")]
+        for row in zip(*cols, strict=True):
+            w.writerow([f"{v:.9g}" for v in row])
+        return buf.getvalue()
+
+    def sensors_to_csv(self) -> str:
+        """The sensors' histories as CSV text: t_s, x_m, then ``<quantity>@<x>m`` (SI)."""
+        if self.sensors is None:
+            raise ValueError("this result has no sensors (simulate(..., sensors=[...]))")
+        xs = np.asarray(self.sensor_positions)
+        names = list(self.sensors)
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["t_s", "x_m"] + [f"{q}@{x:g}m" for q in names for x in xs])
+        cols = [np.asarray(self.t), np.asarray(self.x)] + [
+            np.asarray(self.sensors[q])[:, i] for q in names for i in range(xs.size)]
         for row in zip(*cols, strict=True):
             w.writerow([f"{v:.9g}" for v in row])
         return buf.getvalue()

@@ -21,6 +21,7 @@ from ._common import (
     prepare_out,
     resolve_case,
     save_figure,
+    sensor_positions,
     write_atomic,
     write_summary,
 )
@@ -79,19 +80,14 @@ def run(args) -> int:
 
     case = resolve_case(args, "detector", FLAGS)
     set_precision(case["run.precision"])
-    from ..case import parse_number_list
     from ..plotting import detector_figure
-    from ..sensors import Detector, check_positions
+    from ..sensors import Detector
     from ..sweeps import sweep
 
     speeds = case.speeds()
     flat = case.flat()
     wheel, track, material, config = case.model()
-    sensors = case["run.sensors"]
-    if isinstance(sensors, str):
-        sensors = parse_number_list(sensors)
-    sensors = [float(sensors)] if np.ndim(sensors) == 0 else [float(x) for x in sensors]
-    check_positions(sensors, track)  # errors before work
+    sensors = sensor_positions(case, track)  # errors before work
     detector = Detector(case["detector.n_bays"], case["detector.first_bay"],
                         case["detector.gauge_offset"], case["detector.calibration"])
     detector.gauges(float(track.sleeper_spacing))  # bad gauge offset: error before work
