@@ -267,7 +267,7 @@ class Detector:
             raise ValueError(f"Detector.first_bay must be an integer, got {self.first_bay!r}")
         for name in ("gauge_offset", "calibration"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            if not isinstance(v, (int, float, np.floating)) or not math.isfinite(v) or v <= 0:
                 raise ValueError(f"Detector.{name} must be a number > 0, got {v!r}")
 
     def bays(self) -> np.ndarray:
