@@ -307,3 +307,19 @@ def test_fit_to_detector_readings_3d():
     assert res.converged, res.message
     for name, true in (("depth", 0.9e-3), ("length", 0.1)):
         assert abs(res.params[name] / true - 1) < 0.05, res.params
+
+
+def test_detector_model_max_over_bays_and_gradient():
+    """Max-over-bays detector data: the model is the per-bay model's maximum (one position,
+    hard max), and its forward-mode Jacobian matches central differences."""
+    speeds = np.array([60.0, 120.0]) / 3.6
+    ref = _rounded(TH0)
+    per_bay = fit.detector_model(speeds, ref, per_bay=True, impact_positions=[0.3],
+                                 config=COARSE)
+    peak = fit.detector_model(speeds, ref, impact_positions=[0.3], temperature=None,
+                              config=COARSE)
+    bays = np.asarray(per_bay(ref)).reshape(speeds.size, 3)
+    np.testing.assert_allclose(np.asarray(peak(ref)), bays.max(axis=1), rtol=1e-12)
+    assert np.all(bays.argmax(axis=1) == 1)  # the impact bay reads the impact
+    f = jax.jit(lambda th: peak(_rounded(th)))
+    _assert_matches_fd(f, jax.jit(jax.jacfwd(f))(jnp.asarray(TH0)), TH0, [1e-7, 1e-4])
