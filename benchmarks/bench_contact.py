@@ -169,7 +169,7 @@ def contact_case(quick):
                                                               False, True)[0])
             r = jax.block_until_ready(f(g))
             name = "pcg" if precondition else "cg"
-            row[f"{name}_ms"] = _median_time(lambda f=f: f(g), 3) * 1e3
+            row[f"{name}_ms"] = _median_time(lambda f=f, g=g: f(g), 3) * 1e3
             row[f"{name}_iterations"] = int(r.diagnostics.cg_iterations)
             row[f"{name}_outer"] = int(r.diagnostics.iterations)
             row[f"{name}_approach_um"] = float(r.approach) * 1e6

@@ -230,3 +230,34 @@ def test_profile_fit_with_too_few_speeds_fails_before_work(tmp_path, capsys, no_
     err = _one_line_error(capsys)
     assert "at least 9 speeds" in err
     assert not out.exists()
+
+
+def test_detector_command_writes_files_and_rejects_bad_sensors(tmp_path, capsys):
+    """``wfjax detector``: CSV/JSON/PNG; the case keys round-trip; bad sensors fail first."""
+    out = tmp_path / "det"
+    assert main(["detector", "--contact", "hertz-trajectory", "--speeds-kmh", "60",
+                 "--positions", "1", "--sensors-m", "0,0.325", "--bays", "2",
+                 "--out", str(out)]) == 0
+    rows = list(csv.DictReader((out / "detector.csv").open()))
+    assert [r["bay"] for r in rows] == ["-1", "0"]
+    assert float(rows[1]["detector_peak_kN"]) > 118.0
+    summary = json.loads((out / "detector.json").read_text())
+    assert summary["case"]["detector"]["n_bays"] == 2
+    assert len((out / "sensors.csv").read_text().splitlines()) == 3
+    assert (out / "detector.png").stat().st_size > 0
+    capsys.readouterr()
+    assert main(["detector", "--sensors-m", "25", "--out", str(tmp_path / "x")]) == 2
+    assert "allowed range" in _one_line_error(capsys)
+
+
+def test_simulate_sensors_csv(tmp_path):
+    """``wfjax simulate --sensors-m``: the sensors' histories next to the force history."""
+    out = tmp_path / "sim"
+    assert main(["simulate", "--contact", "hertz-trajectory", "--speed-kmh", "80",
+                 "--sensors-m", "0,0.325", "--out", str(out)]) == 0
+    rows = list(csv.reader((out / "sensors.csv").open()))
+    assert rows[0][:3] == ["t_s", "x_m", "rail_disp@0m"]
+    assert len(rows[0]) == 2 + 2 * 9
+    assert len(rows) == len((out / "simulate.csv").read_text().splitlines())
+    seat = [float(r[rows[0].index("seat_force@0m")]) for r in rows[1:]]
+    assert max(seat) > 0.3 * 118e3  # the sleeper under the first sensor carries the wheel

@@ -7,6 +7,7 @@ derivatives of the same discrete model, so the step size does not matter for the
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -173,6 +174,9 @@ def test_fit_new_flat_recovers_truth_from_noisy_data():
     ({"speeds": [10.0, 20.0, 30.0], "max_force": [1e5, 2e5]}, "equal length"),
     ({"t": np.linspace(0, 1e-2, 5), "force": np.ones(5), "speed": 20.0}, "at least 10"),
     ({"t": -np.linspace(0, 1e-2, 20), "force": np.ones(20), "speed": 20.0}, "increasing"),
+    ({"speeds": [10.0, 20.0, 30.0], "peak": np.full((3, 3), 2e5)}, "impact_position"),
+    ({"speeds": [10.0, 20.0, 30.0], "peak": np.full((3, 2), 2e5)}, "n_bays"),
+    ({"speeds": [10.0, 20.0, 30.0], "peak": [2e5, -1.0, 2e5]}, "> 0 N"),
 ])
 def test_bad_data_raises(bad, match):
     with pytest.raises(ValueError, match=match):
@@ -256,3 +260,66 @@ def test_3d_notebook_fast_mode(monkeypatch):
     include loss of contact), depth within 3 % and length within 5 %."""
     text = _run_notebook("fit_flat_3d.ipynb", monkeypatch)
     assert "central difference" in text and "depth:" in text and "length:" in text
+
+
+def _detector_truth(contact, speeds, truth, par, position, config, track=None):
+    """Per-bay readings of the 3-bay detector from the full model (sweep) and 3 % noise."""
+    from wfjax.sensors import Detector
+
+    truth_b = wf.Flat(truth.kind, truth.depth, truth.length, extent_bound=par.extent_bound)
+    cfg = config if contact != "3d" else dataclasses.replace(config, contact_mode_3d="table")
+    res = wf.sweep([truth_b], speeds, [position], contact=contact, detector=Detector(),
+                   config=cfg, track=track, progress=False)
+    clean = res.detector_peak[0, :, 0, :]
+    assert np.all(clean[:, 1] > 1.3 * 118e3)  # the impact bay reads the impact
+    return clean * (1 + 0.03 * np.random.default_rng(7).standard_normal(clean.shape))
+
+
+def test_fit_to_detector_readings_hertz():
+    """Detector readings per bay (full model, 3 % noise), start 50 % off: depth and length
+    within 5 %; the prediction is the detector's, not the contact force."""
+    speeds = np.array([40.0, 70.0, 100.0, 140.0]) / 3.6
+    truth, start = wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.rounded(1.35e-3, 0.15)
+    par = fit.parametrisation_for(start)
+    data = _detector_truth("hertz-trajectory", speeds, truth, par, 0.3, COARSE)
+    res = fit.fit_flat(fit.DetectorData(speeds, data, impact_position=0.3), start,
+                       "hertz-trajectory", config=COARSE, parametrisation=par)
+    assert res.converged, res.message
+    assert res.kind == "detector" and res.prediction.shape == (speeds.size * 3,)
+    for name, true in (("depth", 0.9e-3), ("length", 0.1)):
+        assert abs(res.params[name] / true - 1) < 0.05, res.params
+    assert res.residual_rms < 0.05 * np.mean(data)
+
+
+@pytest.mark.slow
+def test_fit_to_detector_readings_3d():
+    """As the Hertz check with the paper's 3D contact in the notebook's reduced setting
+    (2.5 mm elements, coarse steps, R_R = 0.45 m): truth from the exact 3D table, fit
+    through the parametric family."""
+    config = wf.SimConfig(contact_element=2.5e-3, max_travel_step=2e-3, max_time_step=5e-5)
+    track = wf.Track.comparison()
+    speeds = np.linspace(40.0, 140.0, 5) / 3.6
+    truth, start = wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.rounded(1.35e-3, 0.15)
+    par = fit.parametrisation_for(start)
+    data = _detector_truth("3d", speeds, truth, par, 0.3, config, track)
+    res = fit.fit_flat(fit.DetectorData(speeds, data, impact_position=0.3), start, "3d",
+                       config=config, track=track, parametrisation=par)
+    assert res.converged, res.message
+    for name, true in (("depth", 0.9e-3), ("length", 0.1)):
+        assert abs(res.params[name] / true - 1) < 0.05, res.params
+
+
+def test_detector_model_max_over_bays_and_gradient():
+    """Max-over-bays detector data: the model is the per-bay model's maximum (one position,
+    hard max), and its forward-mode Jacobian matches central differences."""
+    speeds = np.array([60.0, 120.0]) / 3.6
+    ref = _rounded(TH0)
+    per_bay = fit.detector_model(speeds, ref, per_bay=True, impact_positions=[0.3],
+                                 config=COARSE)
+    peak = fit.detector_model(speeds, ref, impact_positions=[0.3], temperature=None,
+                              config=COARSE)
+    bays = np.asarray(per_bay(ref)).reshape(speeds.size, 3)
+    np.testing.assert_allclose(np.asarray(peak(ref)), bays.max(axis=1), rtol=1e-12)
+    assert np.all(bays.argmax(axis=1) == 1)  # the impact bay reads the impact
+    f = jax.jit(lambda th: peak(_rounded(th)))
+    _assert_matches_fd(f, jax.jit(jax.jacfwd(f))(jnp.asarray(TH0)), TH0, [1e-7, 1e-4])

@@ -24,6 +24,14 @@ SCRIPT = textwrap.dedent("""
         out.append(np.stack([sw.max_force, sw.min_force, sw.loss_of_contact_duration,
                              sw.loss_of_contact]))
     np.save(sys.argv[1], np.stack(out))
+    from wfjax.sensors import Detector
+    sw = wf.sweep(flat, np.array([50.0, 100.0]) / 3.6, impact_positions=3,
+                  contact="hertz-profile", progress=False, chunk_size=4, sensors=[0.1, 0.6],
+                  sensor_quantities=("shear", "seat_force"),
+                  detector=Detector(n_bays=1, first_bay=0))
+    np.save(sys.argv[1][:-4] + "_sensors.npy",
+            np.concatenate([sw.sensor_max.ravel(), sw.sensor_min.ravel(),
+                            sw.detector_peak.ravel()]))
 """)
 
 
@@ -49,6 +57,10 @@ def test_two_devices_equal_one(tmp_path):
     assert np.all(np.isfinite(one)) and np.all(one[:, 0] > 1e5)  # max forces ~ 190-220 kN
     np.testing.assert_allclose(two, one, rtol=1e-12, atol=1e-12 * np.max(one[:, 0]))
     np.testing.assert_allclose(one[1], one[0], rtol=1e-12)  # chunking does not matter
+    # sensors and the detector shard like the contact force
+    s1, s2 = (np.load(path.with_name(path.stem + "_sensors.npy")) for _, path in runs)
+    assert s1.shape == (2 * 6 * 2 * 2 + 6,) and np.all(np.isfinite(s1))
+    np.testing.assert_allclose(s2, s1, rtol=1e-12, atol=1e-9)
 
 
 def test_cli_exposes_one_device_per_core_unless_told(monkeypatch):

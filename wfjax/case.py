@@ -41,7 +41,8 @@ __all__ = ["Case", "CaseError", "Key", "KEYS", "resolve", "load_layer", "read_pr
 
 MODEL_SECTIONS = {"wheel": P.Wheel, "track": P.Track, "material": P.Material,
                   "config": P.SimConfig}
-COMMANDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "geometry")
+COMMANDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "geometry",
+            "detector")
 CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
 PRECISIONS = ("float64", "float32")
 MAX_SPEED_KMH = 540.0  # = 150 m/s, the API's limit
@@ -188,19 +189,33 @@ def _model_keys() -> list[Key]:
     return keys
 
 
-_FLAT_CMDS = ("sweep", "simulate", "fit", "geometry")
+_FLAT_CMDS = ("sweep", "simulate", "fit", "geometry", "detector")
 _OTHER_KEYS = [
     Key("run", "contact", "str", choices=CONTACT_MODELS, doc="contact model",
-        commands=("sweep", "simulate", "fit")),
+        commands=("sweep", "simulate", "fit", "detector")),
     Key("run", "precision", "str", choices=PRECISIONS,
         doc="floating-point precision (environment: WFJAX_PRECISION)",
-        commands=("sweep", "simulate", "fit")),
+        commands=("sweep", "simulate", "fit", "detector")),
     Key("run", "speeds_kmh", "floats", "km/h", 0.0, MAX_SPEED_KMH, low_open=True,
         doc='train speeds: a list, or "start:stop:step" (inclusive) or "v1,v2,..."',
-        commands=("sweep", "compare")),
+        commands=("sweep", "compare", "detector")),
     Key("run", "impact_positions", "int", "", 1, 1000,
         doc="impact positions evenly covering one sleeper bay",
-        commands=("sweep", "fit", "compare")),
+        commands=("sweep", "fit", "compare", "detector")),
+    Key("run", "sensors", "floats", "m", -500.0, 500.0,
+        doc="fixed rail sensor positions (x = 0 at the middle sleeper; docs/detector.md)",
+        commands=("detector", "simulate")),
+    Key("detector", "n_bays", "int", "", 1, 60,
+        doc="instrumented consecutive sleeper bays of the detector", commands=("detector",)),
+    Key("detector", "first_bay", "int", "", -30, 30,
+        doc="index of the first bay (bay 0 spans [0, L_S), where impacts are placed)",
+        commands=("detector",)),
+    Key("detector", "gauge_offset", "float", "m", 0.0, 0.75, low_open=True, high_open=True,
+        doc="shear bridges' distance from the sleeper centres, < L_S / 2",
+        commands=("detector",)),
+    Key("detector", "calibration", "float", "", 0.0, 10.0, low_open=True,
+        doc="factor on the shear difference (1: static theory; docs/detector.md)",
+        commands=("detector",)),
     Key("run", "speed_kmh", "float", "km/h", 0.0, MAX_SPEED_KMH, low_open=True,
         doc="train speed of one run (fit: of a force-history dataset)",
         commands=("simulate", "fit")),
@@ -242,11 +257,10 @@ _OTHER_KEYS = [
     Key("compare", "models", "strs", choices=CONTACT_MODELS,
         doc="contact models to compare (must include 3d)", commands=("compare",)),
 ]
-_MODEL_CMDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance")
+_MODEL_CMDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "detector")
 KEYS: dict[str, Key] = {k.path: k for k in _OTHER_KEYS}
 for _k in _model_keys():
-    _cmds = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "geometry") \
-        if _k.path == "wheel.radius" else _MODEL_CMDS
+    _cmds = _MODEL_CMDS + ("geometry",) if _k.path == "wheel.radius" else _MODEL_CMDS
     KEYS[_k.path] = dataclasses.replace(_k, commands=_cmds)
 SECTIONS = tuple(dict.fromkeys(k.section for k in KEYS.values()))
 
@@ -460,6 +474,13 @@ def default_layer(command: str) -> dict:
         layer["flat.kind"] = "both"
     if command == "simulate":
         layer.update({"run.speed_kmh": 100.0, "run.impact_position": 0.0})
+    if command == "detector":  # sensors/Detector defaults (a 3-bay crib detector)
+        layer.update({"run.speeds_kmh": "20:200:20", "run.impact_positions": 5,
+                      "run.sensors": [0.0, 0.325], "detector.n_bays": 3, "detector.first_bay": -1,
+                      "detector.gauge_offset": 0.1, "detector.calibration": 1.0,
+                      # the rail's shear needs the track modes to 15 kHz or more to be within
+                      # 1 % (10 kHz: 3 %, docs/convergence.md "Sensors")
+                      "config.track_max_frequency": 20e3})
     if command == "fit":  # fit_flat's defaults: the comparison track (R_R = 0.45 m)
         layer.update({"run.contact": "hertz-trajectory", "run.impact_positions": 3,
                       "run.impact_position": 0.0, "flat.depth": 1.2e-3, "flat.length": 0.13,

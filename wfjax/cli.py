@@ -13,7 +13,7 @@ import os
 import sys
 
 SUBCOMMANDS = ("sweep", "simulate", "compare", "figures", "fit", "receptance", "geometry",
-               "config")
+               "detector", "config")
 
 
 def _available():

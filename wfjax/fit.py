@@ -9,7 +9,13 @@ shape parameters and fits them to
     few impact positions in the sleeper bay (a detector reports the worst passage; the smooth
     maximum keeps the loss differentiable where the worst position changes);
 (b) a **force time history** at one speed (:class:`HistoryData`), with t = 0 when the flat
-    centre is over the nominal contact point.
+    centre is over the nominal contact point;
+(c) **detector readings against speed** (:class:`DetectorData`): the peaks of a strain-gauge
+    detector's load estimate (:class:`wfjax.sensors.Detector`, the rail's shear difference
+    across each instrumented crib), per bay at a known impact position or the maximum over
+    the bays (then a smooth maximum over impact positions as in (a)). The measurement
+    operator (shear at the bridges from the track's modal state, gating, peak) runs inside
+    the simulation's scan, so it is differentiated with the rest of the model.
 
 Smooth maximum
 --------------
@@ -81,6 +87,8 @@ __all__ = [
     "D_REF",
     "MaxForceData",
     "HistoryData",
+    "DetectorData",
+    "detector_model",
     "NewFlatParam",
     "RoundedFlatParam",
     "ProfileParam",
@@ -128,6 +136,24 @@ class HistoryData(NamedTuple):
     impact_position: float = 0.0
 
 
+class DetectorData(NamedTuple):
+    """Wheel impact load detector readings against speed.
+
+    Attributes:
+        speeds: [n] train speeds [m/s], > 0.
+        peak: [n] the maximum over the detector's bays of each passage's reading [N], or
+            [n, n_bays] the reading of every bay [N] (then ``impact_position`` is needed).
+        detector: the :class:`wfjax.sensors.Detector` (default ``Detector()``: 3 bays).
+        impact_position: rail coordinate [m] of the impact in [0, L_S) for per-bay data
+            (None for max-over-bays data: the model takes a smooth max over positions).
+    """
+
+    speeds: Any
+    peak: Any
+    detector: Any = None
+    impact_position: float | None = None
+
+
 def _finite_1d(name: str, value) -> np.ndarray:
     a = np.asarray(value, dtype=float)
     if a.ndim != 1:
@@ -137,10 +163,22 @@ def _finite_1d(name: str, value) -> np.ndarray:
     return a
 
 
+def _check_data_speeds(v: np.ndarray, n_params: int, what: str) -> None:
+    """Enough speeds [m/s] in (0, 150] for ``n_params`` parameters of ``what`` data."""
+    need = max(MIN_POINTS_MAX_FORCE, n_params + 1)
+    if v.size < need:
+        raise ValueError(f"{what} data needs at least {need} speeds to fit {n_params} "
+                         f"parameter(s), got {v.size}")
+    if np.any(v <= 0) or np.any(v > 150):
+        raise ValueError(f"speeds must be in (0, 150] m/s, got {v!r}")
+
+
 def _validate_data(measured, n_params: int):
     """Check ``measured`` and return it as :class:`MaxForceData` or :class:`HistoryData`."""
     if isinstance(measured, dict):
-        if "t" in measured:
+        if "peak" in measured:
+            measured = DetectorData(**measured)
+        elif "t" in measured:
             measured = HistoryData(**measured)
         else:
             measured = MaxForceData(**measured)
@@ -150,15 +188,30 @@ def _validate_data(measured, n_params: int):
         if f.shape != v.shape:
             raise ValueError(f"speeds and max_force must have equal length, got {v.size} and "
                              f"{f.size}")
-        need = max(MIN_POINTS_MAX_FORCE, n_params + 1)
-        if v.size < need:
-            raise ValueError(f"max-force data needs at least {need} speeds to fit {n_params} "
-                             f"parameter(s), got {v.size}")
-        if np.any(v <= 0) or np.any(v > 150):
-            raise ValueError(f"speeds must be in (0, 150] m/s, got {v!r}")
+        _check_data_speeds(v, n_params, "max-force")
         if np.any(f <= 0):
             raise ValueError(f"max_force must be > 0 N, got min {f.min():.6g} N")
         return MaxForceData(v, f)
+    if isinstance(measured, DetectorData):
+        from .sensors import Detector
+
+        v = _finite_1d("speeds", measured.speeds)
+        peak = np.asarray(measured.peak, dtype=float)
+        det = measured.detector or Detector()
+        if not isinstance(det, Detector):
+            raise ValueError(f"detector must be a wfjax.sensors.Detector, got {det!r}")
+        if peak.ndim == 2 and peak.shape != (v.size, det.n_bays):
+            raise ValueError(f"per-bay peak must be [n_speeds, n_bays] = [{v.size}, "
+                             f"{det.n_bays}], got {peak.shape}")
+        if peak.ndim not in (1, 2) or peak.shape[0] != v.size:
+            raise ValueError(f"peak must be [n_speeds] or [n_speeds, n_bays] with n_speeds = "
+                             f"{v.size}, got shape {peak.shape}")
+        if not np.all(np.isfinite(peak)) or np.any(peak <= 0):
+            raise ValueError("peak readings must be finite and > 0 N")
+        _check_data_speeds(v, n_params, "detector")
+        if peak.ndim == 2 and measured.impact_position is None:
+            raise ValueError("per-bay detector data needs impact_position [m]")
+        return DetectorData(v, peak, det, measured.impact_position)
     if isinstance(measured, HistoryData):
         t = _finite_1d("t", measured.t)
         f = _finite_1d("force", measured.force)
@@ -178,7 +231,7 @@ def _validate_data(measured, n_params: int):
         if not math.isfinite(pos):
             raise ValueError(f"impact_position must be finite, got {measured.impact_position!r}")
         return HistoryData(t, f, speed, pos)
-    raise ValueError(f"measured must be MaxForceData, HistoryData or a dict, got "
+    raise ValueError(f"measured must be MaxForceData, HistoryData, DetectorData or a dict, got "
                      f"{type(measured).__name__}")
 
 
@@ -500,6 +553,60 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
     return ForceModel(fn, setup, info)
 
 
+def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False,
+                   contact: str = "hertz-trajectory", impact_positions=3,
+                   temperature: float | None = 1e3, extent_bound: float | None = None,
+                   wheel: Wheel | None = None, track: Track | None = None,
+                   material: Material | None = None, config: SimConfig | None = None,
+                   cache_dir=None) -> ForceModel:
+    """Differentiable detector readings [N] at each of ``speeds`` [m/s].
+
+    Every run carries the detector (:class:`wfjax.sensors.Detector`, default 3 bays) in its
+    scan; windows are lengthened so the wheel crosses every bay. ``per_bay``: the readings
+    of every bay at the one position ``impact_positions`` (a single [m] value), flattened
+    [n * n_bays]; otherwise the maximum over bays, then ``smooth_max(temperature)`` [N] over
+    the impact positions (count or [m] array), [n].
+    """
+    from . import sensors as sensor_mod
+
+    detector = detector or sensor_mod.Detector()
+    ref = _reference_flat(reference, extent_bound)
+    track = track or Track()
+    config = it.detector_config(detector, track, config or SimConfig())
+    setup = _setup(contact, ref, wheel, track, material, config, cache_dir)
+    spec = sensor_mod.detector_spec(detector, setup.track, setup.struct.track)
+    v = np.atleast_1d(np.asarray(speeds, dtype=float))
+    spacing = float(setup.track.sleeper_spacing)
+    pos = (impact_positions_grid(impact_positions, spacing) if np.ndim(impact_positions) == 0
+           else np.atleast_1d(np.asarray(impact_positions, dtype=float)))
+    if per_bay and pos.size != 1:
+        raise ValueError(f"per-bay detector data needs one impact position, got {pos!r}")
+    n_steps, dt, s0, _ = it.batch_windows(ref, v, setup.config)
+    vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
+    dd, ss = (np.repeat(a, pos.size) for a in (dt, s0))
+    max_iter = setup.config.newton_iterations
+
+    def fn(flat: Flat):
+        law = _contact(setup, flat)
+
+        def one(args):
+            speed, d, xs, xi = args
+            return it.run_scan(law, setup.struct, speed, d, xs, xi, n_steps, max_iter,
+                               detector=spec, sensor_history=False)["detector_peak"]
+
+        args = tuple(jnp.asarray(a, dtype=float) for a in (vv, dd, pp + ss, pp))
+        peaks = jax.vmap(one)(args)  # [n * n_pos, n_bays]
+        if per_bay:
+            return peaks.reshape(-1)
+        return smooth_max(jnp.max(peaks, axis=-1).reshape(v.size, pos.size), temperature,
+                          axis=-1)
+
+    info = {"kind": "detector", "speeds": v, "impact_positions": pos, "n_steps": n_steps,
+            "time_steps": dt, "temperature": temperature, "detector": detector,
+            "per_bay": per_bay}
+    return ForceModel(fn, setup, info)
+
+
 def history_model(t, speed: float, reference: Flat, contact: str = "hertz-trajectory",
                   impact_position: float = 0.0, extent_bound: float | None = None,
                   wheel: Wheel | None = None, track: Track | None = None,
@@ -551,9 +658,10 @@ class FitResult(NamedTuple):
         converged: whether a convergence criterion was met (see ``message``).
         message: why the optimiser stopped.
         prediction: [n] model forces at the data points [N]. measured: [n] data forces [N].
-        x: [n] speeds [m/s] (max-force data) or times [s] (history data).
+        x: [n] speeds [m/s] (max-force and detector data; per bay repeated for each bay)
+            or times [s] (history data).
         residual_rms: root-mean-square force residual [N].
-        kind: ``"max_force"`` or ``"history"``. contact: contact model.
+        kind: ``"max_force"``, ``"history"`` or ``"detector"``. contact: contact model.
         wall_time: fit duration [s].
     """
 
@@ -614,7 +722,9 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
 
     Args:
         measured: :class:`MaxForceData` (speeds [m/s], max_force [N]), :class:`HistoryData`
-            (t [s], force [N], speed [m/s], impact_position [m]) or a dict with those keys.
+            (t [s], force [N], speed [m/s], impact_position [m]), :class:`DetectorData`
+            (speeds [m/s], peak [N] per bay or max over bays, detector, impact_position [m])
+            or a dict with those keys.
         initial: starting flat (kind ``"new"``, ``"rounded"`` or ``"profile"``).
         contact: ``"hertz-trajectory"``, ``"hertz-profile"``, ``"2d"`` or ``"3d"``.
         parametrisation: :class:`NewFlatParam`, :class:`RoundedFlatParam` or
@@ -663,7 +773,18 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
                          "(its exact table's Kalker solves have custom_vjp gradients)")
     kw = dict(contact=contact, extent_bound=par.extent_bound, wheel=wheel, track=track,
               material=material, config=config, cache_dir=cache_dir)
-    if isinstance(data, MaxForceData):
+    if isinstance(data, DetectorData):
+        per_bay = data.peak.ndim == 2
+        y = data.peak.ravel()
+        x = np.repeat(data.speeds, data.peak.shape[1]) if per_bay else data.speeds
+        kind = "detector"
+
+        def build(ref):
+            return detector_model(data.speeds, ref, data.detector, per_bay,
+                                  impact_positions=([data.impact_position] if per_bay
+                                                    else impact_positions),
+                                  temperature=temperature, **kw)
+    elif isinstance(data, MaxForceData):
         y, x, kind = data.max_force, data.speeds, "max_force"
 
         def build(ref):

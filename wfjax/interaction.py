@@ -45,6 +45,7 @@ impact_position = (X_0 + R * angle0) mod L_S. :func:`impact_position_from_angle`
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, NamedTuple
 
@@ -52,6 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import sensors as sensor_mod
 from . import track as track_mod
 from . import wheel as wheel_mod
 from ._modal import discrete_step_coefficients
@@ -176,18 +178,13 @@ def _rail_terms(model, node_major, x):
     Same interpolation as :func:`wfjax.track.mode_shapes_at` (tested equal), on node-major
     shapes so the per-step gather reads contiguous memory.
     """
-    node_x = model.node_x
-    le = node_x[1] - node_x[0]
-    xc = jnp.clip(x, node_x[0], node_x[-1])
-    e = jnp.clip(jnp.floor((xc - node_x[0]) / le).astype(jnp.int32), 0, node_x.shape[0] - 2)
-    n1, n2, n3, n4 = track_mod.shape_functions((xc - node_x[e]) / le, model.element_phi, le)
-    a, b = node_major[e], node_major[e + 1]
-    phi = n1 * a[0] + n2 * a[1] + n3 * b[0] + n4 * b[1]
+    phi = track_mod.interpolate_nodal(model, node_major, x)
     return phi, track_mod.residual_compliance_at(model, x)
 
 
 def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_position,
-              n_steps: int, max_iter: int = 30, checkpoint: bool = False):
+              n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
+              detector=None, run_in_steps=0, sensor_history: bool = True):
     """The time loop under ``lax.scan`` for any contact law (pure).
 
     Args:
@@ -199,9 +196,20 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
         max_iter: Newton iteration cap of the per-step contact equation (static).
         checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``): memory of
             the backward pass drops to the carry per step at the cost of recomputing steps.
+        sensors: a :class:`wfjax.sensors.SensorSpec` (or None): readings at fixed rail
+            positions from the modal state of every step.
+        detector: a :class:`wfjax.sensors.DetectorSpec` (or None): the detector's per-bay
+            load estimate, and its peak while the wheel is between each bay's bridges.
+        run_in_steps: steps before the sensors' running max/min start (traced int).
+        sensor_history: return the sensors' and detector's time histories (static; False
+            keeps only running max/min and peaks in the carry: no [n_steps] arrays).
 
     Returns:
-        dict of [n_steps] arrays: t, x, s, force, approach, wheel_disp, rail_disp, residual.
+        dict of [n_steps] arrays: t, x, s, force, approach, wheel_disp, rail_disp, residual;
+        with ``sensors``: ``sensor_max``, ``sensor_min`` [n_quantities, n_s] after the run-in
+        and (``sensor_history``) ``sensors`` [n_steps, n_quantities, n_s]; with
+        ``detector``: ``detector_peak`` [n_bays] N and (``sensor_history``)
+        ``detector_load`` [n_steps, n_bays] N (ungated estimate).
     """
     model = struct.track
     w_r = model.weights
@@ -220,8 +228,35 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
     xi_w_ref = xi_r0 + delta0
     p0 = jnp.zeros_like(struct.wheel_poles)
 
+    def readings(q, f, x, n, acc):
+        """Sensor and detector outputs at one instant; updates the running extremes ``acc``."""
+        out = {}
+        if sensors is not None:
+            y = sensor_mod.evaluate(sensors, model, q, f, x)
+            late = n >= run_in_steps
+            acc = {**acc, "sensor_max": jnp.where(late, jnp.maximum(acc["sensor_max"], y),
+                                                  acc["sensor_max"]),
+                   "sensor_min": jnp.where(late, jnp.minimum(acc["sensor_min"], y),
+                                           acc["sensor_min"])}
+            out["sensors"] = y
+        if detector is not None:
+            est, gate = sensor_mod.detector_load(detector, model, q, f, x)
+            acc = {**acc, "detector_peak": jnp.where(gate, jnp.maximum(acc["detector_peak"],
+                                                                       est),
+                                                     acc["detector_peak"])}
+            out["detector_load"] = est
+        return (out if sensor_history else {}), acc
+
+    acc0 = {}
+    if sensors is not None:
+        shape = (len(sensors.quantities), sensors.positions.shape[0])
+        acc0 |= {"sensor_max": jnp.full(shape, -jnp.inf), "sensor_min": jnp.full(shape, jnp.inf)}
+    if detector is not None:
+        acc0["detector_peak"] = jnp.full(detector.left.shape, -jnp.inf)
+    first_readings, acc0 = readings(q0, preload, x_start, 0, acc0)
+
     def step(carry, n):
-        q, p, f_prev, phi_prev, state = carry
+        q, p, f_prev, phi_prev, state, acc = carry
         x = x_start + speed * dt * n
         s = x - impact_position
         phi, res = _rail_terms(model, node_major, x)
@@ -234,21 +269,25 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
                                       max_iter)
         q_new = q_hat + an_r * phi * f
         p_new = p_hat + an_w * (f - preload)
-        out = (x, s, f, delta, xi_w_free - c_wheel * f, xi_r_free + c_rail * f, r)
-        return (q_new, p_new, f, phi, state), out
+        extra, acc = readings(q_new, f, x, n, acc)
+        out = (x, s, f, delta, xi_w_free - c_wheel * f, xi_r_free + c_rail * f, r, extra)
+        return (q_new, p_new, f, phi, state, acc), out
 
-    carry0 = (q0, p0, preload, phi0, law.init_state())
-    _, outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
-                           jnp.arange(1, n_steps))
+    carry0 = (q0, p0, preload, phi0, law.init_state(), acc0)
+    (*_, acc), outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
+                                   jnp.arange(1, n_steps))
     first = (x_start, s0, preload, delta0, xi_w_ref, xi_r0, 0.0)
     keys = ("x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual")
     result = {k: jnp.concatenate([jnp.asarray(a0, dtype=a.dtype)[None], a])
-              for k, a0, a in zip(keys, first, outs, strict=True)}
+              for k, a0, a in zip(keys, first, outs[:-1], strict=True)}
+    result |= {k: jnp.concatenate([first_readings[k][None], a]) for k, a in outs[-1].items()}
+    result |= acc
     result["t"] = dt * jnp.arange(n_steps)
     return result
 
 
-run_scan = jax.jit(time_loop, static_argnames=("n_steps", "max_iter", "checkpoint"))
+run_scan = jax.jit(time_loop, static_argnames=("n_steps", "max_iter", "checkpoint",
+                                              "sensor_history"))
 run_scan.__doc__ = """:func:`time_loop` compiled (one program per law class and grid shapes).
 
 ``vmap`` it over runs, and over laws prepared for a batch of flats; ``grad`` reaches every
@@ -259,7 +298,8 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
              wheel: Wheel | None = None, track: Track | None = None,
              material: Material | None = None, config: SimConfig | None = None,
              angle0: float | None = None, cache_dir=None,
-             n_steps: int | None = None) -> SimResult:
+             n_steps: int | None = None, sensors=None, detector=None,
+             sensor_quantities=sensor_mod.QUANTITIES) -> SimResult:
     """Simulate a wheel with ``flat`` rolling at ``speed`` over the discretely supported track.
 
     Args:
@@ -276,6 +316,14 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
             ``~/.cache/wfjax``).
         n_steps: number of time steps (default: from ``config``); the time step becomes the
             window's duration / (n_steps - 1), as in :func:`wfjax.sweep`.
+        sensors: [n_s] fixed rail positions [m] (x = 0 at the middle sleeper; within
+            :func:`wfjax.sensors.allowed_range`): every quantity of
+            :data:`wfjax.sensors.QUANTITIES` at each, as time histories.
+        sensor_quantities: the subset of :data:`wfjax.sensors.QUANTITIES` to compute (each
+            costs one modal dot product per sensor and step).
+        detector: a :class:`wfjax.sensors.Detector`: its per-bay load estimate and peaks.
+            The run's window is lengthened (``run_in``/``run_out``) so that the wheel
+            crosses every instrumented bay.
 
     Returns:
         :class:`SimResult` with time histories [n_steps] and summary values.
@@ -291,6 +339,8 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
             f"({float(wheel.radius)} m)"
         )
     spacing = float(track.sleeper_spacing)
+    if detector is not None:
+        config = detector_config(detector, track, config)
     s_start, _ = simulation_window(flat, v, config)
     if angle0 is not None:
         impact_position = float(impact_position_from_angle(
@@ -308,7 +358,25 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     struct = structure(wheel, track, config, cache_dir)
     law = prepare(contact, flat, wheel, track, material, config, cache_dir)
-    hist = run_scan(law, struct, v, dt, x_imp + s_start, x_imp, int(n_steps),
-                    config.newton_iterations)
     run_in_steps = int(0.5 * RUN_IN_TIME / dt)
-    return summarise(hist, v, x_imp, dt, run_in_steps)
+    sensor_spec = (None if sensors is None
+                   else sensor_mod.sensor_spec(sensors, track, struct.track, sensor_quantities))
+    det_spec = (None if detector is None
+                else sensor_mod.detector_spec(detector, track, struct.track))
+    hist = run_scan(law, struct, v, dt, x_imp + s_start, x_imp, int(n_steps),
+                    config.newton_iterations, sensors=sensor_spec, detector=det_spec,
+                    run_in_steps=run_in_steps)
+    if sensor_spec is None:
+        return summarise(hist, v, x_imp, dt, run_in_steps, (), struct.preload)
+    res = summarise(hist, v, x_imp, dt, run_in_steps, sensor_spec.quantities, struct.preload)
+    return res._replace(sensor_positions=np.asarray(sensor_spec.positions))
+
+
+def detector_config(detector, track: Track, config: SimConfig) -> SimConfig:
+    """``config`` with ``run_in``/``run_out`` [m] long enough for the wheel to cross every bay
+    of ``detector`` (for any impact position in [0, L_S) and any flat; 5 cm margin)."""
+    a, b = detector.gauges(float(track.sleeper_spacing))
+    run_in = float(track.sleeper_spacing) - float(a[0]) + 0.05
+    run_out = float(b[-1]) + 0.05
+    return dataclasses.replace(config, run_in=max(config.run_in, run_in),
+                               run_out=max(config.run_out, run_out))

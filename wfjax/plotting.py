@@ -130,3 +130,38 @@ def force_history_figure(result, flat: Flat | None = None, preload: float = 118e
         inset.legend(fontsize=6)
     fig.tight_layout()
     return fig
+
+
+def detector_figure(result, flat_index: int = 0):
+    """Detector reading (max over its bays) against the true peak contact force [kN].
+
+    Left: both against speed [km/h], one line per impact position (reading solid, true peak
+    dotted). Right: reading against true peak for every run, coloured by impact position,
+    with the 1:1 line.
+
+    Args:
+        result: a :class:`wfjax.SweepResult` of ``sweep(..., detector=...)``.
+    """
+    v = np.asarray(result.speeds) * 3.6
+    pos = np.asarray(result.impact_positions) * 1e3
+    reading = np.asarray(result.detector_peak[flat_index]).max(axis=-1) / 1e3  # [v, pos]
+    true = np.asarray(result.max_force[flat_index]) / 1e3
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.6))
+    for k, p in enumerate(pos):
+        color = plt.cm.viridis(k / max(len(pos) - 1, 1))
+        a.plot(v, reading[:, k], "-o", ms=3, color=color, label=f"reading, impact {p:.0f} mm")
+        a.plot(v, true[:, k], ":", color=color)
+        b.scatter(true[:, k], reading[:, k], s=14, color=color, label=f"{p:.0f} mm")
+    a.plot([], [], "k:", label="true peak contact force")
+    a.set(xlabel="train speed [km/h]", ylabel="force [kN]",
+          title=f"detector ({len(result.detector_bays)} bays, max over bays) vs true peak")
+    a.grid(alpha=0.3)
+    a.legend(fontsize=7)
+    lim = [0.0, 1.05 * max(true.max(), reading.max())]
+    b.plot(lim, lim, "k-", lw=0.8, label="1:1")
+    b.set(xlim=lim, ylim=lim, xlabel="true peak contact force [kN]",
+          ylabel="detector reading [kN]", title="reading vs true peak, by impact position")
+    b.grid(alpha=0.3)
+    b.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

@@ -34,6 +34,16 @@ class SimResult(NamedTuple):
         speed: train speed v [m/s].
         impact_position: rail coordinate of the impact within the bay [m].
         time_step: dt [s].
+        sensors: with sensors (:func:`wfjax.simulate` ``sensors=``), a dict
+            {quantity: [n_steps, n_s]} of :data:`wfjax.sensors.QUANTITIES` (SI units, sign
+            conventions in :mod:`wfjax.sensors`), else None.
+        sensor_max, sensor_min: dicts {quantity: [n_s]}: extremes after the run-in, or None.
+        detector_load: [n_steps, n_bays] the detector's calibrated shear-difference estimate
+            per bay [N] (ungated), or None.
+        detector_peak: [n_bays] its peak while the wheel is between the bay's bridges [N]
+            (-inf for a bay the run did not cross), or None.
+        detector_ratio: [n_bays] detector_peak / static wheel load P, or None.
+        sensor_positions: [n_s] the sensors' rail positions [m], or None.
     """
 
     t: Any
@@ -51,6 +61,13 @@ class SimResult(NamedTuple):
     speed: Any
     impact_position: Any
     time_step: Any
+    sensors: Any = None
+    sensor_max: Any = None
+    sensor_min: Any = None
+    detector_load: Any = None
+    detector_peak: Any = None
+    detector_ratio: Any = None
+    sensor_positions: Any = None
 
     def summary(self) -> dict:
         """JSON-ready summary with practical units (kN, km/h, mm, ms)."""
@@ -64,7 +81,18 @@ class SimResult(NamedTuple):
             "time_step_us": float(self.time_step) * 1e6,
             "n_steps": int(np.shape(self.t)[-1]),
             "max_contact_residual_m": float(np.max(self.residual)),
+            **self._detector_summary(),
         }
+
+    def _detector_summary(self) -> dict:
+        out = {}
+        if self.sensor_max is not None:
+            out["sensor_max"] = {k: np.asarray(v).tolist() for k, v in self.sensor_max.items()}
+            out["sensor_min"] = {k: np.asarray(v).tolist() for k, v in self.sensor_min.items()}
+        if self.detector_peak is not None:
+            out["detector_peak_kN"] = (np.asarray(self.detector_peak) / 1e3).tolist()
+            out["detector_ratio"] = np.asarray(self.detector_ratio).tolist()
+        return out
 
     def to_csv(self) -> str:
         """The time histories as CSV text (SI units, one row per step)."""
@@ -77,13 +105,47 @@ class SimResult(NamedTuple):
             w.writerow([f"{v:.9g}" for v in row])
         return buf.getvalue()
 
+    def sensors_to_csv(self) -> str:
+        """The sensors' histories as CSV text: t_s, x_m, then ``<quantity>@<x>m`` (SI)."""
+        if self.sensors is None:
+            raise ValueError("this result has no sensors (simulate(..., sensors=[...]))")
+        xs = np.asarray(self.sensor_positions)
+        names = list(self.sensors)
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["t_s", "x_m"] + [f"{q}@{x:g}m" for q in names for x in xs])
+        cols = [np.asarray(self.t), np.asarray(self.x)] + [
+            np.asarray(self.sensors[q])[:, i] for q in names for i in range(xs.size)]
+        for row in zip(*cols, strict=True):
+            w.writerow([f"{v:.9g}" for v in row])
+        return buf.getvalue()
+
     def to_json(self) -> str:
         """:meth:`summary` as JSON text."""
         return json.dumps(self.summary(), indent=2)
 
 
-def summarise(hist: dict, speed, impact_position, dt, run_in_steps) -> SimResult:
-    """Reduce histories to a :class:`SimResult` (pure jnp; works batched under vmap)."""
+def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(),
+              preload=None) -> SimResult:
+    """Reduce histories to a :class:`SimResult` (pure jnp; works batched under vmap).
+
+    ``quantities`` names the rows of the sensor outputs in ``hist`` (if any); ``preload`` [N]
+    is the static wheel load the detector's ratio refers to.
+    """
+    sensor = {}
+    if "sensor_max" in hist:
+        def split(a, axis):
+            return {q: jnp.take(a, i, axis=axis) for i, q in enumerate(quantities)}
+
+        sensor = {"sensor_max": split(hist["sensor_max"], -2),
+                  "sensor_min": split(hist["sensor_min"], -2)}
+        if "sensors" in hist:
+            sensor["sensors"] = split(hist["sensors"], -2)
+    if "detector_peak" in hist:
+        sensor["detector_peak"] = hist["detector_peak"]
+        sensor["detector_ratio"] = hist["detector_peak"] / preload
+        if "detector_load" in hist:
+            sensor["detector_load"] = hist["detector_load"]
     f = hist["force"]
     n = f.shape[-1]
     after = jnp.arange(n) >= run_in_steps
@@ -97,5 +159,5 @@ def summarise(hist: dict, speed, impact_position, dt, run_in_steps) -> SimResult
         loss_of_contact_duration=jnp.sum(lost, axis=-1) * dt,
         speed=jnp.asarray(speed, dtype=float), impact_position=jnp.asarray(impact_position,
                                                                              dtype=float),
-        time_step=jnp.asarray(dt, dtype=float),
+        time_step=jnp.asarray(dt, dtype=float), **sensor,
     )

@@ -37,11 +37,11 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .contact.laws import (CONTACT_MODELS, cached_table_3d, prepare, prepare_family,
-                           resolve_mode_3d)
-from .interaction import batch_windows, run_scan, structure
+from .contact.laws import CONTACT_MODELS, cached_table_3d, prepare, prepare_family, resolve_mode_3d
+from .interaction import batch_windows, detector_config, run_scan, structure
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import summarise
+from .sensors import QUANTITIES, detector_spec, sensor_spec
 
 __all__ = ["SweepResult", "sweep", "impact_positions_grid"]
 
@@ -60,6 +60,13 @@ class SweepResult(NamedTuple):
         contact: the contact model.
         depths, lengths: [n_flats] flat depth and length [m] (length: l of a rounded flat,
             the chord l0 of a new one, the support of a measured profile).
+        sensor_positions: [n_s] sensor positions [m] (``sweep(sensors=...)``), or None.
+        sensor_max, sensor_min: [n_flats, n_speeds, n_positions, n_quantities, n_s] extremes
+            after the run-in of ``sensor_quantities`` (SI units), or None.
+        sensor_quantities: names of the quantity axis (:data:`wfjax.sensors.QUANTITIES`).
+        detector_bays: [n_bays] bay indices of the detector (``sweep(detector=...)``), or None.
+        detector_peak: [n_flats, n_speeds, n_positions, n_bays] detector reading per bay [N].
+        detector_ratio: the same divided by the static wheel load P.
     """
 
     speeds: Any
@@ -73,6 +80,13 @@ class SweepResult(NamedTuple):
     contact: str
     depths: Any = None
     lengths: Any = None
+    sensor_positions: Any = None
+    sensor_max: Any = None
+    sensor_min: Any = None
+    detector_bays: Any = None
+    detector_peak: Any = None
+    detector_ratio: Any = None
+    sensor_quantities: tuple = ()
 
     def envelope(self) -> dict[str, np.ndarray]:
         """Max over positions of max_force, min over positions of min_force: [n_flats, n_speeds]."""
@@ -102,6 +116,22 @@ class SweepResult(NamedTuple):
                                 f"{depths[i] * 1e3:.6g}", f"{lengths[i] * 1e3:.6g}"])
         return buf.getvalue()
 
+    def sensors_to_csv(self) -> str:
+        """One row per (flat, speed, position, sensor): max and min of every quantity (SI)."""
+        if self.sensor_max is None:
+            raise ValueError("this sweep has no sensors (sweep(..., sensors=[...]))")
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["flat", "speed_kmh", "impact_position_mm", "sensor_m"]
+                   + [f"{q}_{e}" for q in self.sensor_quantities for e in ("max", "min")])
+        for (i, j, k), _ in np.ndenumerate(self.max_force):
+            for m, x in enumerate(np.asarray(self.sensor_positions)):
+                vals = [f"{a[i, j, k, n, m]:.9g}" for n in range(len(self.sensor_quantities))
+                        for a in (self.sensor_max, self.sensor_min)]
+                w.writerow([self.flats[i], f"{self.speeds[j] * 3.6:.6g}",
+                            f"{self.impact_positions[k] * 1e3:.6g}", f"{x:.6g}", *vals])
+        return buf.getvalue()
+
     def save_npz(self, path) -> None:
         """Save every array and label to ``path`` (.npz), atomically."""
         path = Path(path)
@@ -117,6 +147,8 @@ class SweepResult(NamedTuple):
         with np.load(path) as data:
             fields = {k: data[k] for k in cls._fields
                       if k not in ("flats", "contact") and k in data}
+            if "sensor_quantities" in fields:
+                fields["sensor_quantities"] = tuple(str(q) for q in fields["sensor_quantities"])
             return cls(flats=tuple(str(s) for s in data["flats"]),
                        contact=str(data["contact"]), **fields)
 
@@ -159,13 +191,19 @@ def flat_label(flat: Flat) -> str:
     return f"{flat.kind} d={d:.2f}mm"
 
 
-def _reduce(n_steps, max_iter, laws, struct, flat_index, speed, dt, x_start, impact_position,
-            run_in_steps):
+def _reduce(n_steps, max_iter, laws, struct, extras, flat_index, speed, dt, x_start,
+            impact_position, run_in_steps):
     law = jax.tree.map(lambda a: a[flat_index], laws)
-    hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter)
-    res = summarise(hist, speed, impact_position, dt, run_in_steps)
-    return (res.max_force, res.min_force, res.loss_of_contact, res.loss_of_contact_duration,
+    hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
+                    sensors=extras["sensors"], detector=extras["detector"],
+                    run_in_steps=run_in_steps, sensor_history=False)
+    res = summarise({k: hist[k] for k in ("t", "x", "s", "force", "approach", "wheel_disp",
+                                          "rail_disp", "residual")},
+                    speed, impact_position, dt, run_in_steps)
+    outs = (res.max_force, res.min_force, res.loss_of_contact, res.loss_of_contact_duration,
             jnp.max(res.residual))
+    return outs + tuple(hist[k] for k in ("sensor_max", "sensor_min", "detector_peak")
+                        if k in hist)
 
 
 @functools.cache
@@ -177,12 +215,13 @@ def _batched(mesh: Mesh, n_steps: int, max_iter: int):
     Newton ``while_loop`` then stops on the device's own runs, with no cross-device reduction
     of its condition at every step (what a plain ``jit`` over sharded inputs would compile).
     """
-    def local(laws, struct, *runs):
-        return jax.vmap(functools.partial(_reduce, n_steps, max_iter, laws, struct))(*runs)
+    def local(laws, struct, extras, *runs):
+        return jax.vmap(functools.partial(_reduce, n_steps, max_iter, laws, struct, extras))(
+            *runs)
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
-                                 in_specs=(PartitionSpec(), PartitionSpec()) + (by_run,) * 6))
+                                 in_specs=(PartitionSpec(),) * 3 + (by_run,) * 6))
 
 
 def _device_mesh() -> Mesh:
@@ -248,7 +287,8 @@ def _check_speeds(speeds) -> np.ndarray:
 def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: str = "3d",
           wheel: Wheel | None = None, track: Track | None = None,
           material: Material | None = None, config: SimConfig | None = None,
-          chunk_size: int = 64, progress: bool = True, cache_dir=None) -> SweepResult:
+          chunk_size: int = 64, progress: bool = True, cache_dir=None, sensors=None,
+          detector=None, sensor_quantities=QUANTITIES) -> SweepResult:
     """Max/min contact force for every flat x speed x impact position.
 
     Args:
@@ -261,6 +301,11 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         chunk_size: simulations per vmapped batch (memory bound), over all devices; each chunk
             is padded to a multiple of the device count and sharded across the devices.
         progress: print progress with ETA to stderr.
+        sensors: [n_s] fixed rail positions [m] (as :func:`wfjax.simulate`): the max and min
+            of each of ``sensor_quantities`` (default every one of
+            :data:`wfjax.sensors.QUANTITIES`) at each, per run.
+        detector: a :class:`wfjax.sensors.Detector`: its reading per bay, per run (the runs'
+            windows are lengthened so that the wheel crosses every bay).
 
     Returns:
         :class:`SweepResult` with arrays shaped [n_flats, n_speeds, n_positions].
@@ -285,10 +330,17 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         raise ValueError(f"chunk_size must be >= 1, got {chunk_size!r}")
     if contact not in CONTACT_MODELS:
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
+    if detector is not None:
+        config = detector_config(detector, track, config)
     mesh = _device_mesh()
-    struct = _replicate(structure(wheel, track, config, cache_dir), mesh)
-    shape = (len(flat_list), v.size, pos.size)
-    out = {k: np.zeros(shape) for k in ("max", "min", "lost", "lost_t", "res")}
+    struct_host = structure(wheel, track, config, cache_dir)
+    struct = _replicate(struct_host, mesh)
+    extras = _replicate(_sensor_extras(sensors, sensor_quantities, detector, track,
+                                       struct_host.track), mesh)
+    keys = ["max", "min", "lost", "lost_t", "res"] + [
+        k for k, on in (("s_max", sensors is not None), ("s_min", sensors is not None),
+                        ("det", detector is not None)) if on]
+    out = {}
     groups = batch_groups(flat_list, contact, config)
     prefetch_tables([flat_list[g[0]] for g in groups if len(g) == 1], contact, wheel, track,
                     material, config, cache_dir, progress)
@@ -301,17 +353,25 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
                   file=sys.stderr, flush=True)
         laws, window_flat = prepare_batch(contact, members, wheel, track, material, config,
                                           cache_dir, progress)
-        cols = _run_group(_replicate(laws, mesh), struct, window_flat, len(members), v, pos,
-                          config, mesh, chunk_size, _Progress(len(members) * v.size * pos.size,
-                                                              label, enabled=progress))
-        for key, col in zip(("max", "min", "lost", "lost_t", "res"), cols, strict=True):
-            out[key][group] = col
+        cols = _run_group(_replicate(laws, mesh), struct, extras, window_flat, len(members), v,
+                          pos, config, mesh, chunk_size,
+                          _Progress(len(members) * v.size * pos.size, label, enabled=progress))
+        for key, col in zip(keys, cols, strict=True):
+            out.setdefault(key, np.zeros((len(flat_list),) + col.shape[1:]))[group] = col
+    det = {}
+    if detector is not None:
+        det = {"detector_bays": detector.bays(), "detector_peak": out["det"],
+               "detector_ratio": out["det"] / float(wheel.preload)}
+    if sensors is not None:
+        det |= {"sensor_positions": np.asarray(extras["sensors"].positions),
+                "sensor_max": out["s_max"], "sensor_min": out["s_min"],
+                "sensor_quantities": extras["sensors"].quantities}
     return SweepResult(
         speeds=v, impact_positions=pos, max_force=out["max"], min_force=out["min"],
         loss_of_contact=out["lost"].astype(bool), loss_of_contact_duration=out["lost_t"],
         max_residual=out["res"], flats=tuple(flat_label(f) for f in flat_list), contact=contact,
         depths=np.array([float(np.asarray(f.depth)) for f in flat_list]),
-        lengths=np.array([float(np.asarray(f.length)) for f in flat_list]),
+        lengths=np.array([float(np.asarray(f.length)) for f in flat_list]), **det,
     )
 
 
@@ -335,6 +395,13 @@ def prefetch_tables(flats: Sequence[Flat], contact: str, wheel: Wheel, track: Tr
             flat, float(wheel.radius), float(track.rail_head_radius), material,
             config.contact_element, cache_dir), flats))
     return len(flats)
+
+
+def _sensor_extras(sensors, quantities, detector, track: Track, model) -> dict:
+    """The compiled program's sensor and detector specs (None where not asked for)."""
+    return {"sensors": (None if sensors is None
+                        else sensor_spec(sensors, track, model, quantities)),
+            "detector": None if detector is None else detector_spec(detector, track, model)}
 
 
 def batch_groups(flats: Sequence[Flat], contact: str, config: SimConfig) -> list[list[int]]:
@@ -399,8 +466,9 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
     return laws, sized[0]
 
 
-def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: SimConfig,
-               mesh: Mesh, chunk_size: int, bar: _Progress) -> list[np.ndarray]:
+def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
+               config: SimConfig, mesh: Mesh, chunk_size: int,
+               bar: _Progress) -> list[np.ndarray]:
     """Summaries [n_flats, n_speeds, n_positions] of one batch of laws, chunked and sharded."""
     n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
     ff, jj, kk = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
@@ -416,11 +484,11 @@ def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: Si
         def padded(a, pad=width - n):
             return _shard_runs(np.concatenate([a, np.repeat(a[-1:], pad)]), mesh)
 
-        batch = program(laws, struct, padded(ff[sl]), padded(vv[sl]), padded(dt[sl]),
+        batch = program(laws, struct, extras, padded(ff[sl]), padded(vv[sl]), padded(dt[sl]),
                         padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]))
         results.append([b[:n] for b in _gather(batch)])
         bar.update(n)
-    return [np.concatenate(c).reshape(n_flats, v.size, pos.size)
+    return [np.concatenate(c).reshape((n_flats, v.size, pos.size) + c[0].shape[1:])
             for c in zip(*results, strict=True)]
 
 

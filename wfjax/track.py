@@ -51,6 +51,7 @@ __all__ = [
     "static_deflection",
     "modal_model",
     "mode_shapes_at",
+    "interpolate_nodal",
     "residual_compliance_at",
     "modal_receptance",
     "moving_greens",
@@ -295,6 +296,9 @@ class ModalModel(NamedTuple):
         sleeper_spacing: L_S [m].
         element_phi: Timoshenko shear parameter 12 EI/(kGA Le^2) of the rail elements (needed
             by the shape functions in :func:`mode_shapes_at`).
+        sleeper_shapes: complex [n_modes, n_bays - 1] the same modes' sleeper displacements
+            (interior sleepers, left to right; sleeper ``i`` sits at ``(i + 1 - n_bays // 2)
+            L_S``), read by the sensors (:mod:`wfjax.sensors`).
     """
 
     poles: jax.Array
@@ -305,6 +309,7 @@ class ModalModel(NamedTuple):
     residual: jax.Array
     sleeper_spacing: float
     element_phi: float = 0.0
+    sleeper_shapes: jax.Array | None = None
 
 
 def mode_shapes_at(model: ModalModel, x) -> jax.Array:
@@ -329,6 +334,22 @@ def mode_shapes_at(model: ModalModel, x) -> jax.Array:
     t2 = jnp.moveaxis(s[:, e + 1, 1], 0, -1)
     return (n1[..., None] * w1 + n2[..., None] * t1 + n3[..., None] * w2
             + n4[..., None] * t2)
+
+
+def interpolate_nodal(model: ModalModel, nodal, x) -> jax.Array:
+    """Rail nodal fields ``nodal`` [n_nodes, 2, k] (w-like, theta-like) at position ``x`` [m]
+    (scalar) with the element's Timoshenko shape functions -> [k]; clamps to the rail ends.
+
+    The interpolation of :func:`mode_shapes_at` on node-major data (each call gathers two
+    contiguous rows). Pure ``jax.numpy``.
+    """
+    node_x = model.node_x
+    le = node_x[1] - node_x[0]
+    xc = jnp.clip(x, node_x[0], node_x[-1])
+    e = jnp.clip(jnp.floor((xc - node_x[0]) / le).astype(jnp.int32), 0, node_x.shape[0] - 2)
+    n1, n2, n3, n4 = shape_functions((xc - node_x[e]) / le, model.element_phi, le)
+    a, b = nodal[e], nodal[e + 1]
+    return n1 * a[0] + n2 * a[1] + n3 * b[0] + n4 * b[1]
 
 
 def residual_compliance_at(model: ModalModel, x) -> jax.Array:
@@ -416,6 +437,7 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     n_nodes = fe.node_x.size
     shapes = np.zeros((poles.size, n_nodes, 2), dtype=complex)
     shapes[:, 1:-1, :] = u[: fe.n_rail_dof].T.reshape(poles.size, n_nodes - 2, 2)
+    sleeper_shapes = u[fe.n_rail_dof:].T  # [n_modes, n_sleepers]
 
     # static correction of the truncated modes across the central bay
     ls = float(track.sleeper_spacing)
@@ -428,7 +450,7 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     residual = full - kept
     return {"poles": poles, "weights": weights, "node_x": fe.node_x, "shapes": shapes,
             "residual_x": res_x, "residual": residual, "sleeper_spacing": np.array(ls),
-            "element_phi": np.array(fe.phi)}
+            "element_phi": np.array(fe.phi), "sleeper_shapes": sleeper_shapes}
 
 
 def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
@@ -462,7 +484,7 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
 
     if use_cache:
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
-               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 1}
+               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 2}
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
     else:
         arrays = build()
@@ -470,7 +492,8 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
         jnp.asarray(arrays["poles"]), jnp.asarray(arrays["weights"]),
         jnp.asarray(arrays["node_x"]), jnp.asarray(arrays["shapes"]),
         jnp.asarray(arrays["residual_x"]), jnp.asarray(arrays["residual"]),
-        float(arrays["sleeper_spacing"]), float(arrays["element_phi"]))
+        float(arrays["sleeper_spacing"]), float(arrays["element_phi"]),
+        jnp.asarray(arrays["sleeper_shapes"]))
 
 
 # --------------------------------------------------------------------------------------------

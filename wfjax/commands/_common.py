@@ -28,6 +28,18 @@ def check_finite(what: str, **arrays) -> None:
                               "nothing written")
 
 
+def sensor_positions(case: case_mod.Case, track) -> list[float] | None:
+    """``run.sensors`` [m] as a list (None when not given), checked against ``track``."""
+    from ..sensors import check_positions
+
+    value = case.get("run.sensors")
+    if value is None:
+        return None
+    if isinstance(value, str):
+        value = case_mod.parse_number_list(value)
+    return [float(x) for x in check_positions(value, track, "--sensors-m / run.sensors")]
+
+
 def add_out_argument(parser: argparse.ArgumentParser, default: str) -> None:
     """``--out DIR``: where CSV, JSON and PNG results go."""
     parser.add_argument("--out", default=default, help=f"output directory (default: {default})")

@@ -9,6 +9,7 @@ from ._common import (
     prepare_out,
     resolve_case,
     save_figure,
+    sensor_positions,
     write_atomic,
     write_summary,
 )
@@ -18,7 +19,7 @@ from .sweep import FLAT_FLAGS, MODEL_FLAGS, add_model_arguments, add_profile_arg
 HELP = "contact force history of one wheel-flat passage (CSV, JSON, PNG)"
 
 FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "speed_kmh": ("run.speed_kmh", 1.0),
-         "impact_position_mm": ("run.impact_position", 1e-3)}
+         "impact_position_mm": ("run.impact_position", 1e-3), "sensors_m": ("run.sensors", 1.0)}
 
 
 def add_arguments(parser) -> None:
@@ -27,6 +28,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--speed-kmh", type=float, help="train speed (default 100)")
     parser.add_argument("--impact-position-mm", type=float,
                         help="impact position from a sleeper centre in mm, [0, 650) (default 0)")
+    parser.add_argument("--sensors-m",
+                        help="rail sensor positions in m, 'x1,x2,...' (x = 0 at a sleeper): "
+                             "their histories go to sensors.csv (docs/detector.md)")
     add_model_arguments(parser)
     add_case_arguments(parser)
     add_out_argument(parser, "out/simulate")
@@ -43,13 +47,16 @@ def run(args) -> int:
     flat = case.flat()
     wheel, track, material, config = case.model()
     contact, speed_kmh = case["run.contact"], case["run.speed_kmh"]
+    sensors = sensor_positions(case, track)
     result = simulate(flat, speed_kmh / 3.6, contact=contact,
                       impact_position=case["run.impact_position"], wheel=wheel, track=track,
-                      material=material, config=config)
+                      material=material, config=config, sensors=sensors)
     check_finite("simulate", force=result.force, wheel_disp=result.wheel_disp,
                  rail_disp=result.rail_disp)
     out = prepare_out(args.out)
     write_atomic(out / "simulate.csv", result.to_csv())
+    if sensors is not None:
+        write_atomic(out / "sensors.csv", result.sensors_to_csv())
     summary = {"flat": flat.kind, "depth_mm": float(flat.depth) * 1e3, "contact": contact,
                **result.summary()}
     if flat.kind == "rounded":

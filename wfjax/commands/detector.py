@@ -1,0 +1,126 @@
+"""``wfjax detector``: what a wheel impact load detector reads, against the true peak contact
+force, over speed and impact position (and the extremes at fixed rail sensors).
+
+One :func:`wfjax.sweep` with ``detector=`` and ``sensors=``: writes ``detector.csv`` (one row
+per speed x impact position x bay), ``sensors.csv`` (extremes of every sensor quantity),
+``detector.json`` and ``detector.png`` (reading against true peak force).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import time
+
+import numpy as np
+
+from ._common import (
+    add_case_arguments,
+    add_out_argument,
+    check_finite,
+    prepare_out,
+    resolve_case,
+    save_figure,
+    sensor_positions,
+    write_atomic,
+    write_summary,
+)
+from .geometry import add_flat_arguments
+from .sweep import FLAT_FLAGS, MODEL_FLAGS, add_model_arguments, add_profile_arguments
+
+HELP = "detector readings (crib shear over N bays) vs true peak contact force (CSV, JSON, PNG)"
+
+FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "speeds_kmh": ("run.speeds_kmh", 1.0),
+         "positions": ("run.impact_positions", 1.0), "sensors_m": ("run.sensors", 1.0),
+         "bays": ("detector.n_bays", 1.0), "first_bay": ("detector.first_bay", 1.0),
+         "gauge_offset_m": ("detector.gauge_offset", 1.0),
+         "calibration": ("detector.calibration", 1.0)}
+
+
+def add_arguments(parser) -> None:
+    add_flat_arguments(parser)
+    add_profile_arguments(parser)
+    parser.add_argument("--speeds-kmh",
+                        help="speeds in km/h, 'start:stop:step' or 'v1,v2' (default 20:200:20)")
+    parser.add_argument("--positions", type=int,
+                        help="impact positions evenly covering one sleeper bay (default 5)")
+    parser.add_argument("--sensors-m",
+                        help="rail sensor positions in m, 'x1,x2,...' (x = 0 at a sleeper; "
+                             "default 0,0.325)")
+    parser.add_argument("--bays", type=int, help="instrumented consecutive bays N (default 3)")
+    parser.add_argument("--first-bay", type=int,
+                        help="index of the first bay; bay 0 holds the impacts (default -1)")
+    parser.add_argument("--gauge-offset-m", type=float,
+                        help="shear bridges' distance from the sleeper centres in m "
+                             "(default 0.1)")
+    parser.add_argument("--calibration", type=float,
+                        help="factor on the shear difference (default 1)")
+    add_model_arguments(parser)
+    add_case_arguments(parser)
+    add_out_argument(parser, "out/detector")
+
+
+def _csv(result) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["speed_kmh", "impact_position_mm", "bay", "detector_peak_kN",
+                "detector_ratio", "true_max_force_kN"])
+    for j, v in enumerate(np.asarray(result.speeds)):
+        for k, p in enumerate(np.asarray(result.impact_positions)):
+            for b, bay in enumerate(result.detector_bays):
+                w.writerow([f"{v * 3.6:.6g}", f"{p * 1e3:.6g}", int(bay),
+                            f"{result.detector_peak[0, j, k, b] / 1e3:.6f}",
+                            f"{result.detector_ratio[0, j, k, b]:.6f}",
+                            f"{result.max_force[0, j, k] / 1e3:.6f}"])
+    return buf.getvalue()
+
+
+def run(args) -> int:
+    from .sweep import set_precision
+
+    case = resolve_case(args, "detector", FLAGS)
+    set_precision(case["run.precision"])
+    from ..plotting import detector_figure
+    from ..sensors import Detector
+    from ..sweeps import sweep
+
+    speeds = case.speeds()
+    flat = case.flat()
+    wheel, track, material, config = case.model()
+    sensors = sensor_positions(case, track)  # errors before work
+    detector = Detector(case["detector.n_bays"], case["detector.first_bay"],
+                        case["detector.gauge_offset"], case["detector.calibration"])
+    detector.gauges(float(track.sleeper_spacing))  # bad gauge offset: error before work
+    contact = case["run.contact"]
+    out = prepare_out(args.out)
+    print(f"wfjax detector: {speeds.size} speeds x {case['run.impact_positions']} positions, "
+          f"{detector.n_bays} bays from bay {detector.first_bay}, {contact} contact")
+    t0 = time.perf_counter()
+    result = sweep(flat, speeds, case["run.impact_positions"], contact=contact, wheel=wheel,
+                   track=track, material=material, config=config, sensors=sensors,
+                   detector=detector)
+    elapsed = time.perf_counter() - t0
+    check_finite("detector", max_force=result.max_force, detector_peak=result.detector_peak,
+                 sensor_max=result.sensor_max)
+    write_atomic(out / "detector.csv", _csv(result))
+    write_atomic(out / "sensors.csv", result.sensors_to_csv())
+    reading = result.detector_peak[0].max(axis=-1)  # [speeds, positions]: max over bays
+    ratio = reading / result.max_force[0]
+    summary = {"flat": result.flats[0], "contact": contact, "bays": detector.n_bays,
+               "first_bay": detector.first_bay, "gauge_offset_m": detector.gauge_offset,
+               "calibration": detector.calibration, "sensors_m": sensors,
+               "max_reading_kN": float(reading.max()) / 1e3,
+               "max_true_force_kN": float(result.max_force.max()) / 1e3,
+               "reading_over_true_peak": {"min": float(ratio.min()),
+                                          "max": float(ratio.max()),
+                                          "mean": float(ratio.mean())},
+               "wall_time_s": elapsed}
+    write_summary(out / "detector.json", summary, case,
+                  {"profile_csv": case.get("flat.profile_csv")})
+    save_figure(detector_figure(result), out / "detector.png")
+    print(f"  max reading {summary['max_reading_kN']:.1f} kN, max true peak "
+          f"{summary['max_true_force_kN']:.1f} kN; reading / true peak "
+          f"{ratio.min():.2f}-{ratio.max():.2f} over speeds and positions")
+    print(f"  {elapsed:.1f} s; wrote {out}/detector.csv, sensors.csv, detector.json, "
+          "detector.png, case.toml")
+    return 0
