@@ -156,17 +156,18 @@ def flat_label(flat: Flat) -> str:
     return f"{flat.kind} d={d:.2f}mm"
 
 
-def _reduce(n_steps, max_iter, laws, struct, flat_index, speed, dt, x_start, impact_position,
-            run_in_steps):
+def _reduce(n_steps, max_iter, precision, laws, struct, flat_index, speed, dt, x_start,
+            impact_position, run_in_steps):
     law = jax.tree.map(lambda a: a[flat_index], laws)
-    hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter)
+    hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
+                    precision=precision)
     res = summarise(hist, speed, impact_position, dt, run_in_steps)
     return (res.max_force, res.min_force, res.loss_of_contact, res.loss_of_contact_duration,
             jnp.max(res.residual))
 
 
 @functools.cache
-def _batched(mesh: Mesh, n_steps: int, max_iter: int):
+def _batched(mesh: Mesh, n_steps: int, max_iter: int, precision: str = "float64"):
     """Compiled (laws, struct, flat_index, speed, dt, x_start, impact_position, run_in) ->
     summaries, for laws stacked along a leading flat axis (one program per law class).
 
@@ -175,7 +176,8 @@ def _batched(mesh: Mesh, n_steps: int, max_iter: int):
     of its condition at every step (what a plain ``jit`` over sharded inputs would compile).
     """
     def local(laws, struct, *runs):
-        return jax.vmap(functools.partial(_reduce, n_steps, max_iter, laws, struct))(*runs)
+        return jax.vmap(functools.partial(_reduce, n_steps, max_iter, precision, laws,
+                                          struct))(*runs)
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
@@ -378,7 +380,7 @@ def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: Si
     ff, jj, kk = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
                                                  np.arange(pos.size), indexing="ij"))
     vv, pp, dt, s_start, run_in = v[jj], pos[kk], dt_v[jj], s0_v[jj], run_in_v[jj]
-    program = _batched(mesh, n_steps, config.newton_iterations)
+    program = _batched(mesh, n_steps, config.newton_iterations, config.precision)
     results = []
     step, width = _chunk_layout(vv.size, chunk_size, mesh.devices.size)
     for lo in range(0, vv.size, step):
