@@ -2,7 +2,11 @@
 
 All runs of one flat share one compiled program: every speed uses the same number of steps
 (the largest any speed needs) with its own time step, so the batch is rectangular. The batch
-is cut into chunks (memory) and progress with an ETA is printed per chunk.
+is cut into chunks sized for the devices (:func:`chunk_width`: from the device's free memory
+and the program's bytes per run, capped where more runs no longer raise throughput) and
+progress with an ETA is printed per chunk. Chunks are dispatched ahead: chunk k + 1 is queued
+on the devices before chunk k's summaries are copied to the host, so the devices never wait
+for the host between chunks.
 
 Devices: each chunk is sharded over every JAX device (``jax.devices()``) along the flattened
 run axis with a one-axis :class:`jax.sharding.Mesh` (axis ``"runs"``) and a
@@ -23,6 +27,7 @@ import functools
 import io
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -40,7 +45,14 @@ from .interaction import batch_windows, run_scan, structure
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import summarise
 
-__all__ = ["SweepResult", "sweep", "impact_positions_grid"]
+__all__ = ["SweepResult", "sweep", "impact_positions_grid", "chunk_width"]
+
+# Runs per device and chunk at most, by platform: throughput no longer rises beyond them.
+# CPU: measured (benchmarks/README.md, "Throughput against batch size": 126 runs/s at 64, a
+# wider vmap only costs memory); accelerators: thousands of lanes keep a GPU busy.
+CHUNK_CAP = {"cpu": 64}
+ACCELERATOR_CHUNK_CAP = 8192
+MEMORY_FRACTION = 0.5  # of a device's free memory one chunk may take
 
 
 class SweepResult(NamedTuple):
@@ -247,7 +259,8 @@ def _check_speeds(speeds) -> np.ndarray:
 def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: str = "3d",
           wheel: Wheel | None = None, track: Track | None = None,
           material: Material | None = None, config: SimConfig | None = None,
-          chunk_size: int = 64, progress: bool = True, cache_dir=None) -> SweepResult:
+          chunk_size: int | None = None, progress: bool = True,
+          cache_dir=None) -> SweepResult:
     """Max/min contact force for every flat x speed x impact position.
 
     Args:
@@ -257,8 +270,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             (:func:`impact_positions_grid`) or an array of positions [m] in [0, L_S).
         contact: ``"3d"``, ``"2d"``, ``"hertz-trajectory"`` or ``"hertz-profile"``.
         wheel, track, material, config: model parameters (defaults as in :func:`simulate`).
-        chunk_size: simulations per vmapped batch (memory bound), over all devices; each chunk
-            is padded to a multiple of the device count and sharded across the devices.
+        chunk_size: simulations per vmapped batch over all devices (default: per device
+            :func:`chunk_width`, from its memory); each chunk is padded to a multiple of the
+            device count and sharded across the devices.
         progress: print progress with ETA to stderr.
 
     Returns:
@@ -280,8 +294,8 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         if pos.ndim != 1 or np.any(pos < 0) or np.any(pos >= spacing) or not np.all(
                 np.isfinite(pos)):
             raise ValueError(f"impact_positions must lie in [0, {spacing}) m, got {pos!r}")
-    if chunk_size < 1:
-        raise ValueError(f"chunk_size must be >= 1, got {chunk_size!r}")
+    if chunk_size is not None and (int(chunk_size) != chunk_size or chunk_size < 1):
+        raise ValueError(f"chunk_size must be an integer >= 1 or None, got {chunk_size!r}")
     if contact not in CONTACT_MODELS:
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     mesh = _device_mesh()
@@ -374,15 +388,26 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
 
 
 def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: SimConfig,
-               mesh: Mesh, chunk_size: int, bar: _Progress) -> list[np.ndarray]:
-    """Summaries [n_flats, n_speeds, n_positions] of one batch of laws, chunked and sharded."""
+               mesh: Mesh, chunk_size: int | None, bar: _Progress) -> list[np.ndarray]:
+    """Summaries [n_flats, n_speeds, n_positions] of one batch of laws, chunked and sharded.
+
+    Every chunk is dispatched before the previous one is collected (one chunk in flight)."""
     n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
+    if chunk_size is None:
+        n_modes = int(struct.track.poles.shape[0])
+        chunk_size = mesh.devices.size * chunk_width(n_steps, n_modes, config.precision,
+                                                     mesh.devices.flat[0])
     ff, jj, kk = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
                                                  np.arange(pos.size), indexing="ij"))
     vv, pp, dt, s_start, run_in = v[jj], pos[kk], dt_v[jj], s0_v[jj], run_in_v[jj]
     program = _batched(mesh, n_steps, config.newton_iterations, config.precision)
-    results = []
+    results, in_flight = [], None
     step, width = _chunk_layout(vv.size, chunk_size, mesh.devices.size)
+
+    def collect(batch, n):
+        results.append([b[:n] for b in _gather(batch)])
+        bar.update(n)
+
     for lo in range(0, vv.size, step):
         sl = slice(lo, lo + step)
         n = vv[sl].size
@@ -392,10 +417,47 @@ def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: Si
 
         batch = program(laws, struct, padded(ff[sl]), padded(vv[sl]), padded(dt[sl]),
                         padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]))
-        results.append([b[:n] for b in _gather(batch)])
-        bar.update(n)
+        if in_flight is not None:
+            collect(*in_flight)
+        in_flight = (batch, n)
+    collect(*in_flight)
     return [np.concatenate(c).reshape(n_flats, v.size, pos.size)
             for c in zip(*results, strict=True)]
+
+
+def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64") -> int:
+    """Device memory [bytes] one run of the batched time loop needs (an upper estimate).
+
+    The scan's per-step history (7 outputs of ``n_steps``, reduced only after the loop) and
+    the step's modal work arrays (about 12 complex vectors of ``n_modes``: carry, propagated
+    state, shapes at the contact, coefficients times shapes), with a factor 2 for XLA's
+    temporaries. Checked against the compiled program's ``memory_analysis`` in
+    ``benchmarks/bench_device.py``.
+    """
+    real = 8 if precision == "float64" else 4
+    return 2 * (7 * n_steps * real + 12 * n_modes * 2 * real)
+
+
+def chunk_width(n_steps: int, n_modes: int, precision: str = "float64",
+                device: jax.Device | None = None) -> int:
+    """Runs per device and chunk: as many as ``MEMORY_FRACTION`` of the device's free memory
+    holds (:func:`bytes_per_run`), at most the platform's throughput cap (``CHUNK_CAP``: 64
+    on CPU; ``ACCELERATOR_CHUNK_CAP`` on GPUs/TPUs) and at least 1.
+
+    Free memory: ``device.memory_stats()`` (``bytes_limit - bytes_in_use``) where the backend
+    reports it (GPU, TPU); else the host's available memory over its local device count
+    (CPU devices share the host's memory).
+    """
+    device = device or jax.devices()[0]
+    stats = device.memory_stats() or {}
+    if "bytes_limit" in stats:
+        free = stats["bytes_limit"] - stats.get("bytes_in_use", 0)
+    else:
+        free = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES") / max(
+            1, jax.local_device_count())
+    cap = CHUNK_CAP.get(device.platform, ACCELERATOR_CHUNK_CAP)
+    fits = int(MEMORY_FRACTION * free // bytes_per_run(n_steps, n_modes, precision))
+    return max(1, min(cap, fits))
 
 
 def _chunk_layout(n_runs: int, chunk_size: int, n_devices: int) -> tuple[int, int]:
