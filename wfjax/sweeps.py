@@ -395,8 +395,10 @@ def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: Si
     n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
     if chunk_size is None:
         n_modes = int(struct.track.poles.shape[0])
-        chunk_size = mesh.devices.size * chunk_width(n_steps, n_modes, config.precision,
-                                                     mesh.devices.flat[0])
+        width = chunk_width(n_steps, n_modes, config.precision)
+        if jax.process_count() > 1:  # every process must compile and run the same chunks
+            width = int(np.min(multihost_utils.process_allgather(np.int32(width))))
+        chunk_size = mesh.devices.size * width
     ff, jj, kk = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
                                                  np.arange(pos.size), indexing="ij"))
     vv, pp, dt, s_start, run_in = v[jj], pos[kk], dt_v[jj], s0_v[jj], run_in_v[jj]
@@ -444,11 +446,12 @@ def chunk_width(n_steps: int, n_modes: int, precision: str = "float64",
     holds (:func:`bytes_per_run`), at most the platform's throughput cap (``CHUNK_CAP``: 64
     on CPU; ``ACCELERATOR_CHUNK_CAP`` on GPUs/TPUs) and at least 1.
 
-    Free memory: ``device.memory_stats()`` (``bytes_limit - bytes_in_use``) where the backend
+    ``device``: default the first local device. Free memory: ``device.memory_stats()``
+    (``bytes_limit - bytes_in_use``) where the backend
     reports it (GPU, TPU); else the host's available memory over its local device count
     (CPU devices share the host's memory).
     """
-    device = device or jax.devices()[0]
+    device = device or jax.local_devices()[0]  # this process's (another host's: no stats)
     stats = device.memory_stats() or {}
     if "bytes_limit" in stats:
         free = stats["bytes_limit"] - stats.get("bytes_in_use", 0)
