@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,7 @@ class _Device:
 
 def test_chunk_width_follows_device_memory():
     per_run = sweeps.bytes_per_run(3000, 599)
-    assert per_run == 2 * (7 * 3000 * 8 + 12 * 599 * 16)
+    assert 250e3 < per_run < 300e3  # compiled on CPU: 215-262 KB per run (1000-4000 steps)
     assert sweeps.bytes_per_run(3000, 599, "float32") == per_run // 2
     gib = 2**30
     # a 16 GiB GPU with 6 GiB in use: half of the free 10 GiB, in runs, under the cap
@@ -60,3 +59,30 @@ def test_sweep_rejects_a_bad_chunk_size():
     with pytest.raises(ValueError, match="chunk_size"):
         wf.sweep(wf.Flat.rounded(0.9e-3, 0.1), [20.0], 1, contact="hertz-profile",
                  chunk_size=0, progress=False)
+
+
+def test_bench_device_smoke(tmp_path, monkeypatch, capsys):
+    """benchmarks/bench_device.py at its tiny size (the sections without 3D sweeps, which
+    build tables or a family: tests/test_interaction.py and test_family.py cover those)."""
+    monkeypatch.setenv("WFJAX_CACHE_DIR", str(tmp_path / "cache"))
+    spec = importlib.util.spec_from_file_location("bench_device",
+                                                  ROOT / "benchmarks" / "bench_device.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "bench.json"
+    sections = ["table", "gradient", "large-hertz"]
+    assert bench.main(["--tiny", "--sections", ",".join(sections), "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    rows = {r["section"]: r for r in report["rows"]}
+    assert list(rows) == sections and report["header"]["backend"] == "cpu"
+    assert rows["large-hertz"]["runs"] == 8 and rows["gradient"]["runs"] == 2
+    for name, row in rows.items():
+        f64 = row["float64"]
+        assert f64["run_s"] > 0 and f64["runs_per_s"] > 0, name
+        # the second call reuses the first's program (the first may find it compiled already)
+        assert f64["recompile_s"] <= 0.5 * f64["compile_s"], name
+        assert row["peak_mib"] > 100, name
+        if name != "table":
+            assert 0 < row["f32_max_rel_diff"] < 1e-3, name  # measured 3e-6 (gradient 3e-5)
+            assert not row["loss_speed_changed"], name
+    assert "f32 max rel. diff" in capsys.readouterr().out

@@ -430,14 +430,15 @@ def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: Si
 def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64") -> int:
     """Device memory [bytes] one run of the batched time loop needs (an upper estimate).
 
-    The scan's per-step history (7 outputs of ``n_steps``, reduced only after the loop) and
-    the step's modal work arrays (about 12 complex vectors of ``n_modes``: carry, propagated
-    state, shapes at the contact, coefficients times shapes), with a factor 2 for XLA's
-    temporaries. Checked against the compiled program's ``memory_analysis`` in
-    ``benchmarks/bench_device.py``.
+    24 complex vectors of ``n_modes`` (carry, propagated state, shapes at the contact and
+    their products) and 2 reals per step. Fitted to the compiled program's
+    ``memory_analysis()`` on CPU (temporaries at 16 and 64 runs, 599 modes): float64
+    215 / 262 KB per run at 1000 / 4000 steps (estimate 246 / 294 KB), float32 74 / 77 KB
+    (estimate 123 / 147 KB); the width-independent rest (~11 MB: the structure's modes) is
+    left to ``MEMORY_FRACTION``.
     """
     real = 8 if precision == "float64" else 4
-    return 2 * (7 * n_steps * real + 12 * n_modes * 2 * real)
+    return real * (2 * n_steps + 24 * 2 * n_modes)
 
 
 def chunk_width(n_steps: int, n_modes: int, precision: str = "float64",
