@@ -435,7 +435,8 @@ class SimConfig:
             setup stays float64 either way (track modes, 3D tables and families, trajectory
             grids, the per-step propagation coefficients exp(pole dt)), and so does the
             process (``jax_enable_x64``). Measured on the paper's Fig. 7 and Fig. 8 sets:
-            max force within 1e-3 relative of float64, loss-of-contact speeds unchanged
+            max force within 2.0e-4 (Fig. 7) and 1.3e-4 (Fig. 8) relative of float64,
+            loss-of-contact speeds unchanged
             (benchmarks/README.md, "Precision"). ``"direct"`` 3D contact needs float64
             (its Kalker solves converge to 1e-10, below float32's resolution).
     """
