@@ -395,10 +395,10 @@ def _run_group(laws, struct, window_flat: Flat, n_flats: int, v, pos, config: Si
     n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
     if chunk_size is None:
         n_modes = int(struct.track.poles.shape[0])
-        width = chunk_width(n_steps, n_modes, config.precision)
+        per_device = chunk_width(n_steps, n_modes, config.precision)
         if jax.process_count() > 1:  # every process must compile and run the same chunks
-            width = int(np.min(multihost_utils.process_allgather(np.int32(width))))
-        chunk_size = mesh.devices.size * width
+            per_device = int(np.min(multihost_utils.process_allgather(np.int32(per_device))))
+        chunk_size = mesh.devices.size * per_device
     ff, jj, kk = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
                                                  np.arange(pos.size), indexing="ij"))
     vv, pp, dt, s_start, run_in = v[jj], pos[kk], dt_v[jj], s0_v[jj], run_in_v[jj]
