@@ -19,7 +19,8 @@ Open MPI or Kubernetes environment). Anywhere else pass them explicitly::
 
 Without ``--worker`` the script demonstrates this on one machine: it launches
 ``--num-processes`` local CPU processes (2 by default, 1 device each, talking through the
-coordinator on localhost) and checks their result against a single-process sweep.
+coordinator on localhost, gloo CPU collectives) and checks their result against a
+single-process sweep. ``tests/test_multihost.py`` runs exactly these workers.
 """
 
 from __future__ import annotations
@@ -32,15 +33,22 @@ import sys
 import time
 
 
-def sweep_case():
-    """The example sweep: 0.9 mm rounded flat, Hertz-profile, 4 speeds x 2 positions."""
+def sweep_case(chunk_size: int | None = None):
+    """The example sweep: 0.9 mm rounded flat, Hertz-profile, 4 speeds x 2 positions.
+
+    Returns:
+        [4, 1, 4, 2]: max force [N], min force [N], loss-of-contact duration [s] and flag of
+        every (flat, speed, position).
+    """
     import numpy as np
 
     import wfjax as wf
 
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
-    return wf.sweep(flat, np.array([40.0, 80.0, 120.0, 160.0]) / 3.6, impact_positions=2,
-                    contact="hertz-profile", progress=False)
+    sw = wf.sweep(flat, np.array([40.0, 80.0, 120.0, 160.0]) / 3.6, impact_positions=2,
+                  contact="hertz-profile", progress=False, chunk_size=chunk_size)
+    return np.stack([sw.max_force, sw.min_force, sw.loss_of_contact_duration,
+                     sw.loss_of_contact])
 
 
 def worker(args) -> None:
@@ -54,12 +62,12 @@ def worker(args) -> None:
     import numpy as np
 
     t0 = time.perf_counter()
-    sw = sweep_case()
+    out = sweep_case(args.chunk_size)
     print(f"process {jax.process_index()}/{jax.process_count()}: {len(jax.local_devices())} "
           f"local of {len(jax.devices())} global devices, sweep {time.perf_counter() - t0:.1f} s,"
-          f" max force [kN] {np.array2string(sw.max_force[0] / 1e3, precision=2)}", flush=True)
+          f" max force [kN] {np.array2string(out[0, 0] / 1e3, precision=2)}", flush=True)
     if args.save:
-        np.save(args.save, sw.max_force)
+        np.save(args.save, out)
     jax.distributed.shutdown()
 
 
@@ -74,15 +82,16 @@ def demo(args) -> int:
     procs = [subprocess.Popen(
         [sys.executable, __file__, "--worker", "--coordinator", f"localhost:{port}",
          "--num-processes", str(args.num_processes), "--process-id", str(i),
-         "--save", f"/tmp/wfjax_multihost_{port}_{i}.npy"], env=env)
+         "--save", f"/tmp/wfjax_multihost_{port}_{i}.npy"]
+        + ([] if args.chunk_size is None else ["--chunk-size", str(args.chunk_size)]), env=env)
         for i in range(args.num_processes)]
     codes = [p.wait(timeout=600) for p in procs]
     if any(codes):
         print(f"worker exit codes {codes}", file=sys.stderr)
         return 1
     multi = [np.load(f"/tmp/wfjax_multihost_{port}_{i}.npy") for i in range(args.num_processes)]
-    single = sweep_case().max_force
-    diff = max(float(np.max(np.abs(m - single) / single)) for m in multi)
+    single = sweep_case(args.chunk_size)[0]
+    diff = max(float(np.max(np.abs(m[0] - single) / single)) for m in multi)
     print(f"{args.num_processes} processes vs 1 process: max relative difference {diff:.2e}")
     return 0 if diff < 1e-12 else 1
 
@@ -93,7 +102,8 @@ def main() -> int:
     p.add_argument("--coordinator", help="host:port of process 0 (default: from the cluster)")
     p.add_argument("--num-processes", type=int, default=2)
     p.add_argument("--process-id", type=int, default=0)
-    p.add_argument("--save", help="save max_force [N] of this process to this .npy")
+    p.add_argument("--chunk-size", type=int, help="runs per chunk (default: wfjax's choice)")
+    p.add_argument("--save", help="save this process's summaries (sweep_case) to this .npy")
     args = p.parse_args()
     if args.worker:
         worker(args)

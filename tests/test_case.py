@@ -121,20 +121,22 @@ def test_unit_suffixed_keys_convert_to_si(tmp_path):
 
 
 def test_flag_beats_file_beats_environment_beats_default(tmp_path):
-    path = _write(tmp_path, "[run]\nprecision = \"float64\"\ncontact = \"2d\"\n"
+    path = _write(tmp_path, "[config]\nprecision = \"float64\"\n[run]\ncontact = \"2d\"\n"
                             "[track]\nrail_head_radius = 0.45\npad_stiffness = 60e6\n")
     env32 = {"WFJAX_PRECISION": "float32"}
-    assert C.resolve("sweep", environ={})["run.precision"] == "float64"
-    assert C.resolve("sweep", environ=env32)["run.precision"] == "float32"
+    assert C.resolve("sweep", environ={})["config.precision"] == "float64"
+    assert C.resolve("sweep", environ=env32)["config.precision"] == "float32"
     case = C.resolve("sweep", path, environ=env32)
-    assert case["run.precision"] == "float64" and case["run.contact"] == "2d"
-    case = C.resolve("sweep", path, {"run.precision": "float32", "track.rail_head_radius": 0.3},
+    assert case["config.precision"] == "float64" and case["run.contact"] == "2d"
+    case = C.resolve("sweep", path, {"config.precision": "float32", "track.rail_head_radius": 0.3},
                      environ=env32)
-    assert case["run.precision"] == "float32"
+    assert case["config.precision"] == "float32"
     assert case["track.rail_head_radius"] == 0.3 and case["track.pad_stiffness"] == 60e6
     with pytest.raises(C.CaseError, match="WFJAX_PRECISION"):
         C.resolve("sweep", environ={"WFJAX_PRECISION": "float16"})
-    assert "run.precision" not in C.resolve("compare", environ=env32).values  # not read there
+    assert C.resolve("compare", environ=env32).model()[3].precision == "float32"
+    with pytest.raises(C.CaseError, match="now config.precision"):  # the old key, redirected
+        C.resolve("sweep", _write(tmp_path, "[run]\nprecision = \"float32\"\n"), environ={})
 
 
 def test_a_length_flag_replaces_the_files_length_factor(tmp_path):

@@ -160,7 +160,7 @@ def test_config_check_shows_environment_precision_and_flag_wins(tmp_path, capsys
     assert main(["config", "--config", str(cfg), "--no-comments"]) == 0
     text = capsys.readouterr().out
     assert 'precision = "float32"' in text and "rail_head_radius = 0.45" in text
-    assert main(["config", "--config", str(cfg), "--set", "run.precision=\"float64\""]) == 0
+    assert main(["config", "--config", str(cfg), "--set", "config.precision=\"float64\""]) == 0
     assert 'precision = "float64"' in capsys.readouterr().out
     assert main(["config", "--print-table"]) == 0
     assert capsys.readouterr().out == C.markdown_table()

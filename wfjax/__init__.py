@@ -3,19 +3,18 @@
 Reproduces and extends the time-domain wheel/rail interaction model of Pieringer, Kropp &
 Nielsen (2014), Wear 314, 273-281. SI units throughout the Python API.
 
-Precision: wfjax computes in float64. Importing wfjax switches on ``jax_enable_x64`` -- the one
-place in the package where JAX configuration is touched. Set the environment variable
-``WFJAX_PRECISION=float32`` before importing to keep JAX's float32 default (GPU runs).
+Precision: importing wfjax switches on ``jax_enable_x64`` -- the one place in the package where
+JAX configuration is touched: the setup (track modes, 3D tables, trajectories) is always
+float64. ``SimConfig(precision="float32")`` runs the time loop in float32 (GPUs; the command
+line's ``--precision``, case key ``config.precision``, environment ``WFJAX_PRECISION``).
 """
-
-import os as _os
 
 import jax as _jax
 
-if _os.environ.get("WFJAX_PRECISION", "float64").lower() != "float32":
+if not _jax.config.read("jax_enable_x64"):
     _jax.config.update("jax_enable_x64", True)
 
-from . import contact as contact  # noqa: E402  (after the precision switch)
+from . import contact as contact  # noqa: E402  (after the x64 switch)
 from . import fit as fit
 from . import geometry as geometry
 from . import params as params

@@ -3,7 +3,7 @@
 A case has one table per parameter object, keyed exactly by the Python dataclass field names
 of :mod:`wfjax.params` (``[wheel]`` = :class:`Wheel`, ``[track]`` = :class:`Track`,
 ``[material]`` = :class:`Material`, ``[config]`` = :class:`SimConfig`), plus ``[flat]`` (the
-flat or flats), ``[run]`` (contact model, speeds, impact positions, precision) and the tables of
+flat or flats), ``[run]`` (contact model, speeds, impact positions) and the tables of
 single subcommands (``[fit]``, ``[compare]``). Values are SI unless the key names its unit
 (``speeds_kmh``, ``depth_mm``, ``preload_kN``); a unit-suffixed key is converted to the SI key
 once, when the file is read. See ``docs/case_files.md`` for every key with unit and range
@@ -44,7 +44,7 @@ MODEL_SECTIONS = {"wheel": P.Wheel, "track": P.Track, "material": P.Material,
 COMMANDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "geometry",
             "detector")
 CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
-PRECISIONS = ("float64", "float32")
+PRECISIONS = P.PRECISIONS
 MAX_SPEED_KMH = 540.0  # = 150 m/s, the API's limit
 MAX_FLAT_LENGTH = P.MAX_FLAT_LENGTH  # m; about a tenth of a 0.45 m wheel's circumference
 PROFILE_STEP = 0.1e-3  # m; measured profiles are resampled on this uniform grid
@@ -147,6 +147,8 @@ _RANGES: dict[tuple[str, str], tuple[float | None, float | None, str]] = {
                                                     "statically"),
     ("config", "newton_iterations"): (1, 1000, "iterations of the per-step contact "
                                                "equation"),
+    ("config", "precision"): (None, None, "dtype of the time loop; setup stays float64 "
+                                          "(environment: WFJAX_PRECISION)"),
 }
 _OPEN = {("material", "poisson_ratio"): (False, True), ("config", "time_step"): (True, False),
          ("config", "max_time_step"): (True, False), ("config", "max_travel_step"): (True, False)}
@@ -155,9 +157,11 @@ _UNITS = {("material", "poisson_ratio"): "", ("config", "time_step"): "s",
           ("config", "run_in"): "m", ("config", "run_out"): "m",
           ("config", "contact_element"): "m", ("config", "track_max_frequency"): "Hz",
           ("config", "newton_iterations"): "", ("config", "contact_mode_3d"): "",
+          ("config", "precision"): "",
           ("track", "n_bays"): "", ("track", "elements_per_bay"): ""}
 _CHOICES = {("config", "contact_mode_3d"): tuple(getattr(P, "CONTACT_MODES_3D",
-                                                         ("table", "direct")))}
+                                                         ("table", "direct"))),
+            ("config", "precision"): PRECISIONS}
 
 
 def _model_keys() -> list[Key]:
@@ -192,9 +196,6 @@ def _model_keys() -> list[Key]:
 _FLAT_CMDS = ("sweep", "simulate", "fit", "geometry", "detector")
 _OTHER_KEYS = [
     Key("run", "contact", "str", choices=CONTACT_MODELS, doc="contact model",
-        commands=("sweep", "simulate", "fit", "detector")),
-    Key("run", "precision", "str", choices=PRECISIONS,
-        doc="floating-point precision (environment: WFJAX_PRECISION)",
         commands=("sweep", "simulate", "fit", "detector")),
     Key("run", "speeds_kmh", "floats", "km/h", 0.0, MAX_SPEED_KMH, low_open=True,
         doc='train speeds: a list, or "start:stop:step" (inclusive) or "v1,v2,..."',
@@ -293,6 +294,9 @@ def canonical_key(path: str, source: str) -> tuple[Key, float, str]:
     if section not in SECTIONS:
         raise CaseError(f"{source}: unknown section [{section}]; allowed: "
                         f"{', '.join(SECTIONS)}")
+    if path == "run.precision":
+        raise CaseError(f"{source}: run.precision is now config.precision "
+                        "(SimConfig.precision): write it under [config]")
     names = [k.name for k in KEYS.values() if k.section == section]
     close = difflib.get_close_matches(name, names, n=1)
     hint = f" (did you mean {section}.{close[0]}?)" if close else ""
@@ -448,12 +452,12 @@ def load_layer(path: str | os.PathLike) -> dict:
 
 
 def environment_layer(environ: Mapping[str, str] | None = None) -> dict:
-    """``run.precision`` from ``WFJAX_PRECISION`` when set."""
+    """``config.precision`` from ``WFJAX_PRECISION`` when set."""
     environ = os.environ if environ is None else environ
     value = environ.get("WFJAX_PRECISION")
     if not value:
         return {}
-    return {"run.precision": check_value(KEYS["run.precision"], value.lower(), "",
+    return {"config.precision": check_value(KEYS["config.precision"], value.lower(), "",
                                          name="WFJAX_PRECISION")}
 
 
@@ -464,7 +468,7 @@ def default_layer(command: str) -> dict:
         for f in dataclasses.fields(cls):
             if f"{section}.{f.name}" in KEYS:
                 layer[f"{section}.{f.name}"] = "auto" if f.default is None else f.default
-    layer.update({"run.contact": "3d", "run.precision": "float64",
+    layer.update({"run.contact": "3d",
                   "flat.kind": "rounded", "flat.depth": 0.9e-3, "flat.length": 0.1,
                   "flat.profile_smoothing_mm": 0.0})
     if command in ("sweep", "compare"):

@@ -495,7 +495,8 @@ def _batch_runs(setup: _Setup, law, n_steps, speeds, dt, x_start, impact, checkp
 
     def one(args):
         v, d, xs, xi = args
-        return it.run_scan(law, setup.struct, v, d, xs, xi, n_steps, max_iter)["force"]
+        return it.run_scan(law, setup.struct, v, d, xs, xi, n_steps, max_iter,
+                           precision=setup.config.precision)["force"]
 
     args = tuple(jnp.asarray(a, dtype=float) for a in (speeds, dt, x_start, impact))
     if checkpoint:

@@ -71,6 +71,7 @@ __all__ = [
     "impact_position_from_angle",
     "simulation_window",
     "batch_windows",
+    "cast_precision",
 ]
 
 RUN_IN_TIME = 0.02  # s of travel before the flat's window, from static equilibrium
@@ -149,6 +150,29 @@ def batch_windows(flat: Flat, speeds, config: SimConfig):
 
 
 # -- the time loop -----------------------------------------------------------------------------
+_NARROW = {np.dtype(np.float64): np.float32, np.dtype(np.complex128): np.complex64}
+
+
+def cast_precision(tree, precision: str):
+    """``tree`` with float64/complex128 array leaves cast to float32/complex64 when
+    ``precision == "float32"`` (other leaves, and every leaf under ``"float64"``, unchanged).
+
+    Python floats become float32 arrays too, so no float64 value promotes the loop back.
+    """
+    if precision == "float64":
+        return tree
+
+    def narrow(x):
+        if isinstance(x, float):
+            return jnp.asarray(x, jnp.float32)
+        dtype = getattr(x, "dtype", None)
+        if dtype is None or np.dtype(dtype) not in _NARROW:
+            return x
+        return jnp.asarray(x).astype(_NARROW[np.dtype(dtype)])
+
+    return jax.tree.map(narrow, tree)
+
+
 class Structure(NamedTuple):
     """Modal data of wheel and track used by the time loop (arrays; a pytree)."""
 
@@ -184,7 +208,8 @@ def _rail_terms(model, node_major, x):
 
 def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_position,
               n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
-              detector=None, run_in_steps=0, sensor_history: bool = True):
+              detector=None, run_in_steps=0, sensor_history: bool = True,
+              precision: str = "float64"):
     """The time loop under ``lax.scan`` for any contact law (pure).
 
     Args:
@@ -203,6 +228,11 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
         run_in_steps: steps before the sensors' running max/min start (traced int).
         sensor_history: return the sensors' and detector's time histories (static; False
             keeps only running max/min and peaks in the carry: no [n_steps] arrays).
+        precision: ``"float64"`` or ``"float32"`` (static, :attr:`SimConfig.precision`): the
+            dtype of the loop (the sensors' and detector's specs are cast with it). The
+            propagation coefficients exp(pole dt) and their hold integrals are computed in the
+            inputs' precision (float64) and then cast: their series in pole dt cancels to
+            ~1e-3 relative in float32.
 
     Returns:
         dict of [n_steps] arrays: t, x, s, force, approach, wheel_disp, rail_disp, residual;
@@ -211,11 +241,15 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
         ``detector``: ``detector_peak`` [n_bays] N and (``sensor_history``)
         ``detector_load`` [n_steps, n_bays] N (ungated estimate).
     """
+    coefficients = (discrete_step_coefficients(struct.track.poles, dt),
+                    discrete_step_coefficients(struct.wheel_poles, dt))
+    (law, struct, coefficients, speed, dt, x_start, impact_position, sensors,
+     detector) = cast_precision((law, struct, coefficients, speed, dt, x_start,
+                                 impact_position, sensors, detector), precision)
+    (e_r, ap_r, an_r), (e_w, ap_w, an_w) = coefficients
     model = struct.track
     w_r = model.weights
     preload = struct.preload
-    e_r, ap_r, an_r = discrete_step_coefficients(model.poles, dt)
-    e_w, ap_w, an_w = discrete_step_coefficients(struct.wheel_poles, dt)
     c_wheel = jnp.real(jnp.sum(struct.wheel_residues * an_w))
 
     # static equilibrium at the start: F = P, rail in its static deflected shape
@@ -248,11 +282,13 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
         return (out if sensor_history else {}), acc
 
     acc0 = {}
+    real = jnp.asarray(preload).dtype  # the loop's precision
     if sensors is not None:
         shape = (len(sensors.quantities), sensors.positions.shape[0])
-        acc0 |= {"sensor_max": jnp.full(shape, -jnp.inf), "sensor_min": jnp.full(shape, jnp.inf)}
+        acc0 |= {"sensor_max": jnp.full(shape, -jnp.inf, real),
+                 "sensor_min": jnp.full(shape, jnp.inf, real)}
     if detector is not None:
-        acc0["detector_peak"] = jnp.full(detector.left.shape, -jnp.inf)
+        acc0["detector_peak"] = jnp.full(detector.left.shape, -jnp.inf, real)
     first_readings, acc0 = readings(q0, preload, x_start, 0, acc0)
 
     def step(carry, n):
@@ -287,7 +323,7 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
 
 
 run_scan = jax.jit(time_loop, static_argnames=("n_steps", "max_iter", "checkpoint",
-                                              "sensor_history"))
+                                              "sensor_history", "precision"))
 run_scan.__doc__ = """:func:`time_loop` compiled (one program per law class and grid shapes).
 
 ``vmap`` it over runs, and over laws prepared for a batch of flats; ``grad`` reaches every
@@ -365,7 +401,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
                 else sensor_mod.detector_spec(detector, track, struct.track))
     hist = run_scan(law, struct, v, dt, x_imp + s_start, x_imp, int(n_steps),
                     config.newton_iterations, sensors=sensor_spec, detector=det_spec,
-                    run_in_steps=run_in_steps)
+                    run_in_steps=run_in_steps, precision=config.precision)
     if sensor_spec is None:
         return summarise(hist, v, x_imp, dt, run_in_steps, (), struct.preload)
     res = summarise(hist, v, x_imp, dt, run_in_steps, sensor_spec.quantities, struct.preload)

@@ -27,6 +27,7 @@ MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (hal
 MAX_FLAT_LENGTH = 0.3  # m; about a tenth of a 0.45 m wheel's circumference
 FLAT_KINDS = ("new", "rounded", "profile", "none")
 CONTACT_MODES_3D = ("auto", "table", "parametric", "direct")
+PRECISIONS = ("float64", "float32")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
 
 
@@ -429,6 +430,15 @@ class SimConfig:
             keeping all 1187 modes <= 0.1 % for 0.9 mm new and rounded flats at 60 and
             250 km/h; 5 kHz gives up to 0.6 %).
         newton_iterations: fixed iteration count of the per-step contact equation.
+        precision: ``"float64"`` (default) or ``"float32"``: the dtype of the time loop
+            (modal propagation, contact law, per-step Newton solve; complex64 modes). The
+            setup stays float64 either way (track modes, 3D tables and families, trajectory
+            grids, the per-step propagation coefficients exp(pole dt)), and so does the
+            process (``jax_enable_x64``). Measured on the paper's Fig. 7 and Fig. 8 sets:
+            max force within 2.0e-4 (Fig. 7) and 1.3e-4 (Fig. 8) relative of float64,
+            loss-of-contact speeds unchanged
+            (benchmarks/README.md, "Precision"). ``"direct"`` 3D contact needs float64
+            (its Kalker solves converge to 1e-10, below float32's resolution).
     """
 
     time_step: float | None = None
@@ -440,6 +450,7 @@ class SimConfig:
     contact_mode_3d: str = "auto"
     track_max_frequency: float = 10e3
     newton_iterations: int = 30
+    precision: str = "float64"
 
     def __post_init__(self):
         for name in ("max_time_step", "max_travel_step", "contact_element",
@@ -456,6 +467,16 @@ class SimConfig:
             raise ValueError(
                 f"SimConfig.contact_mode_3d must be one of {CONTACT_MODES_3D}, "
                 f"got {self.contact_mode_3d!r}"
+            )
+        if self.precision not in PRECISIONS:
+            raise ValueError(
+                f"SimConfig.precision must be one of {PRECISIONS}, got {self.precision!r}"
+            )
+        if self.precision == "float32" and self.contact_mode_3d == "direct":
+            raise ValueError(
+                "SimConfig.precision='float32' does not support contact_mode_3d='direct': "
+                "its per-step Kalker solves converge to a relative 1e-10, below float32's "
+                "resolution (1.2e-7); use 'table' or 'parametric' 3D contact, or float64"
             )
         if self.newton_iterations < 1:
             raise ValueError(

@@ -2,7 +2,11 @@
 
 All runs of one flat share one compiled program: every speed uses the same number of steps
 (the largest any speed needs) with its own time step, so the batch is rectangular. The batch
-is cut into chunks (memory) and progress with an ETA is printed per chunk.
+is cut into chunks sized for the devices (:func:`chunk_width`: from the device's free memory
+and the program's bytes per run, capped where more runs no longer raise throughput) and
+progress with an ETA is printed per chunk. Chunks are dispatched ahead: chunk k + 1 is queued
+on the devices before chunk k's summaries are copied to the host, so the devices never wait
+for the host between chunks.
 
 Devices: each chunk is sharded over every JAX device (``jax.devices()``) along the flattened
 run axis with a one-axis :class:`jax.sharding.Mesh` (axis ``"runs"``) and a
@@ -43,7 +47,14 @@ from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import summarise
 from .sensors import QUANTITIES, detector_spec, sensor_spec
 
-__all__ = ["SweepResult", "sweep", "impact_positions_grid"]
+__all__ = ["SweepResult", "sweep", "impact_positions_grid", "chunk_width"]
+
+# Runs per device and chunk at most, by platform: throughput no longer rises beyond them.
+# CPU: measured (benchmarks/README.md, "Throughput against batch size": 126 runs/s at 64, a
+# wider vmap only costs memory); accelerators: thousands of lanes keep a GPU busy.
+CHUNK_CAP = {"cpu": 64}
+ACCELERATOR_CHUNK_CAP = 8192
+MEMORY_FRACTION = 0.5  # of a device's free memory one chunk may take
 
 
 class SweepResult(NamedTuple):
@@ -191,12 +202,12 @@ def flat_label(flat: Flat) -> str:
     return f"{flat.kind} d={d:.2f}mm"
 
 
-def _reduce(n_steps, max_iter, laws, struct, extras, flat_index, speed, dt, x_start,
-            impact_position, run_in_steps):
+def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, speed, dt,
+            x_start, impact_position, run_in_steps):
     law = jax.tree.map(lambda a: a[flat_index], laws)
     hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
                     sensors=extras["sensors"], detector=extras["detector"],
-                    run_in_steps=run_in_steps, sensor_history=False)
+                    run_in_steps=run_in_steps, sensor_history=False, precision=precision)
     res = summarise({k: hist[k] for k in ("t", "x", "s", "force", "approach", "wheel_disp",
                                           "rail_disp", "residual")},
                     speed, impact_position, dt, run_in_steps)
@@ -207,7 +218,7 @@ def _reduce(n_steps, max_iter, laws, struct, extras, flat_index, speed, dt, x_st
 
 
 @functools.cache
-def _batched(mesh: Mesh, n_steps: int, max_iter: int):
+def _batched(mesh: Mesh, n_steps: int, max_iter: int, precision: str = "float64"):
     """Compiled (laws, struct, flat_index, speed, dt, x_start, impact_position, run_in) ->
     summaries, for laws stacked along a leading flat axis (one program per law class).
 
@@ -216,8 +227,8 @@ def _batched(mesh: Mesh, n_steps: int, max_iter: int):
     of its condition at every step (what a plain ``jit`` over sharded inputs would compile).
     """
     def local(laws, struct, extras, *runs):
-        return jax.vmap(functools.partial(_reduce, n_steps, max_iter, laws, struct, extras))(
-            *runs)
+        return jax.vmap(functools.partial(_reduce, n_steps, max_iter, precision, laws, struct,
+                                          extras))(*runs)
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
@@ -287,7 +298,7 @@ def _check_speeds(speeds) -> np.ndarray:
 def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: str = "3d",
           wheel: Wheel | None = None, track: Track | None = None,
           material: Material | None = None, config: SimConfig | None = None,
-          chunk_size: int = 64, progress: bool = True, cache_dir=None, sensors=None,
+          chunk_size: int | None = None, progress: bool = True, cache_dir=None, sensors=None,
           detector=None, sensor_quantities=QUANTITIES) -> SweepResult:
     """Max/min contact force for every flat x speed x impact position.
 
@@ -298,8 +309,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             (:func:`impact_positions_grid`) or an array of positions [m] in [0, L_S).
         contact: ``"3d"``, ``"2d"``, ``"hertz-trajectory"`` or ``"hertz-profile"``.
         wheel, track, material, config: model parameters (defaults as in :func:`simulate`).
-        chunk_size: simulations per vmapped batch (memory bound), over all devices; each chunk
-            is padded to a multiple of the device count and sharded across the devices.
+        chunk_size: simulations per vmapped batch over all devices (default: per device
+            :func:`chunk_width`, from its memory); each chunk is padded to a multiple of the
+            device count and sharded across the devices.
         progress: print progress with ETA to stderr.
         sensors: [n_s] fixed rail positions [m] (as :func:`wfjax.simulate`): the max and min
             of each of ``sensor_quantities`` (default every one of
@@ -326,8 +338,8 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         if pos.ndim != 1 or np.any(pos < 0) or np.any(pos >= spacing) or not np.all(
                 np.isfinite(pos)):
             raise ValueError(f"impact_positions must lie in [0, {spacing}) m, got {pos!r}")
-    if chunk_size < 1:
-        raise ValueError(f"chunk_size must be >= 1, got {chunk_size!r}")
+    if chunk_size is not None and (int(chunk_size) != chunk_size or chunk_size < 1):
+        raise ValueError(f"chunk_size must be an integer >= 1 or None, got {chunk_size!r}")
     if contact not in CONTACT_MODELS:
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     if detector is not None:
@@ -467,16 +479,29 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
 
 
 def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
-               config: SimConfig, mesh: Mesh, chunk_size: int,
+               config: SimConfig, mesh: Mesh, chunk_size: int | None,
                bar: _Progress) -> list[np.ndarray]:
-    """Summaries [n_flats, n_speeds, n_positions] of one batch of laws, chunked and sharded."""
+    """Summaries [n_flats, n_speeds, n_positions] of one batch of laws, chunked and sharded.
+
+    Every chunk is dispatched before the previous one is collected (one chunk in flight)."""
     n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
+    if chunk_size is None:
+        n_modes = int(struct.track.poles.shape[0])
+        per_device = chunk_width(n_steps, n_modes, config.precision)
+        if jax.process_count() > 1:  # every process must compile and run the same chunks
+            per_device = int(np.min(multihost_utils.process_allgather(np.int32(per_device))))
+        chunk_size = mesh.devices.size * per_device
     ff, jj, kk = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
                                                  np.arange(pos.size), indexing="ij"))
     vv, pp, dt, s_start, run_in = v[jj], pos[kk], dt_v[jj], s0_v[jj], run_in_v[jj]
-    program = _batched(mesh, n_steps, config.newton_iterations)
-    results = []
+    program = _batched(mesh, n_steps, config.newton_iterations, config.precision)
+    results, in_flight = [], None
     step, width = _chunk_layout(vv.size, chunk_size, mesh.devices.size)
+
+    def collect(batch, n):
+        results.append([b[:n] for b in _gather(batch)])
+        bar.update(n)
+
     for lo in range(0, vv.size, step):
         sl = slice(lo, lo + step)
         n = vv[sl].size
@@ -486,10 +511,49 @@ def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
 
         batch = program(laws, struct, extras, padded(ff[sl]), padded(vv[sl]), padded(dt[sl]),
                         padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]))
-        results.append([b[:n] for b in _gather(batch)])
-        bar.update(n)
+        if in_flight is not None:
+            collect(*in_flight)
+        in_flight = (batch, n)
+    collect(*in_flight)
     return [np.concatenate(c).reshape((n_flats, v.size, pos.size) + c[0].shape[1:])
             for c in zip(*results, strict=True)]
+
+
+def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64") -> int:
+    """Device memory [bytes] one run of the batched time loop needs (an upper estimate).
+
+    24 complex vectors of ``n_modes`` (carry, propagated state, shapes at the contact and
+    their products) and 2 reals per step. Fitted to the compiled program's
+    ``memory_analysis()`` on CPU (temporaries at 16 and 64 runs, 599 modes): float64
+    215 / 262 KB per run at 1000 / 4000 steps (estimate 246 / 294 KB), float32 74 / 77 KB
+    (estimate 123 / 147 KB); the width-independent rest (~11 MB: the structure's modes) is
+    left to ``MEMORY_FRACTION``.
+    """
+    real = 8 if precision == "float64" else 4
+    return real * (2 * n_steps + 24 * 2 * n_modes)
+
+
+def chunk_width(n_steps: int, n_modes: int, precision: str = "float64",
+                device: jax.Device | None = None) -> int:
+    """Runs per device and chunk: as many as ``MEMORY_FRACTION`` of the device's free memory
+    holds (:func:`bytes_per_run`), at most the platform's throughput cap (``CHUNK_CAP``: 64
+    on CPU; ``ACCELERATOR_CHUNK_CAP`` on GPUs/TPUs) and at least 1.
+
+    ``device``: default the first local device. Free memory: ``device.memory_stats()``
+    (``bytes_limit - bytes_in_use``) where the backend
+    reports it (GPU, TPU); else the host's available memory over its local device count
+    (CPU devices share the host's memory).
+    """
+    device = device or jax.local_devices()[0]  # this process's (another host's: no stats)
+    stats = device.memory_stats() or {}
+    if "bytes_limit" in stats:
+        free = stats["bytes_limit"] - stats.get("bytes_in_use", 0)
+    else:
+        free = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES") / max(
+            1, jax.local_device_count())
+    cap = CHUNK_CAP.get(device.platform, ACCELERATOR_CHUNK_CAP)
+    fits = int(MEMORY_FRACTION * free // bytes_per_run(n_steps, n_modes, precision))
+    return max(1, min(cap, fits))
 
 
 def _chunk_layout(n_runs: int, chunk_size: int, n_devices: int) -> tuple[int, int]:

@@ -319,7 +319,7 @@ def mode_shapes_at(model: ModalModel, x) -> jax.Array:
     model's own interpolation). Positions outside the rail are clamped to its ends. Pure
     ``jax.numpy``; jit/vmap/grad-able in ``x``.
     """
-    x = jnp.asarray(x, dtype=jnp.result_type(float))
+    x = jnp.asarray(x, dtype=jnp.result_type(x, float))  # float32 stays float32
     node_x = model.node_x
     le = node_x[1] - node_x[0]
     n_el = node_x.shape[0] - 1
@@ -357,7 +357,7 @@ def residual_compliance_at(model: ModalModel, x) -> jax.Array:
 
     ``x`` [m] any shape; returns float [...]. Pure ``jax.numpy``.
     """
-    x = jnp.asarray(x, dtype=jnp.result_type(float))
+    x = jnp.asarray(x, dtype=jnp.result_type(x, float))  # float32 stays float32
     s = jnp.mod(x, model.sleeper_spacing)
     return jnp.interp(s, model.residual_x, model.residual)
 

@@ -76,10 +76,7 @@ def _csv(result) -> str:
 
 
 def run(args) -> int:
-    from .sweep import set_precision
-
     case = resolve_case(args, "detector", FLAGS)
-    set_precision(case["run.precision"])
     from ..plotting import detector_figure
     from ..sensors import Detector
     from ..sweeps import sweep

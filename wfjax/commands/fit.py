@@ -182,8 +182,6 @@ def _profile_start(flat):
 
 
 def run(args) -> int:
-    from .sweep import set_precision
-
     case = resolve_case(args, "fit", FLAGS)
     if case["fit.example"]:
         text, source = EXAMPLE_CSV, "example"
@@ -196,7 +194,6 @@ def run(args) -> int:
         raise ValueError("give --data FILE.csv or --example (or fit.data in the case file)")
     speed_kmh = case.get("run.speed_kmh")
     data = parse_data(text, source, speed_kmh, case["run.impact_position"] * 1e3)
-    set_precision(case["run.precision"])
     from .. import fit
 
     flat, par = _initial_flat(case)

@@ -37,10 +37,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from .sweep import set_precision
-
     case = resolve_case(args, "simulate", FLAGS)
-    set_precision(case["run.precision"])
     from ..interaction import simulate
     from ..plotting import force_history_figure
 

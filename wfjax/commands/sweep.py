@@ -9,7 +9,6 @@ JSON, NPZ and PNG (one curve per flat).
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
@@ -31,7 +30,7 @@ MM = 1e-3
 MODEL_FLAGS = {"contact": ("run.contact", 1.0),
                "rail_head_radius_m": ("track.rail_head_radius", 1.0),
                "wheel_radius_m": ("wheel.radius", 1.0),
-               "precision": ("run.precision", 1.0)}
+               "precision": ("config.precision", 1.0)}
 FLAT_FLAGS = {"flat": ("flat.kind", 1.0), "depth_mm": ("flat.depth", MM),
               "length_mm": ("flat.length", MM), "profile_csv": ("flat.profile_csv", 1.0),
               "profile_smoothing_mm": ("flat.profile_smoothing_mm", 1.0)}
@@ -68,8 +67,9 @@ def add_model_arguments(parser, contact_default: str = "3d", rail_head_default: 
                         help=f"transverse rail head radius R_R in m (default "
                              f"{rail_head_default:g}; the paper's model comparison uses 0.45)")
     parser.add_argument("--precision", choices=["float64", "float32"],
-                        help="floating-point precision (default: WFJAX_PRECISION, else "
-                             "float64; float32 for GPUs, see benchmarks/README.md)")
+                        help="dtype of the time loop, SimConfig.precision (default: "
+                             "WFJAX_PRECISION, else float64; float32 for GPUs, see "
+                             "benchmarks/README.md)")
 
 
 def add_profile_arguments(parser) -> None:
@@ -112,24 +112,8 @@ def argparse_hide():
     return argparse.SUPPRESS
 
 
-def set_precision(precision: str) -> None:
-    """Select float64 or float32 for everything computed afterwards (the one place the CLI does).
-
-    Sets ``WFJAX_PRECISION`` (read by ``import wfjax`` in child processes) and
-    ``jax_enable_x64`` (this process). Must run before any array of the computation is made;
-    ``run`` calls it first.
-    """
-    import jax
-
-    if precision not in ("float64", "float32"):
-        raise ValueError(f"--precision must be float64 or float32, got {precision!r}")
-    os.environ["WFJAX_PRECISION"] = precision
-    jax.config.update("jax_enable_x64", precision == "float64")
-
-
 def run(args) -> int:
     case = resolve_case(args, "sweep", FLAGS)
-    set_precision(case["run.precision"])
     from ..plotting import sweep_figure
     from ..sweeps import sweep
 
@@ -141,7 +125,7 @@ def run(args) -> int:
     out = prepare_out(args.out)
     print(f"wfjax sweep: {len(flats)} flat(s) x {speeds.size} speeds x {positions} "
           f"positions, {contact} contact, R_R = {float(track.rail_head_radius):g} m, "
-          f"{case['run.precision']}")
+          f"{case['config.precision']}")
     t0 = time.perf_counter()
     result = sweep(flats, speeds, positions, contact=contact, wheel=wheel, track=track,
                    material=material, config=config)
@@ -151,7 +135,7 @@ def run(args) -> int:
     result.save_npz(out / "sweep.npz")
     summary = result.summary()
     summary["wall_time_s"] = elapsed
-    summary["precision"] = case["run.precision"]
+    summary["precision"] = case["config.precision"]
     write_summary(out / "sweep.json", summary, case,
                   {"profile_csv": case.get("flat.profile_csv")})
     save_figure(sweep_figure(result, preload=float(wheel.preload)), out / "sweep.png")

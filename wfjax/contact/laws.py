@@ -64,6 +64,7 @@ __all__ = [
     "prepare_family_range",
     "resolve_mode_3d",
     "cached_table_3d",
+    "table_batch_size",
 ]
 
 CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
@@ -72,6 +73,11 @@ TRAJECTORY_SPACING = 2e-5  # m between the samples of the tabulated wheel-centre
 # Part of every 3D table's cache key, so a change of the builder's results within one wfjax
 # version is never served from an old cache: 2 = new-flat onsets include the chord ends.
 TABLE_BUILDER_REVISION = 2
+# Columns of a 3D table solved together (``tables.build_table_3d(batch_size=...)``), by JAX
+# platform: one at a time on CPUs (a vmap over the columns was 4.5x slower on 2 cores: every
+# batched Kalker while-loop runs until its slowest column); GPUs/TPUs fill their lanes.
+TABLE_BATCH_SIZE = {"cpu": 1}
+ACCELERATOR_TABLE_BATCH_SIZE = 32
 
 
 class ContactLaw:
@@ -349,6 +355,15 @@ def prepare_family_range(kind: str, depths, length_factors, wheel: Wheel, track:
     return family_mod.build_family(spec, material, cache_dir=cache_dir, progress=progress)
 
 
+def table_batch_size(platform: str | None = None) -> int:
+    """Columns of a 3D table built at once on ``platform`` (default: JAX's default backend):
+    ``TABLE_BATCH_SIZE`` (1 on CPU), else ``ACCELERATOR_TABLE_BATCH_SIZE``. The table is the
+    same to the solver's tolerance either way (batch 4 against 1: 6e-3 N of up to 950 kN), so
+    the disk cache does not key on it."""
+    platform = platform or jax.default_backend()
+    return TABLE_BATCH_SIZE.get(platform, ACCELERATOR_TABLE_BATCH_SIZE)
+
+
 def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
                     material: Material, element_size: float, cache_dir=None):
     """:func:`wfjax.contact.tables.build_table_3d` through the on-disk cache.
@@ -361,7 +376,7 @@ def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
 
     def build():
         return tables.build_table_3d(flat, wheel_radius, rail_head_radius, material,
-                                     element_size=element_size)
+                                     element_size=element_size, batch_size=table_batch_size())
 
     leaves = jax.tree_util.tree_leaves((flat, material))
     if not all(_is_concrete(leaf) for leaf in leaves):

@@ -1,0 +1,64 @@
+"""SimConfig.precision: the float32 time loop is float32 throughout and close to float64."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import wfjax as wf
+from wfjax import interaction as it
+from wfjax.contact.laws import prepare
+
+FLAT = wf.Flat.rounded(depth=0.9e-3, length=0.1)
+WIDE = (np.dtype(np.float64), np.dtype(np.complex128))
+
+
+def _wide_outputs(jaxpr) -> list[str]:
+    """Equations of ``jaxpr`` (and of every sub-jaxpr) that produce float64/complex128."""
+    found = []
+    for eqn in jaxpr.eqns:
+        found += [f"{eqn.primitive.name} -> {v.aval}" for v in eqn.outvars
+                  if getattr(v.aval, "dtype", None) in WIDE]
+        for value in eqn.params.values():
+            for sub in value if isinstance(value, (tuple, list)) else (value,):
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    found += _wide_outputs(inner)
+    return found
+
+
+@pytest.mark.parametrize("contact", ["hertz-trajectory", "2d"])
+def test_float32_time_loop_has_no_float64_operation(contact):
+    config = wf.SimConfig(precision="float32")
+    struct = it.structure(wf.Wheel(), wf.Track(), config)
+    law = prepare(contact, FLAT, wf.Wheel(), wf.Track(), wf.Material(), config)
+    closed = jax.make_jaxpr(lambda law, struct: it.time_loop(
+        law, struct, 25.0, 4e-5, -0.3, 0.1, 50, precision="float32"))(law, struct)
+    (scan,) = [e for e in closed.jaxpr.eqns  # the time loop (not the static equilibrium's)
+               if e.primitive.name == "scan" and e.params["length"] == 49]
+    assert _wide_outputs(scan.params["jaxpr"].jaxpr) == []
+    carry = [str(v.aval) for v in scan.params["jaxpr"].jaxpr.invars]
+    assert any("complex64[599]" in c for c in carry)  # the modal state is float32 too
+
+
+def test_float32_sweep_matches_float64():
+    speeds = np.array([60.0, 140.0, 250.0]) / 3.6
+    out = {p: wf.sweep(FLAT, speeds, impact_positions=2, contact="hertz-trajectory",
+                       config=wf.SimConfig(precision=p), progress=False)
+           for p in ("float64", "float32")}
+    f64, f32 = out["float64"], out["float32"]
+    rel = np.max(np.abs(f32.max_force - f64.max_force) / f64.max_force)
+    assert rel < 1e-4  # measured 3e-6
+    assert rel > 0  # it did run in float32
+    np.testing.assert_array_equal(f32.loss_of_contact, f64.loss_of_contact)
+    assert f64.loss_of_contact.any()  # 250 km/h loses contact: the flag is exercised
+    # the contact equation's tolerance (1e-15 m) stays: float32 Newton iterates land on r = 0
+    assert np.max(f32.max_residual) < 1e-9  # measured 6e-11 m
+
+
+def test_precision_is_checked():
+    with pytest.raises(ValueError, match="precision must be one of"):
+        wf.SimConfig(precision="float16")
+    with pytest.raises(ValueError, match="does not support contact_mode_3d='direct'"):
+        wf.SimConfig(precision="float32", contact_mode_3d="direct")
