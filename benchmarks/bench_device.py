@@ -51,22 +51,10 @@ import numpy as np
 
 import wfjax as wf
 from wfjax import fit
+from wfjax._compile_clock import compile_seconds
 from wfjax.cli import expose_cpu_cores
 from wfjax.commands.figures import fig7_flats
 from wfjax.contact import laws, tables
-
-COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
-                  "/jax/core/compile/jaxpr_to_mlir_module_duration",
-                  "/jax/core/compile/backend_compile_duration")
-_clock = {"compile": 0.0}
-
-
-def _listener(event, duration, **_):
-    if event in COMPILE_EVENTS:
-        _clock["compile"] += duration
-
-
-jax.monitoring.register_event_duration_secs_listener(_listener)
 
 SECTIONS = ("table", "gradient", "default", "fig7", "fig8", "large-hertz", "large-3d")
 # per size: speeds [km/h], positions, Fig. 8 depths [mm], 3D element [m], table element [m],
@@ -95,9 +83,9 @@ def peak_memory_mib() -> tuple[float, str]:
 
 def timed(fn):
     """(result, wall [s], compile [s]) of ``fn()``, blocked until ready."""
-    c0, t0 = _clock["compile"], time.perf_counter()
+    c0, t0 = compile_seconds(), time.perf_counter()
     out = jax.block_until_ready(fn())
-    return out, time.perf_counter() - t0, _clock["compile"] - c0
+    return out, time.perf_counter() - t0, compile_seconds() - c0
 
 
 def loss_speeds(result) -> list:

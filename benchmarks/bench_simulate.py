@@ -24,23 +24,16 @@ import jax
 
 import wfjax as wf
 from wfjax import interaction as I  # noqa: N812
+from wfjax._compile_clock import compile_seconds
 from wfjax.contact import laws
-
-COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
-                  "/jax/core/compile/jaxpr_to_mlir_module_duration",
-                  "/jax/core/compile/backend_compile_duration")
-_clock = {"compile": 0.0}
-jax.monitoring.register_event_duration_secs_listener(
-    lambda event, duration, **_: _clock.__setitem__(
-        "compile", _clock["compile"] + (duration if event in COMPILE_EVENTS else 0.0)))
 
 
 def timed(fn):
     """(wall [s], compile [s]) of ``fn()`` with its outputs blocked on."""
-    c0 = _clock["compile"]
+    c0 = compile_seconds()
     t0 = time.perf_counter()
     jax.block_until_ready(fn())
-    return time.perf_counter() - t0, _clock["compile"] - c0
+    return time.perf_counter() - t0, compile_seconds() - c0
 
 
 def peak_mib() -> float:

@@ -28,32 +28,21 @@ import jax
 import numpy as np
 
 import wfjax as wf
+from wfjax._compile_clock import compile_seconds
 
 sweep_mod = importlib.import_module("wfjax.sweeps")  # the module (wfjax.sweep is the function)
 
-COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
-                  "/jax/core/compile/jaxpr_to_mlir_module_duration",
-                  "/jax/core/compile/backend_compile_duration")
-_clock = {"compile": 0.0}
-
-
-def _listener(event, duration, **_):
-    if event in COMPILE_EVENTS:
-        _clock["compile"] += duration
-
-
-jax.monitoring.register_event_duration_secs_listener(_listener)
 
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 
 
 def timed_sweep(*args, **kwargs):
     """(result, wall [s], compile [s]) of one :func:`wfjax.sweep` call."""
-    c0 = _clock["compile"]
+    c0 = compile_seconds()
     t0 = time.perf_counter()
     res = wf.sweep(*args, progress=False, **kwargs)
     wall = time.perf_counter() - t0
-    return res, wall, _clock["compile"] - c0
+    return res, wall, compile_seconds() - c0
 
 
 def median_run(args, kwargs, repeats: int = 3) -> tuple[float, float]:
@@ -122,9 +111,9 @@ def default_sweep() -> None:
 
     def wrap(name, fn):
         def inner(*a, **k):
-            t0, c0 = time.perf_counter(), _clock["compile"]
+            t0, c0 = time.perf_counter(), compile_seconds()
             out = jax.block_until_ready(fn(*a, **k))  # table builds are dispatched async
-            inside = _clock["compile"] - c0  # counted under compilation, not here
+            inside = compile_seconds() - c0  # counted under compilation, not here
             split[name] += time.perf_counter() - t0 - inside
             return out
         return inner

@@ -308,17 +308,23 @@ def _merge_sizes(needed: dict[tuple[int, int], int], max_sizes: int,
     return [(int(wx), int(wy)) for wx, wy in w[order]]
 
 
-def _relative_gaps(spec: TableSpec, flat: Flat, s_values) -> np.ndarray:
-    """[n, nx, ny] gap minus its minimum on the grid [m] at concrete flat positions.
-
-    The grid minimum is >= the continuum onset, so {gap - min < c} contains the rigid overlap
-    at compression c (a window from it is never too small).
-    """
+@functools.partial(jax.jit, static_argnums=0)
+def _relative_gaps_jit(spec: TableSpec, flat: Flat, s_values):
     def one(s):
         g = kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius, spec.rail_head_radius)
         return g - jnp.min(g)
 
-    return np.asarray(jax.jit(jax.vmap(one))(jnp.asarray(s_values)))
+    return jax.vmap(one)(s_values)
+
+
+def _relative_gaps(spec: TableSpec, flat: Flat, s_values) -> np.ndarray:
+    """[n, nx, ny] gap minus its minimum on the grid [m] at concrete flat positions.
+
+    The grid minimum is >= the continuum onset, so {gap - min < c} contains the rigid overlap
+    at compression c (a window from it is never too small). One compiled program per layout
+    (a rebuilt table of the same layout compiles nothing).
+    """
+    return np.asarray(_relative_gaps_jit(spec, flat, jnp.asarray(s_values)))
 
 
 def window_plan(spec: TableSpec, flat: Flat, s_values, margin: int = WINDOW_MARGIN,
