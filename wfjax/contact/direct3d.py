@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..params import Flat, Material, SimConfig, Track, Wheel, _pytree
-from . import kalker, tables
+from . import tables
 from .laws import TableLaw, cached_table_3d
 from .newton import bracketed_newton
 
@@ -66,8 +66,6 @@ class Direct3DLaw(TableLaw):
     def _evaluate(self, s, delta, pressure):
         """Force [N], stiffness [N/m] and the whole-grid pressure of one solve at (delta, s)."""
         layout = self.layout
-        h = layout.element_size
-        x_all, y_all = jnp.asarray(layout.x), jnp.asarray(layout.y)
         n_s, n_t = self.window_index.shape
         j = jnp.clip(jnp.round((s + layout.s_max) / (2 * layout.s_max) * (n_s - 1)), 0,
                      n_s - 1).astype(jnp.int32)
@@ -76,18 +74,11 @@ class Direct3DLaw(TableLaw):
                      n_t - 1).astype(jnp.int32)
 
         def solve_on(nx, ny, i0, j0):
-            x = jax.lax.dynamic_slice(x_all, (i0,), (nx,))
-            y = jax.lax.dynamic_slice(y_all, (j0,), (ny,))
-            gap = kalker.gap_3d(self.flat, s, x, y, layout.wheel_radius, layout.rail_head_radius)
-            cfg = kalker._Config(nx, ny, h, h, "fft", KALKER_TOL, 1000)
-            p0 = jax.lax.dynamic_slice(pressure, (i0, j0), (nx, ny))
-            res, _ = kalker._solve_impl(cfg, gap, self.material, delta, None, p0, 50, True,
-                                        False)
+            res, gap, full, _ = tables.window_solve(layout, self.flat, self.material, s, delta,
+                                                    (nx, ny), (i0, j0), pressure, KALKER_TOL)
             # The window holds the contact unless the overlap {gap < delta} reaches its edge.
             edge = jnp.minimum(jnp.minimum(gap[0].min(), gap[-1].min()),
                                jnp.minimum(gap[:, 0].min(), gap[:, -1].min()))
-            full = jax.lax.dynamic_update_slice(jnp.zeros_like(pressure), res.pressure,
-                                                (i0, j0))
             return res.force, res.stiffness, full, (edge > delta) | (nx == layout.nx) & (
                 ny == layout.ny)
 

@@ -51,7 +51,7 @@ from ..params import Flat, Material
 from . import kalker
 
 __all__ = ["ContactTable", "Column", "TableSpec", "table_spec", "build_table_3d", "table_force",
-           "table_onset", "table_column", "column_force"]
+           "table_onset", "table_column", "column_force", "window_plan", "window_solve"]
 
 _DEFAULT_MATERIAL = Material()
 
@@ -404,30 +404,54 @@ def assign_windows(spec: TableSpec, boxes: OverlapBoxes, sizes) -> WindowPlan:
     return WindowPlan(tuple((int(a), int(b)) for a, b in w), size_index, x0, y0)
 
 
+def window_solve(spec: TableSpec, flat: Flat, material: Material, s, approach, size, start,
+                 p_full, tol: float, z_full=None):
+    """One approach-controlled Kalker solve on a window of the grid of ``spec`` (traceable).
+
+    Args:
+        spec: the layout whose grid the window cuts. flat, material: as for :func:`gap_3d`.
+        s: flat position [m]; approach: delta [m].
+        size: (wx, wy) window size [elements] (static). start: (i0, j0) grid index of its
+            first element (may be traced).
+        p_full: [nx, ny] whole-grid pressure [Pa] of the warm start.
+        tol: CG tolerance. z_full: [nx, ny] whole-grid warm start of the stiffness solve, or
+            None (cold).
+
+    Returns:
+        (:class:`wfjax.contact.kalker.KalkerResult` on the window, the window's gap [wx, wy] m,
+        the pressure embedded in the whole grid [nx, ny] Pa, the stiffness solve's z embedded
+        likewise, or None when ``z_full`` is None).
+    """
+    (wx, wy), (i0, j0) = size, start
+    h = spec.element_size
+    x = jax.lax.dynamic_slice(jnp.asarray(spec.x), (i0,), (wx,))
+    y = jax.lax.dynamic_slice(jnp.asarray(spec.y), (j0,), (wy,))
+    gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
+    cfg = kalker._Config(wx, wy, h, h, "fft", tol, 1000)
+    z0 = None if z_full is None else jax.lax.dynamic_slice(z_full, (i0, j0), (wx, wy))
+    r, z = kalker._solve_impl(cfg, gap, material, approach, None,
+                              jax.lax.dynamic_slice(p_full, (i0, j0), (wx, wy)), 50, True,
+                              False, z_init=z0)
+
+    def embed(window, full):
+        return jax.lax.dynamic_update_slice(jnp.zeros_like(full), window.astype(full.dtype),
+                                            (i0, j0))
+
+    return r, gap, embed(r.pressure, p_full), None if z_full is None else embed(z, z_full)
+
+
 def _windowed_column(spec: TableSpec, sizes, flat: Flat, material: Material, s, tol: float,
                      size_index, x0, y0):
     """:func:`_column` with every solve on its window (see :class:`WindowPlan`)."""
-    h = spec.element_size
-    x_all, y_all = jnp.asarray(spec.x), jnp.asarray(spec.y)
     onset = _onset(spec, flat, s)
     dtype = jnp.result_type(onset.dtype, float)
 
     def branch(size):
-        wx, wy = size
-        cfg = kalker._Config(wx, wy, h, h, "fft", tol, 1000)
-
         def solve(p_full, z_full, c, i0, j0):
-            x = jax.lax.dynamic_slice(x_all, (i0,), (wx,))
-            y = jax.lax.dynamic_slice(y_all, (j0,), (wy,))
-            gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
-            p_prev = jax.lax.dynamic_slice(p_full, (i0, j0), (wx, wy))
-            z_prev = jax.lax.dynamic_slice(z_full, (i0, j0), (wx, wy))
-            r, z = kalker._solve_impl(cfg, gap, material, onset + c, None, p_prev, 50, True,
-                                      False, z_init=z_prev)
-            zeros = jnp.zeros_like(p_full)
-            return (jax.lax.dynamic_update_slice(zeros, r.pressure.astype(dtype), (i0, j0)),
-                    jax.lax.dynamic_update_slice(zeros, z.astype(dtype), (i0, j0)),
-                    r.force.astype(dtype), r.stiffness.astype(dtype), r.diagnostics.converged)
+            r, _, p_new, z_new = window_solve(spec, flat, material, s, onset + c, size,
+                                              (i0, j0), p_full, tol, z_full)
+            return (p_new, z_new, r.force.astype(dtype), r.stiffness.astype(dtype),
+                    r.diagnostics.converged)
 
         return solve
 
@@ -474,7 +498,7 @@ def build_columns(spec: TableSpec, flat: Flat, material: Material, s_values, tol
     def skip(_):
         return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
 
-    return jax.lax.map(lambda args: jax.lax.cond(args[0], lambda c: one(c), skip, args[1]),
+    return jax.lax.map(lambda args: jax.lax.cond(args[0], one, skip, args[1]),
                        (jnp.asarray(active), columns))
 
 
