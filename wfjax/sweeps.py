@@ -21,7 +21,6 @@ everywhere; ``jax.devices()`` then spans all hosts and every process receives th
 
 from __future__ import annotations
 
-import concurrent.futures
 import csv
 import dataclasses
 import functools
@@ -41,6 +40,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from ._parallel import map_per_core
 from .contact.laws import CONTACT_MODELS, cached_table_3d, prepare, prepare_family, resolve_mode_3d
 from .interaction import batch_windows, detector_config, run_scan, structure
 from .params import Flat, Material, SimConfig, Track, Wheel
@@ -402,10 +402,9 @@ def prefetch_tables(flats: Sequence[Flat], contact: str, wheel: Wheel, track: Tr
     if progress:
         print(f"  building {len(flats)} 3D contact tables (cached after the first run) ...",
               end="\r", file=sys.stderr, flush=True)
-    with concurrent.futures.ThreadPoolExecutor(min(len(flats), os.cpu_count() or 1)) as pool:
-        list(pool.map(lambda flat: cached_table_3d(
-            flat, float(wheel.radius), float(track.rail_head_radius), material,
-            config.contact_element, cache_dir), flats))
+    map_per_core(lambda flat: cached_table_3d(flat, float(wheel.radius),
+                                              float(track.rail_head_radius), material,
+                                              config.contact_element, cache_dir), flats)
     return len(flats)
 
 

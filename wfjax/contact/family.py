@@ -100,10 +100,8 @@ per CPU core (deepest first).
 
 from __future__ import annotations
 
-import concurrent.futures
 import functools
 import math
-import os
 import sys
 import time
 from typing import NamedTuple
@@ -112,6 +110,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._parallel import map_per_core
 from ..params import MAX_FLAT_DEPTH, Flat, Material
 from . import kalker, tables
 
@@ -600,9 +599,7 @@ def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache
                       file=sys.stderr, flush=True)
             return arrays
 
-        workers = max(1, min(len(missing), os.cpu_count() or 1))
-        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
-            built.update(zip(missing, pool.map(build, missing), strict=True))
+        built.update(zip(missing, map_per_core(build, missing), strict=True))
     for idx in range(n_d * n_l):
         a = built[idx]
         n_cols = a["onset"].shape[0]
