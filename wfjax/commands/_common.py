@@ -45,6 +45,16 @@ def add_out_argument(parser: argparse.ArgumentParser, default: str) -> None:
     parser.add_argument("--out", default=default, help=f"output directory (default: {default})")
 
 
+def add_speed_arguments(parser: argparse.ArgumentParser, speeds_kmh: str,
+                        positions: int) -> None:
+    """``--speeds-kmh`` and ``--positions`` (help text with the subcommand's defaults)."""
+    parser.add_argument("--speeds-kmh",
+                        help=f"speeds in km/h, 'start:stop:step' or 'v1,v2' (default {speeds_kmh})")
+    parser.add_argument("--positions", type=int,
+                        help=f"impact positions evenly covering one sleeper bay (default "
+                             f"{positions})")
+
+
 def add_case_arguments(parser: argparse.ArgumentParser) -> None:
     """``--config FILE`` and ``--set KEY=VALUE`` (every subcommand)."""
     parser.add_argument("--config", metavar="FILE",

@@ -25,6 +25,7 @@ from ..params import Flat, Track
 from ._common import (
     add_case_arguments,
     add_out_argument,
+    add_speed_arguments,
     prepare_out,
     resolve_case,
     save_figure,
@@ -209,10 +210,7 @@ FLAGS = {"speeds_kmh": ("run.speeds_kmh", 1.0), "positions": ("run.impact_positi
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--speeds-kmh",
-                        help="speeds in km/h, 'start:stop:step' or 'v1,v2' (default 20:300:10)")
-    parser.add_argument("--positions", type=int,
-                        help="impact positions evenly covering one sleeper bay (default 8)")
+    add_speed_arguments(parser, "20:300:10", 8)
     parser.add_argument("--depths-mm",
                         help="flat depths in mm, comma separated (default 0.5,0.9,1.75); a "
                              "rounded and a new flat each")

@@ -17,6 +17,7 @@ import numpy as np
 from ._common import (
     add_case_arguments,
     add_out_argument,
+    add_speed_arguments,
     check_finite,
     prepare_out,
     resolve_case,
@@ -40,10 +41,7 @@ FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "speeds_kmh": ("run.speeds_kmh", 1.0),
 def add_arguments(parser) -> None:
     add_flat_arguments(parser)
     add_profile_arguments(parser)
-    parser.add_argument("--speeds-kmh",
-                        help="speeds in km/h, 'start:stop:step' or 'v1,v2' (default 20:200:20)")
-    parser.add_argument("--positions", type=int,
-                        help="impact positions evenly covering one sleeper bay (default 5)")
+    add_speed_arguments(parser, "20:200:20", 5)
     parser.add_argument("--sensors-m",
                         help="rail sensor positions in m, 'x1,x2,...' (x = 0 at a sleeper; "
                              "default 0,0.325)")

@@ -16,6 +16,7 @@ import numpy as np
 from ._common import (
     add_case_arguments,
     add_out_argument,
+    add_speed_arguments,
     check_finite,
     prepare_out,
     resolve_case,
@@ -97,10 +98,7 @@ def add_arguments(parser) -> None:
                              "1.76); replaces --length-mm")
     add_profile_arguments(parser)
     parser.add_argument("--wheel-radius-m", type=float, help=argparse_hide())
-    parser.add_argument("--speeds-kmh",
-                        help="speeds in km/h, 'start:stop:step' or 'v1,v2' (default 20:300:10)")
-    parser.add_argument("--positions", type=int,
-                        help="impact positions evenly covering one sleeper bay (default 10)")
+    add_speed_arguments(parser, "20:300:10", 10)
     add_model_arguments(parser)
     add_case_arguments(parser)
     add_out_argument(parser, "out/sweep")
