@@ -559,8 +559,7 @@ def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache
     Returns:
         :class:`FlatFamily`.
     """
-    leaves = jax.tree_util.tree_leaves(material)
-    if not all(kalker._is_concrete(v) for v in leaves):
+    if not kalker._is_concrete_tree(material):
         raise ValueError("build_family needs a concrete material (node tables are cached)")
     n_d, n_l = len(spec.depth_index), len(spec.length_index)
     n_s, n_t = spec.n_s, spec.n_t

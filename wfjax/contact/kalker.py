@@ -555,6 +555,11 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+def _is_concrete_tree(tree) -> bool:
+    """No leaf of ``tree`` is a tracer (the inputs are numbers, not traced values)."""
+    return all(_is_concrete(v) for v in jax.tree_util.tree_leaves(tree))
+
+
 def _check_element_size(dx, dy) -> tuple[float, float]:
     out = []
     for name, v in (("dx", dx), ("dy", dy)):
@@ -656,9 +661,7 @@ def solve(gap, dx: float, dy: float, material: Material = _DEFAULT_MATERIAL, app
     cfg = _Config(int(nx), int(ny), dx, dy, method, float(tol), int(cg_max_iter))
     result = _solve_jit(cfg, gap, material, approach, force, p_init, int(max_iter),
                         bool(stiffness), force is not None)
-    concrete = all(_is_concrete(v) for v in jax.tree_util.tree_leaves(
-        (gap, material, approach, force, p_init)))
-    if validate and concrete:
+    if validate and _is_concrete_tree((gap, material, approach, force, p_init)):
         _check_resolution(result, dx, dy)
     return result
 

@@ -529,10 +529,6 @@ def _assemble(spec: TableSpec, onset, force, slope, ok) -> ContactTable:
         converged=jnp.asarray(ok).astype(force.dtype))
 
 
-def _is_concrete(tree) -> bool:
-    return all(kalker._is_concrete(v) for v in jax.tree_util.tree_leaves(tree))
-
-
 def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
                    material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
                    max_force: float = 600e3, ds: float | None = None, n_t: int = 16,
@@ -561,7 +557,7 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
     if spec is None:
         spec = table_spec(flat, wheel_radius, rail_head_radius, material, element_size,
                           max_force, ds, n_t)
-    if windows and int(batch_size) == 1 and _is_concrete(flat):
+    if windows and int(batch_size) == 1 and kalker._is_concrete_tree(flat):
         plan = window_plan(spec, flat, _solve_positions(spec))
         return _build(spec, flat, material, float(tol), 1, plan.sizes,
                       (plan.size_index, plan.x0, plan.y0))
