@@ -232,8 +232,7 @@ def _unit_preconditioner(nx: int, ny: int, dx: float, dy: float):
     below zero; it is floored at PRECONDITIONER_FLOOR of its maximum.
     """
     inv = jnp.asarray(_inverse_kernel_fft(nx, ny, dx, dy))
-    shape = (_fft_length(nx), _fft_length(ny))
-    return lambda r: jnp.fft.irfft2(jnp.fft.rfft2(r, s=shape) * inv, s=shape)[..., :nx, :ny]
+    return lambda r: _fft_apply(inv, r, nx, ny)
 
 
 # ----------------------------------------------------------------------------------------
