@@ -75,18 +75,9 @@ def main() -> None:
         print(f" | {t_prep:.2f} | {comp:.2f} | {t_run:.3f} | {n / t_run:.3g} | "
               f"{t_run / travel:.3f} | {fmax / 1e3:.1f} | {peak_mib():.0f} |")
     if not a.no_direct:
-        import dataclasses
-
-        import jax.numpy as jnp
-
         cfg = wf.SimConfig(contact_mode_3d="direct")
         direct_law = laws.prepare("3d", flat, wheel, track, material, cfg)
-        # the same law with every solve on the table's whole grid (before the windows)
-        whole_law = dataclasses.replace(
-            direct_law, window_sizes=((direct_law.layout.nx, direct_law.layout.ny),),
-            **{k: jnp.zeros_like(getattr(direct_law, k))
-               for k in ("window_index", "window_x0", "window_y0")})
-        for name, law in (("windows", direct_law), ("whole grid", whole_law)):
+        for name, law in (("windows", direct_law), ("whole grid", direct_law.on_whole_grid())):
             out = {}
 
             def direct(law=law, out=out):

@@ -211,10 +211,7 @@ def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
     flat = wf.Flat.rounded(0.9e-3, 0.1)
     law = direct3d.prepare_direct(flat, wheel, track, wf.Material(), config, tmp_path)
     assert max(w[0] * w[1] for w in law.window_sizes) < law.layout.nx * law.layout.ny
-    whole = dataclasses.replace(
-        law, window_sizes=((law.layout.nx, law.layout.ny),),
-        window_index=jnp.zeros_like(law.window_index), window_x0=jnp.zeros_like(law.window_x0),
-        window_y0=jnp.zeros_like(law.window_y0))
+    whole = law.on_whole_grid()
     layout = law.layout
     for s, c in [(-0.06, 1e-4), (-0.02, 3e-4), (0.0, 2e-4), (0.03, 2 * layout.c_max)]:
         delta = float(laws.tables.table_onset(law.table, s)) + c

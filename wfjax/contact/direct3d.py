@@ -21,6 +21,7 @@ Not differentiated (a reference); forward results only.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import jax
@@ -62,6 +63,14 @@ class Direct3DLaw(TableLaw):
 
     def init_state(self):
         return jnp.zeros((self.layout.nx, self.layout.ny))
+
+    def on_whole_grid(self) -> Direct3DLaw:
+        """The same law with every solve on the table's whole grid (the reference of the
+        windows: tests and benchmarks)."""
+        zeros = {k: jnp.zeros_like(getattr(self, k))
+                 for k in ("window_index", "window_x0", "window_y0")}
+        return dataclasses.replace(self, window_sizes=((self.layout.nx, self.layout.ny),),
+                                   **zeros)
 
     def _evaluate(self, s, delta, pressure):
         """Force [N], stiffness [N/m] and the whole-grid pressure of one solve at (delta, s)."""
