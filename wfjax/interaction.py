@@ -55,12 +55,13 @@ import numpy as np
 
 from . import sensors as sensor_mod
 from . import track as track_mod
+from . import vehicle as vehicle_mod
 from . import wheel as wheel_mod
 from ._modal import discrete_step_coefficients
 from .contact.laws import CONTACT_MODELS, FLAT_MARGIN, ContactLaw, prepare
-from .contact.newton import static_approach
+from .contact.newton import solve_contact_system, static_approach
 from .params import Flat, Material, SimConfig, Track, Wheel
-from .results import SimResult, summarise
+from .results import SimResult, summarise, summarise_vehicle
 
 __all__ = [
     "CONTACT_MODELS",
@@ -72,6 +73,9 @@ __all__ = [
     "simulation_window",
     "batch_windows",
     "cast_precision",
+    "vehicle_structure",
+    "vehicle_laws",
+    "solve_contacts",
 ]
 
 RUN_IN_TIME = 0.02  # s of travel before the flat's window, from static equilibrium
@@ -174,12 +178,25 @@ def cast_precision(tree, precision: str):
 
 
 class Structure(NamedTuple):
-    """Modal data of wheel and track used by the time loop (arrays; a pytree)."""
+    """Modal data of the wheels and the track used by the time loop (arrays; a pytree).
+
+    One wheel (:func:`structure`): ``wheel_poles``, ``wheel_residues``, ``axle_residues``
+    [n_w] and a scalar ``preload``; the vehicle fields are None. A vehicle
+    (:func:`vehicle_structure`): the same with a leading wheel axis [n_wheels, ...] and
+    ``offsets`` [n_wheels] (rail coordinate of every wheel relative to the reference wheel
+    [m]), ``delays`` [n_wheels] (the flats' delays [m], :class:`wfjax.vehicle.Vehicle`) and
+    ``residual_pairs`` [n_res, n_wheels, n_wheels] (static compliance of the truncated track
+    modes between the wheels across one bay, :func:`wfjax.vehicle.residual_pairs`).
+    """
 
     track: Any  # track.ModalModel
     wheel_poles: Any  # complex [n_w] rad/s
     wheel_residues: Any  # complex [n_w] m/(N s): h_W(t) = Re sum residues exp(poles t)
     preload: Any  # N
+    axle_residues: Any = None  # complex [n_w] m/(N s): the wheelset mass's (axle box's) h
+    offsets: Any = None
+    delays: Any = None
+    residual_pairs: Any = None
 
 
 def structure(wheel: Wheel, track: Track, config: SimConfig, cache_dir=None) -> Structure:
@@ -188,7 +205,21 @@ def structure(wheel: Wheel, track: Track, config: SimConfig, cache_dir=None) -> 
                                   cache_dir=cache_dir)
     wheel_modes = wheel_mod.modal_model(wheel)
     return Structure(model, wheel_modes.poles, wheel_modes.residues,
-                     jnp.asarray(wheel.preload, dtype=float))
+                     jnp.asarray(wheel.preload, dtype=float), wheel_modes.axle_residues)
+
+
+def vehicle_structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
+                      cache_dir=None) -> Structure:
+    """:class:`Structure` of a :class:`wfjax.vehicle.Vehicle` with wheel models ``wheels``
+    ([n] :class:`Wheel`), placed on the track by :func:`wfjax.vehicle.placement`."""
+    model = track_mod.modal_model(track, max_frequency=config.track_max_frequency,
+                                  cache_dir=cache_dir)
+    ws = vehicle_mod.wheel_set(wheels)
+    offsets = vehicle.offsets()
+    pairs = vehicle_mod.residual_pairs(
+        track, model, offsets, vehicle_mod.placement(vehicle, float(track.sleeper_spacing)))
+    return Structure(model, ws.poles, ws.residues, ws.preload, ws.axle_residues,
+                     jnp.asarray(offsets), jnp.asarray(vehicle.delays()), jnp.asarray(pairs))
 
 
 def _node_major_shapes(model):
@@ -206,25 +237,149 @@ def _rail_terms(model, node_major, x):
     return phi, track_mod.residual_compliance_at(model, x)
 
 
-def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_position,
+def _residual_matrix(struct: Structure, model, x_ref):
+    """[n, n] static compliance of the truncated modes between the wheels [m/N] with the
+    reference wheel at ``x_ref`` [m] (one wheel: the track's own residual there)."""
+    if struct.residual_pairs is None:
+        return track_mod.residual_compliance_at(model, x_ref)[None, None]
+    return _interp_bay(model, struct.residual_pairs, x_ref)
+
+
+def _loads(f, phi):
+    """sum_i f_i phi_i(x_i): modal loads [n_modes] of forces f [n] at shapes phi [n, n_modes]."""
+    return sum(f[i] * phi[i] for i in range(f.shape[0]))
+
+
+def _rail_reads(phi, w_r, an_r, q_hat):
+    """(xi_free [n] m, c [n] m/N): the rail at every wheel from the propagated modal state
+    ``q_hat`` [n_modes], Re sum_r w_r phi_ir q_r, and every wheel's own rail compliance
+    within the step, Re sum_r w_r an_r phi_ir^2, for shapes ``phi`` [n, n_modes]."""
+    xi = jnp.real(jnp.sum(phi * (w_r * q_hat), axis=-1))
+    return xi, jnp.real(jnp.sum(w_r * an_r * phi * phi, axis=-1))
+
+
+def _cross_table(model, shapes_at, offsets, weight, x_bay):
+    """[n_res, n, n] the rail's compliance within a step between different wheels,
+    Re sum_r weight_r phi_r(x + o_i) phi_r(x + o_j) (zero diagonal), for the reference wheel
+    at x = x_bay + model.residual_x across one bay.
+
+    These cross terms are about 1e-3 of a wheel's own step compliance (the rail's response
+    within one step hardly reaches the next wheel), but summing them over the modes at every
+    step would cost n (n - 1) / 2 passes over the modes: tabulated once per run across the
+    bay, like the residual compliance, and interpolated, they cost what 33 steps cost.
+    """
+    n = offsets.shape[0]
+    upper = np.triu_indices(n, 1)
+
+    def at(x):
+        phi = shapes_at(x + offsets)
+        values = jnp.real(jnp.sum(weight * phi[upper[0]] * phi[upper[1]], axis=-1))
+        table = jnp.zeros((n, n), values.dtype).at[upper].set(values)
+        return table + table.T
+
+    return jax.lax.map(at, x_bay + model.residual_x)
+
+
+def _interp_bay(model, table, x):
+    """``table`` [n_res, ...] over the bay (model.residual_x) read at rail position ``x`` [m],
+    periodically, linear between the points."""
+    grid = model.residual_x
+    u = jnp.mod(x, model.sleeper_spacing) / (grid[1] - grid[0])
+    k = jnp.clip(jnp.floor(u).astype(jnp.int32), 0, grid.shape[0] - 2)
+    w = u - k
+    return (1 - w) * table[k] + w * table[k + 1]
+
+
+def _pointwise(law: ContactLaw) -> bool:
+    """Whether ``law`` solves its steps through :meth:`ContactLaw.step` (point/point_force)."""
+    return type(law).step is ContactLaw.step
+
+
+def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int):
+    """The step's n-contact equation delta = delta_free - C F(delta) for every contact law.
+
+    One wheel: the law's own :meth:`ContactLaw.step`. Several wheels with point laws (every
+    model but the direct 3D mode): Newton over the n approaches
+    (:func:`wfjax.contact.newton.solve_contact_system`, implicit-function gradients). Laws
+    with their own step (the direct 3D mode, a forward reference) are coupled by
+    Gauss-Seidel sweeps of their steps, each wheel seeing the others' current forces, until
+    the forces change by less than 1e-9 relative.
+
+    Args:
+        laws: [n] prepared contact laws. delta_free: [n] approaches if F were 0 [m].
+        compliance: C [n, n] [m/N]. s: [n] flat positions [m]. states: [n] law states.
+        max_iter: Newton iteration cap (static).
+
+    Returns:
+        (delta [n] m, F [n] N, |r| [n] m, states).
+    """
+    if len(laws) == 1:
+        (law,), (state,) = laws, states
+        delta, f, r, state = law.step(delta_free[0], compliance[0, 0], s[0], state, max_iter)
+        return delta[None], f[None], r[None], (state,)
+    if all(_pointwise(law) for law in laws):
+        frozen = jax.lax.stop_gradient(laws)
+        points = [law.point(si) for law, si in zip(laws, s, strict=True)]
+        points_ng = jax.lax.stop_gradient(points)
+
+        def forces(ls, ps, delta):
+            return jnp.stack([law.point_force(p, delta[i])
+                              for i, (law, p) in enumerate(zip(ls, ps, strict=True))])
+
+        delta, f, r = solve_contact_system(
+            lambda d: forces(laws, points, d), delta_free, compliance, max_iter,
+            loop_force_fn=lambda d: forces(frozen, points_ng, d))
+        return delta, f, r, states
+    return _gauss_seidel(laws, delta_free, compliance, s, states, max_iter)
+
+
+def _gauss_seidel(laws, delta_free, compliance, s, states, max_iter, sweeps: int = 20):
+    """Gauss-Seidel over the wheels of laws with their own step (no gradients)."""
+    diag = jnp.diagonal(compliance)
+
+    def one_sweep(carry):
+        delta, f, r, states, _, it = carry
+        f_old = f
+        new_states = []
+        for i, law in enumerate(laws):
+            coupling = compliance[i] @ f - diag[i] * f[i]
+            d_i, f_i, r_i, st = law.step(delta_free[i] - coupling, diag[i], s[i], states[i],
+                                         max_iter)
+            delta, f, r = delta.at[i].set(d_i), f.at[i].set(f_i), r.at[i].set(r_i)
+            new_states.append(st)
+        change = jnp.max(jnp.abs(f - f_old)) / jnp.maximum(jnp.max(jnp.abs(f)), 1.0)
+        return delta, f, r, tuple(new_states), change, it + 1
+
+    zeros = jnp.zeros_like(delta_free)
+    carry = (delta_free, zeros, zeros, tuple(states), jnp.ones_like(delta_free[0]), 0)
+    delta, f, r, states, *_ = jax.lax.while_loop(
+        lambda c: (c[4] > 1e-9) & (c[5] < sweeps), one_sweep, carry)
+    return delta, f, r, states
+
+
+def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
               n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
               detector=None, run_in_steps=0, sensor_history: bool = True,
               precision: str = "float64"):
-    """The time loop under ``lax.scan`` for any contact law (pure).
+    """The time loop under ``lax.scan`` for any contact law and any number of wheels (pure).
 
     Args:
         law: the prepared contact law (:func:`wfjax.contact.laws.prepare`); its ``step``
-            solves each step's contact equation, its ``force`` the static equilibrium.
-        struct: modal wheel and track (:func:`structure`).
-        speed: v [m/s]; dt: time step [s]; x_start: rail coordinate at t = 0 [m];
-        impact_position: rail coordinate where s = 0 [m]; n_steps: steps incl. t = 0 (static).
+            solves each step's contact equation, its ``force`` the static equilibrium. A
+            tuple of laws, one per wheel of a vehicle (``struct`` from
+            :func:`vehicle_structure`), runs every wheel on the shared track.
+        struct: modal wheel(s) and track (:func:`structure`, :func:`vehicle_structure`).
+        speed: v [m/s]; dt: time step [s]; x_start: rail coordinate of the (reference) wheel
+            at t = 0 [m]; impact_position: its rail coordinate where s = 0 [m] (a wheel i of
+            a vehicle is at x + offsets[i] with s_i = s - delays[i]);
+            n_steps: steps incl. t = 0 (static).
         max_iter: Newton iteration cap of the per-step contact equation (static).
         checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``): memory of
             the backward pass drops to the carry per step at the cost of recomputing steps.
         sensors: a :class:`wfjax.sensors.SensorSpec` (or None): readings at fixed rail
-            positions from the modal state of every step.
+            positions from the modal state of every step (every wheel's load included).
         detector: a :class:`wfjax.sensors.DetectorSpec` (or None): the detector's per-bay
-            load estimate, and its peak while the wheel is between each bay's bridges.
+            load estimate, and its peak while a wheel is between each bay's bridges.
         run_in_steps: steps before the sensors' running max/min start (traced int).
         sensor_history: return the sensors' and detector's time histories (static; False
             keeps only running max/min and peaks in the carry: no [n_steps] arrays).
@@ -235,32 +390,51 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
             ~1e-3 relative in float32.
 
     Returns:
-        dict of [n_steps] arrays: t, x, s, force, approach, wheel_disp, rail_disp, residual;
-        with ``sensors``: ``sensor_max``, ``sensor_min`` [n_quantities, n_s] after the run-in
-        and (``sensor_history``) ``sensors`` [n_steps, n_quantities, n_s]; with
-        ``detector``: ``detector_peak`` [n_bays] N and (``sensor_history``)
-        ``detector_load`` [n_steps, n_bays] N (ungated estimate).
+        dict of [n_steps] arrays (one law) or [n_steps, n_wheels] (a tuple of laws): x, s,
+        force, approach, wheel_disp, rail_disp, residual, axle_acc (acceleration of the
+        wheelset mass, the axle box, downwards [m/s^2]); t [n_steps]; with ``sensors``:
+        ``sensor_max``, ``sensor_min`` [n_quantities, n_s] after the run-in and
+        (``sensor_history``) ``sensors`` [n_steps, n_quantities, n_s]; with ``detector``:
+        ``detector_peak`` [n_bays] N ([n_wheels, n_bays] for a vehicle: each wheel's peak)
+        and (``sensor_history``) ``detector_load`` [n_steps, n_bays] N (ungated estimate).
     """
+    single = not isinstance(law, tuple)
+    laws = (law,) if single else law
+    n_wheels = len(laws)
+    wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))
     coefficients = (discrete_step_coefficients(struct.track.poles, dt),
-                    discrete_step_coefficients(struct.wheel_poles, dt))
-    (law, struct, coefficients, speed, dt, x_start, impact_position, sensors,
-     detector) = cast_precision((law, struct, coefficients, speed, dt, x_start,
+                    discrete_step_coefficients(wheel_poles, dt))
+    (laws, struct, coefficients, speed, dt, x_start, impact_position, sensors,
+     detector) = cast_precision((laws, struct, coefficients, speed, dt, x_start,
                                  impact_position, sensors, detector), precision)
     (e_r, ap_r, an_r), (e_w, ap_w, an_w) = coefficients
     model = struct.track
     w_r = model.weights
-    preload = struct.preload
-    c_wheel = jnp.real(jnp.sum(struct.wheel_residues * an_w))
+    real = jnp.asarray(struct.preload).dtype  # the loop's precision
+    preload = jnp.reshape(struct.preload, (n_wheels,))
+    wheel_res = jnp.reshape(struct.wheel_residues, (n_wheels, -1))
+    axle_res = (jnp.zeros_like(wheel_res) if struct.axle_residues is None
+                else jnp.reshape(struct.axle_residues, (n_wheels, -1)))
+    axle_acc_res = -axle_res * wheel_poles.astype(wheel_res.dtype) ** 2
+    offsets = jnp.zeros(1, real) if struct.offsets is None else struct.offsets
+    delays = jnp.zeros(1, real) if struct.delays is None else struct.delays
+    c_wheel = jnp.real(jnp.sum(wheel_res * an_w, axis=-1))  # [n]
+    node_major = _node_major_shapes(model)
+
+    def shapes_at(x):  # [n] -> [n, n_modes]
+        return jax.vmap(lambda xi: track_mod.interpolate_nodal(model, node_major, xi))(x)
 
     # static equilibrium at the start: F = P, rail in its static deflected shape
-    s0 = x_start - impact_position
-    node_major = _node_major_shapes(model)
-    phi0, res0 = _rail_terms(model, node_major, x_start)
-    q0 = -phi0 * preload / model.poles
-    xi_r0 = jnp.real(jnp.sum(w_r * phi0 * q0)) + res0 * preload
-    delta0 = static_approach(lambda d: law.force(d, s0), preload)
+    s0 = x_start - impact_position - delays
+    x0 = x_start + offsets
+    phi0 = shapes_at(x0)
+    q0 = -_loads(preload, phi0) / model.poles
+    xi_r0 = (jnp.real(jnp.sum(phi0 * (w_r * q0), axis=-1))
+             + _residual_matrix(struct, model, x_start) @ preload)
+    delta0 = jnp.stack([static_approach(lambda d, lw=lw, si=si: lw.force(d, si), p)
+                        for lw, si, p in zip(laws, s0, preload, strict=True)])
     xi_w_ref = xi_r0 + delta0
-    p0 = jnp.zeros_like(struct.wheel_poles)
+    p0 = jnp.zeros_like(wheel_poles)
 
     def readings(q, f, x, n, acc):
         """Sensor and detector outputs at one instant; updates the running extremes ``acc``."""
@@ -281,41 +455,55 @@ def time_loop(law: ContactLaw, struct: Structure, speed, dt, x_start, impact_pos
             out["detector_load"] = est
         return (out if sensor_history else {}), acc
 
+    if n_wheels > 1:
+        bay = impact_position - jnp.mod(impact_position, model.sleeper_spacing)
+        cross = _cross_table(model, shapes_at, offsets, w_r * an_r, bay)
+
     acc0 = {}
-    real = jnp.asarray(preload).dtype  # the loop's precision
     if sensors is not None:
         shape = (len(sensors.quantities), sensors.positions.shape[0])
         acc0 |= {"sensor_max": jnp.full(shape, -jnp.inf, real),
                  "sensor_min": jnp.full(shape, jnp.inf, real)}
     if detector is not None:
-        acc0["detector_peak"] = jnp.full(detector.left.shape, -jnp.inf, real)
-    first_readings, acc0 = readings(q0, preload, x_start, 0, acc0)
+        acc0["detector_peak"] = jnp.full((n_wheels,) + detector.left.shape, -jnp.inf, real)
+    first_readings, acc0 = readings(q0, preload, x0, 0, acc0)
 
     def step(carry, n):
-        q, p, f_prev, phi_prev, state, acc = carry
-        x = x_start + speed * dt * n
-        s = x - impact_position
-        phi, res = _rail_terms(model, node_major, x)
-        q_hat = e_r * q + ap_r * phi_prev * f_prev
-        xi_r_free = jnp.real(jnp.sum(w_r * phi * q_hat))
-        c_rail = jnp.real(jnp.sum(w_r * an_r * phi * phi)) + res
-        p_hat = e_w * p + ap_w * (f_prev - preload)
-        xi_w_free = xi_w_ref - jnp.real(jnp.sum(struct.wheel_residues * p_hat)) + c_wheel * preload
-        delta, f, r, state = law.step(xi_w_free - xi_r_free, c_wheel + c_rail, s, state,
-                                      max_iter)
-        q_new = q_hat + an_r * phi * f
-        p_new = p_hat + an_w * (f - preload)
+        q, p, f_prev, load_prev, states, acc = carry
+        x_ref = x_start + speed * dt * n
+        x = x_ref + offsets
+        s = x_ref - impact_position - delays
+        phi = shapes_at(x)
+        q_hat = e_r * q + ap_r * load_prev
+        xi_r_free, c_own = _rail_reads(phi, w_r, an_r, q_hat)
+        c_rail = jnp.diag(c_own) + _residual_matrix(struct, model, x_ref)
+        if n_wheels > 1:
+            c_rail = c_rail + _interp_bay(model, cross, x_ref)
+        p_hat = e_w * p + ap_w * (f_prev - preload)[:, None]
+        xi_w_free = (xi_w_ref - jnp.real(jnp.sum(wheel_res * p_hat, axis=-1))
+                     + c_wheel * preload)
+        delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free,
+                                             jnp.diag(c_wheel) + c_rail, s, states, max_iter)
+        load = _loads(f, phi)
+        q_new = q_hat + an_r * load
+        p_new = p_hat + an_w * (f - preload)[:, None]
+        axle_acc = jnp.real(jnp.sum(axle_acc_res * p_new, axis=-1))
         extra, acc = readings(q_new, f, x, n, acc)
-        out = (x, s, f, delta, xi_w_free - c_wheel * f, xi_r_free + c_rail * f, r, extra)
-        return (q_new, p_new, f, phi, state, acc), out
+        out = (x, s, f, delta, xi_w_free - c_wheel * f, xi_r_free + c_rail @ f, r, axle_acc,
+               extra)
+        return (q_new, p_new, f, load, states, acc), out
 
-    carry0 = (q0, p0, preload, phi0, law.init_state(), acc0)
+    carry0 = (q0, p0, preload, _loads(preload, phi0), tuple(law.init_state() for law in laws), acc0)
     (*_, acc), outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
                                    jnp.arange(1, n_steps))
-    first = (x_start, s0, preload, delta0, xi_w_ref, xi_r0, 0.0)
-    keys = ("x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual")
+    first = (x0, s0, preload, delta0, xi_w_ref, xi_r0, jnp.zeros_like(preload),
+             jnp.zeros_like(preload))
+    keys = ("x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual", "axle_acc")
     result = {k: jnp.concatenate([jnp.asarray(a0, dtype=a.dtype)[None], a])
               for k, a0, a in zip(keys, first, outs[:-1], strict=True)}
+    if single:
+        result = {k: a[:, 0] for k, a in result.items()}
+        acc = {k: (a[0] if k == "detector_peak" else a) for k, a in acc.items()}
     result |= {k: jnp.concatenate([first_readings[k][None], a]) for k, a in outs[-1].items()}
     result |= acc
     result["t"] = dt * jnp.arange(n_steps)
@@ -335,7 +523,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
              material: Material | None = None, config: SimConfig | None = None,
              angle0: float | None = None, cache_dir=None,
              n_steps: int | None = None, sensors=None, detector=None,
-             sensor_quantities=sensor_mod.QUANTITIES) -> SimResult:
+             sensor_quantities=sensor_mod.QUANTITIES, vehicle=None) -> SimResult:
     """Simulate a wheel with ``flat`` rolling at ``speed`` over the discretely supported track.
 
     Args:
@@ -360,52 +548,108 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
         detector: a :class:`wfjax.sensors.Detector`: its per-bay load estimate and peaks.
             The run's window is lengthened (``run_in``/``run_out``) so that the wheel
             crosses every instrumented bay.
+        vehicle: a :class:`wfjax.vehicle.Vehicle` (default: the paper's single wheel): its
+            wheels roll together on the track, ``flat`` on ``vehicle.flat_wheel`` (whose
+            impact ``impact_position`` places), the others with the vehicle's flats or
+            smooth; ``wheel`` is every wheel's model unless the vehicle gives its own.
 
     Returns:
-        :class:`SimResult` with time histories [n_steps] and summary values.
+        :class:`SimResult` with time histories [n_steps] and summary values (a vehicle's:
+        the flat wheel's, plus every wheel's in the ``wheel_*`` fields).
     """
     wheel = wheel or Wheel()
     track = track or Track()
     material = material or Material()
     config = config or SimConfig()
     v = _check_speed(speed)
-    if abs(float(flat.wheel_radius) - float(wheel.radius)) > 1e-12:
-        raise ValueError(
-            f"flat.wheel_radius ({float(flat.wheel_radius)} m) must equal wheel.radius "
-            f"({float(wheel.radius)} m)"
-        )
+    wheels = [wheel] if vehicle is None else vehicle.wheel_list(wheel)
+    flats = [flat] if vehicle is None else vehicle.flat_list(
+        flat, lambda i: float(wheels[i].radius))
+    if vehicle is not None:
+        vehicle.check_spacing(wheels)
+    for i, (f, w) in enumerate(zip(flats, wheels, strict=True)):
+        if abs(float(f.wheel_radius) - float(w.radius)) > 1e-12:
+            where = "" if vehicle is None else f" of wheel {i}"
+            raise ValueError(
+                f"flat.wheel_radius{where} ({float(f.wheel_radius)} m) must equal wheel.radius "
+                f"({float(w.radius)} m)"
+            )
     spacing = float(track.sleeper_spacing)
     if detector is not None:
         config = detector_config(detector, track, config)
-    s_start, _ = simulation_window(flat, v, config)
+    window_flat = flat
+    if vehicle is not None:
+        window_flat = vehicle_window_flat(vehicle, flats)
+    s_start, s_end = simulation_window(window_flat, v, config)
     if angle0 is not None:
         impact_position = float(impact_position_from_angle(
-            angle0, s_start, float(wheel.radius), spacing))
+            angle0, s_start, float(wheels[0 if vehicle is None else vehicle.flat_wheel].radius),
+            spacing))
     x_imp = _check_impact_position(impact_position, spacing)
-    n_auto, dt = n_steps_for(flat, v, config)
+    n_auto, dt = n_steps_for(window_flat, v, config)
     if n_steps is None:
         n_steps = n_auto
     elif int(n_steps) < 2:
         raise ValueError(f"n_steps must be >= 2, got {n_steps!r}")
     else:
-        s0, s1 = simulation_window(flat, v, config)
-        dt = (s1 - s0) / v / (int(n_steps) - 1)
+        dt = (s_end - s_start) / v / (int(n_steps) - 1)
     if contact not in CONTACT_MODELS:
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
-    struct = structure(wheel, track, config, cache_dir)
-    law = prepare(contact, flat, wheel, track, material, config, cache_dir)
     run_in_steps = int(0.5 * RUN_IN_TIME / dt)
+    if vehicle is None:
+        struct = structure(wheel, track, config, cache_dir)
+        law = prepare(contact, flat, wheel, track, material, config, cache_dir)
+        x_abs = x_imp
+    else:
+        x_abs = x_imp + vehicle_mod.placement(vehicle, spacing)
+        vehicle_mod.check_on_track(vehicle, track, x_abs + s_start, x_abs + s_end)
+        struct = vehicle_structure(vehicle, wheels, track, config, cache_dir)
+        law = vehicle_laws(contact, flats, wheels, track, material, config, cache_dir)
     sensor_spec = (None if sensors is None
                    else sensor_mod.sensor_spec(sensors, track, struct.track, sensor_quantities))
     det_spec = (None if detector is None
                 else sensor_mod.detector_spec(detector, track, struct.track))
-    hist = run_scan(law, struct, v, dt, x_imp + s_start, x_imp, int(n_steps),
+    hist = run_scan(law, struct, v, dt, x_abs + s_start, x_abs, int(n_steps),
                     config.newton_iterations, sensors=sensor_spec, detector=det_spec,
                     run_in_steps=run_in_steps, precision=config.precision)
+    quantities = () if sensor_spec is None else sensor_spec.quantities
+    if vehicle is None:
+        res = summarise(hist, v, x_imp, dt, run_in_steps, quantities, struct.preload)
+    else:
+        res = summarise_vehicle(hist, vehicle.flat_wheel, v, x_imp, dt, run_in_steps,
+                                quantities, struct.preload)
     if sensor_spec is None:
-        return summarise(hist, v, x_imp, dt, run_in_steps, (), struct.preload)
-    res = summarise(hist, v, x_imp, dt, run_in_steps, sensor_spec.quantities, struct.preload)
+        return res
     return res._replace(sensor_positions=np.asarray(sensor_spec.positions))
+
+
+def vehicle_window_flat(vehicle, flats: list[Flat]) -> Flat:
+    """The flat whose simulation window covers every flat of the vehicle.
+
+    Every wheel's flat must pass its contact within the window: a flat delayed by d [m]
+    needs the reference window widened by |d| on that side, which a flat of half extent
+    max_i(half_i + |d_i|) gives (an ``extent_bound`` on the reference flat; its geometry is
+    unchanged).
+    """
+    delays = vehicle.delays()
+    reach = max(float(f.half_extent) + abs(d) for f, d in zip(flats, delays, strict=True)
+                if f.kind != "none" or f is flats[vehicle.flat_wheel])
+    ref = flats[vehicle.flat_wheel]
+    if reach <= float(ref.half_extent):
+        return ref
+    return dataclasses.replace(ref, extent_bound=reach)
+
+
+def vehicle_laws(contact: str, flats: list[Flat], wheels: list[Wheel], track: Track,
+                 material: Material, config: SimConfig, cache_dir=None) -> tuple:
+    """[n] contact laws of the vehicle's wheels (one per distinct flat and wheel radius)."""
+    laws, done = [], {}
+    for f, w in zip(flats, wheels, strict=True):
+        key = (id(f), float(w.radius)) if f.kind != "none" else ("none", float(w.radius))
+        if key not in done:
+            done[key] = prepare(contact, f, w, track, material, config, cache_dir)
+        laws.append(done[key])
+    return tuple(laws)
 
 
 def detector_config(detector, track: Track, config: SimConfig) -> SimConfig:

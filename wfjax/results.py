@@ -10,7 +10,7 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["SimResult", "summarise"]
+__all__ = ["SimResult", "summarise", "summarise_vehicle"]
 
 
 class SimResult(NamedTuple):
@@ -44,6 +44,16 @@ class SimResult(NamedTuple):
             (-inf for a bay the run did not cross), or None.
         detector_ratio: [n_bays] detector_peak / static wheel load P, or None.
         sensor_positions: [n_s] the sensors' rail positions [m], or None.
+        axle_acc: [n_steps] acceleration of the wheelset mass M_W (the axle box), downwards
+            [m/s^2] (of the flat's wheel for a vehicle).
+        axle_acc_peak: max |axle_acc| after the run-in [m/s^2].
+        wheel_force: a vehicle's (:class:`wfjax.vehicle.Vehicle`) contact forces of every
+            wheel, [n_steps, n_wheels] [N] (``force`` is the flat wheel's column), or None.
+        wheel_max_force, wheel_min_force: [n_wheels] their extremes after the run-in [N].
+        wheel_loss_of_contact: [n_wheels] bool, F = 0 occurred at that wheel.
+        wheel_axle_acc: [n_steps, n_wheels] every wheel's axle-box acceleration [m/s^2].
+        wheel_axle_acc_peak: [n_wheels] max |wheel_axle_acc| after the run-in [m/s^2].
+        wheel_x: [n_steps, n_wheels] every wheel's rail coordinate [m].
     """
 
     t: Any
@@ -68,6 +78,15 @@ class SimResult(NamedTuple):
     detector_peak: Any = None
     detector_ratio: Any = None
     sensor_positions: Any = None
+    axle_acc: Any = None
+    axle_acc_peak: Any = None
+    wheel_force: Any = None
+    wheel_max_force: Any = None
+    wheel_min_force: Any = None
+    wheel_loss_of_contact: Any = None
+    wheel_axle_acc: Any = None
+    wheel_axle_acc_peak: Any = None
+    wheel_x: Any = None
 
     def summary(self) -> dict:
         """JSON-ready summary with practical units (kN, km/h, mm, ms)."""
@@ -81,8 +100,21 @@ class SimResult(NamedTuple):
             "time_step_us": float(self.time_step) * 1e6,
             "n_steps": int(np.shape(self.t)[-1]),
             "max_contact_residual_m": float(np.max(self.residual)),
+            "axle_box_acceleration_peak_m_s2": float(self.axle_acc_peak),
+            **self._wheel_summary(),
             **self._detector_summary(),
         }
+
+    def _wheel_summary(self) -> dict:
+        if self.wheel_force is None:
+            return {}
+        return {"wheels": [
+            {"wheel": i, "max_force_kN": float(mx) / 1e3, "min_force_kN": float(mn) / 1e3,
+             "loss_of_contact": bool(lost), "axle_box_acceleration_peak_m_s2": float(acc)}
+            for i, (mx, mn, lost, acc) in enumerate(zip(
+                np.asarray(self.wheel_max_force), np.asarray(self.wheel_min_force),
+                np.asarray(self.wheel_loss_of_contact), np.asarray(self.wheel_axle_acc_peak),
+                strict=True))]}
 
     def _detector_summary(self) -> dict:
         out = {}
@@ -95,12 +127,21 @@ class SimResult(NamedTuple):
         return out
 
     def to_csv(self) -> str:
-        """The time histories as CSV text (SI units, one row per step)."""
+        """The time histories as CSV text (SI units, one row per step; a vehicle's every
+        wheel's force and axle-box acceleration as ``force_N@wheel<i>``,
+        ``axle_acc_m_s2@wheel<i>``)."""
         buf = io.StringIO()
         w = csv.writer(buf)
-        w.writerow(["t_s", "x_m", "s_m", "force_N", "approach_m", "wheel_disp_m", "rail_disp_m"])
+        head = ["t_s", "x_m", "s_m", "force_N", "approach_m", "wheel_disp_m", "rail_disp_m",
+                "axle_acc_m_s2"]
         cols = [np.asarray(getattr(self, k)) for k in
-                ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp")]
+                ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp", "axle_acc")]
+        if self.wheel_force is not None:
+            n = np.shape(self.wheel_force)[-1]
+            head += [f"force_N@wheel{i}" for i in range(n)]
+            head += [f"axle_acc_m_s2@wheel{i}" for i in range(n)]
+            cols += list(np.asarray(self.wheel_force).T) + list(np.asarray(self.wheel_axle_acc).T)
+        w.writerow(head)
         for row in zip(*cols, strict=True):
             w.writerow([f"{v:.9g}" for v in row])
         return buf.getvalue()
@@ -151,7 +192,9 @@ def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(
     after = jnp.arange(n) >= run_in_steps
     f_after = jnp.where(after, f, jnp.nan)
     lost = after & (f <= 0)
+    acc = hist.get("axle_acc", jnp.zeros_like(f))
     return SimResult(
+        axle_acc=acc, axle_acc_peak=jnp.max(jnp.where(after, jnp.abs(acc), 0.0), axis=-1),
         t=hist["t"], x=hist["x"], s=hist["s"], force=f, approach=hist["approach"],
         wheel_disp=hist["wheel_disp"], rail_disp=hist["rail_disp"], residual=hist["residual"],
         max_force=jnp.nanmax(f_after, axis=-1), min_force=jnp.nanmin(f_after, axis=-1),
@@ -161,3 +204,30 @@ def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(
                                                                              dtype=float),
         time_step=jnp.asarray(dt, dtype=float), **sensor,
     )
+
+
+def summarise_vehicle(hist: dict, flat_wheel: int, speed, impact_position, dt, run_in_steps,
+                      quantities=(), preload=None) -> SimResult:
+    """:func:`summarise` for a vehicle's histories ([n_steps, n_wheels], one run): the main
+    fields are the reference wheel's (``flat_wheel``), the ``wheel_*`` fields every wheel's.
+
+    ``preload`` [n_wheels] N: the detector's ratio divides each wheel's peak by its own load.
+    """
+    per_wheel = ("x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual",
+                 "axle_acc")
+    main = {k: (v[:, flat_wheel] if k in per_wheel else v) for k, v in hist.items()}
+    main.pop("detector_peak", None)
+    res = summarise(main, speed, impact_position, dt, run_in_steps, quantities)
+    f, acc = hist["force"], hist["axle_acc"]
+    after = (jnp.arange(f.shape[0]) >= run_in_steps)[:, None]
+    extra = {}
+    if "detector_peak" in hist:
+        extra = {"detector_peak": hist["detector_peak"],
+                 "detector_ratio": hist["detector_peak"] / jnp.asarray(preload)[:, None]}
+    return res._replace(
+        wheel_force=f, wheel_max_force=jnp.max(jnp.where(after, f, -jnp.inf), axis=0),
+        wheel_min_force=jnp.min(jnp.where(after, f, jnp.inf), axis=0),
+        wheel_loss_of_contact=jnp.any(after & (f <= 0), axis=0),
+        wheel_axle_acc=acc, wheel_axle_acc_peak=jnp.max(jnp.where(after, jnp.abs(acc), 0.0),
+                                                        axis=0),
+        wheel_x=hist["x"], **extra)

@@ -209,16 +209,25 @@ def evaluate(spec: SensorSpec, model, q, force, x) -> jax.Array:
 
     Args:
         spec: :func:`sensor_spec`. model: the track's :class:`~wfjax.track.ModalModel`.
-        q: complex [n_modes] modal states at this instant; force: contact force F [N];
-        x: rail position of the contact [m].
+        q: complex [n_modes] modal states at this instant; force: contact force F [N] (or
+            [n_wheels] forces); x: rail position of the contact [m] (or [n_wheels]).
     """
     y = spec.c_re @ jnp.real(q) - spec.c_im @ jnp.imag(q)
-    y = y + force * track_mod.interpolate_nodal(model, spec.direct, x)
+    y = y.reshape(len(spec.quantities), spec.positions.shape[0])
+    loads = jax.vmap(lambda f, xw: _load_terms(spec, model, f, xw))(jnp.atleast_1d(force),
+                                                                    jnp.atleast_1d(x))
+    return y + loads.sum(axis=0)
+
+
+def _load_terms(spec: SensorSpec, model, force, x) -> jax.Array:
+    """[n_quantities, n_s] the readings' parts proportional to one wheel's load ``force`` [N]
+    at ``x`` [m]: the truncated modes' static part, and the fixed-end solution of a load
+    inside a sensor's element (shear and moment)."""
     n_s = spec.positions.shape[0]
-    y = y.reshape(len(spec.quantities), n_s)
+    y = (force * track_mod.interpolate_nodal(model, spec.direct, x)).reshape(
+        len(spec.quantities), n_s)
     if "shear" not in spec.quantities and "moment" not in spec.quantities:
         return y
-    # fixed-end solution of the wheel load inside a sensor's element
     le = model.node_x[1] - model.node_x[0]
     s_f = x - spec.element_x0
     inside = (s_f >= 0) & (s_f < le)
@@ -304,9 +313,11 @@ def detector_spec(detector: Detector, track: Track, model) -> DetectorSpec:
 
 
 def detector_load(spec: DetectorSpec, model, q, force, x):
-    """(estimate [n_bays] N, gate [n_bays] bool): calibrated shear difference per bay and
-    whether the wheel (contact point ``x`` [m]) is between the bay's bridges."""
+    """(estimate [n_bays] N, gate bool): calibrated shear difference per bay and whether the
+    wheel (contact point ``x`` [m]) is between the bay's bridges: gate [n_bays] for a scalar
+    ``x``, [n_wheels, n_bays] for wheels at ``x`` [n_wheels] with loads ``force`` [n_wheels]."""
     shear = evaluate(spec.sensors, model, q, force, x)[0]
     n = spec.left.shape[0]
     est = spec.calibration * (shear[:n] - shear[n:])
+    x = jnp.asarray(x)[..., None]
     return est, (x >= spec.left) & (x <= spec.right)

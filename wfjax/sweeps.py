@@ -42,9 +42,20 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._parallel import map_per_core
 from .contact.laws import CONTACT_MODELS, cached_table_3d, prepare, prepare_family, resolve_mode_3d
-from .interaction import batch_windows, detector_config, run_scan, structure
+from .interaction import (
+    batch_windows,
+    detector_config,
+    run_scan,
+    simulation_window,
+    structure,
+    vehicle_laws,
+    vehicle_structure,
+    vehicle_window_flat,
+)
 from .params import Flat, Material, SimConfig, Track, Wheel
-from .results import summarise
+from .results import summarise, summarise_vehicle
+from .vehicle import check_on_track
+from .vehicle import placement as vehicle_placement
 from .sensors import QUANTITIES, detector_spec, sensor_spec
 
 __all__ = ["SweepResult", "sweep", "impact_positions_grid", "chunk_width"]
@@ -78,6 +89,14 @@ class SweepResult(NamedTuple):
         detector_bays: [n_bays] bay indices of the detector (``sweep(detector=...)``), or None.
         detector_peak: [n_flats, n_speeds, n_positions, n_bays] detector reading per bay [N].
         detector_ratio: the same divided by the static wheel load P.
+        axle_acc_peak: [n_flats, n_speeds, n_positions] max |axle-box acceleration| of the
+            flat's wheel after the run-in [m/s^2].
+        wheel_max_force, wheel_min_force: a vehicle's (``sweep(vehicle=...)``) every wheel's
+            force extremes, [n_flats, n_speeds, n_positions, n_wheels] [N], or None
+            (``max_force`` and ``min_force`` are the flat wheel's).
+        wheel_loss_of_contact: the same, bool. wheel_axle_acc_peak: the same [m/s^2].
+        wheel_positions: [n_wheels] the wheels' distances behind the leading wheel [m].
+        flat_wheel: index of the wheel that carries the swept flats (0 without a vehicle).
     """
 
     speeds: Any
@@ -98,6 +117,13 @@ class SweepResult(NamedTuple):
     detector_peak: Any = None
     detector_ratio: Any = None
     sensor_quantities: tuple = ()
+    axle_acc_peak: Any = None
+    wheel_max_force: Any = None
+    wheel_min_force: Any = None
+    wheel_loss_of_contact: Any = None
+    wheel_axle_acc_peak: Any = None
+    wheel_positions: Any = None
+    flat_wheel: int = 0
 
     def envelope(self) -> dict[str, np.ndarray]:
         """Max over positions of max_force, min over positions of min_force: [n_flats, n_speeds]."""
@@ -204,15 +230,25 @@ def flat_label(flat: Flat) -> str:
 
 def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, speed, dt,
             x_start, impact_position, run_in_steps):
-    law = jax.tree.map(lambda a: a[flat_index], laws)
+    batched, others = laws
+    law = jax.tree.map(lambda a: a[flat_index], batched)
+    if others is not None:  # a vehicle: the swept flat's law on its wheel, the others fixed
+        law = tuple(law if o is None else o for o in others)
     hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
                     sensors=extras["sensors"], detector=extras["detector"],
                     run_in_steps=run_in_steps, sensor_history=False, precision=precision)
-    res = summarise({k: hist[k] for k in ("t", "x", "s", "force", "approach", "wheel_disp",
-                                          "rail_disp", "residual")},
-                    speed, impact_position, dt, run_in_steps)
+    keys = ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual",
+            "axle_acc")
+    if others is None:
+        res = summarise({k: hist[k] for k in keys}, speed, impact_position, dt, run_in_steps)
+        per_wheel = ()
+    else:
+        res = summarise_vehicle({k: hist[k] for k in keys}, [o is None for o in others].index(True), speed,
+                                impact_position, dt, run_in_steps)
+        per_wheel = (res.wheel_max_force, res.wheel_min_force, res.wheel_loss_of_contact,
+                     res.wheel_axle_acc_peak)
     outs = (res.max_force, res.min_force, res.loss_of_contact, res.loss_of_contact_duration,
-            jnp.max(res.residual))
+            jnp.max(res.residual), res.axle_acc_peak) + per_wheel
     return outs + tuple(hist[k] for k in ("sensor_max", "sensor_min", "detector_peak")
                         if k in hist)
 
@@ -299,7 +335,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
           wheel: Wheel | None = None, track: Track | None = None,
           material: Material | None = None, config: SimConfig | None = None,
           chunk_size: int | None = None, progress: bool = True, cache_dir=None, sensors=None,
-          detector=None, sensor_quantities=QUANTITIES) -> SweepResult:
+          detector=None, sensor_quantities=QUANTITIES, vehicle=None) -> SweepResult:
     """Max/min contact force for every flat x speed x impact position.
 
     Args:
@@ -318,6 +354,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             :data:`wfjax.sensors.QUANTITIES`) at each, per run.
         detector: a :class:`wfjax.sensors.Detector`: its reading per bay, per run (the runs'
             windows are lengthened so that the wheel crosses every bay).
+        vehicle: a :class:`wfjax.vehicle.Vehicle` (as :func:`wfjax.simulate`): every flat is
+            swept on ``vehicle.flat_wheel``, the other wheels roll with it on the same track;
+            per-wheel extremes in the ``wheel_*`` fields (a detector's peak per wheel and bay).
 
     Returns:
         :class:`SweepResult` with arrays shaped [n_flats, n_speeds, n_positions].
@@ -345,12 +384,18 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     if detector is not None:
         config = detector_config(detector, track, config)
     mesh = _device_mesh()
-    struct_host = structure(wheel, track, config, cache_dir)
+    fleet = _Fleet.of(vehicle, wheel, flat_list, contact, track, material, config, v,
+                      cache_dir)
+    struct_host = fleet.struct if vehicle is not None else structure(wheel, track, config,
+                                                                      cache_dir)
     struct = _replicate(struct_host, mesh)
     extras = _replicate(_sensor_extras(sensors, sensor_quantities, detector, track,
                                        struct_host.track), mesh)
-    keys = ["max", "min", "lost", "lost_t", "res"] + [
-        k for k, on in (("s_max", sensors is not None), ("s_min", sensors is not None),
+    others = None if vehicle is None else _replicate(fleet.others, mesh)
+    keys = ["max", "min", "lost", "lost_t", "res", "acc"] + [
+        k for k, on in (("w_max", vehicle is not None), ("w_min", vehicle is not None),
+                        ("w_lost", vehicle is not None), ("w_acc", vehicle is not None),
+                        ("s_max", sensors is not None), ("s_min", sensors is not None),
                         ("det", detector is not None)) if on]
     out = {}
     groups = batch_groups(flat_list, contact, config)
@@ -365,15 +410,24 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
                   file=sys.stderr, flush=True)
         laws, window_flat = prepare_batch(contact, members, wheel, track, material, config,
                                           cache_dir, progress)
-        cols = _run_group(_replicate(laws, mesh), struct, extras, window_flat, len(members), v,
-                          pos, config, mesh, chunk_size,
+        if vehicle is not None:
+            window_flat = fleet.window_flat(window_flat)
+        cols = _run_group((_replicate(laws, mesh), others), struct, extras, window_flat,
+                          len(members), v, pos + fleet.shift, config, mesh, chunk_size,
                           _Progress(len(members) * v.size * pos.size, label, enabled=progress))
         for key, col in zip(keys, cols, strict=True):
             out.setdefault(key, np.zeros((len(flat_list),) + col.shape[1:]))[group] = col
-    det = {}
+    det = {"axle_acc_peak": out["acc"]}
     if detector is not None:
-        det = {"detector_bays": detector.bays(), "detector_peak": out["det"],
-               "detector_ratio": out["det"] / float(wheel.preload)}
+        loads = fleet.preloads[:, None] if vehicle is not None else float(wheel.preload)
+        det |= {"detector_bays": detector.bays(), "detector_peak": out["det"],
+                "detector_ratio": out["det"] / loads}
+    if vehicle is not None:
+        det |= {"wheel_max_force": out["w_max"], "wheel_min_force": out["w_min"],
+                "wheel_loss_of_contact": out["w_lost"].astype(bool),
+                "wheel_axle_acc_peak": out["w_acc"],
+                "wheel_positions": np.asarray(vehicle.positions),
+                "flat_wheel": int(vehicle.flat_wheel)}
     if sensors is not None:
         det |= {"sensor_positions": np.asarray(extras["sensors"].positions),
                 "sensor_max": out["s_max"], "sensor_min": out["s_min"],
@@ -385,6 +439,52 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         depths=np.array([float(np.asarray(f.depth)) for f in flat_list]),
         lengths=np.array([float(np.asarray(f.length)) for f in flat_list]), **det,
     )
+
+
+@dataclasses.dataclass
+class _Fleet:
+    """A sweep's vehicle: the structure, the fixed wheels' laws and the placement."""
+
+    vehicle: Any = None
+    struct: Any = None
+    others: tuple | None = None  # [n] laws, None at the flat wheel
+    flats: list | None = None
+    shift: float = 0.0  # rail coordinate of the reference wheel's impact bay [m]
+    preloads: Any = None
+    track: Any = None
+    speeds: Any = None
+    config: Any = None
+
+    @classmethod
+    def of(cls, vehicle, wheel, flat_list, contact, track, material, config, speeds,
+           cache_dir) -> _Fleet:
+        if vehicle is None:
+            return cls()
+        wheels = vehicle.wheel_list(wheel)
+        vehicle.check_spacing(wheels)
+        for f in flat_list:
+            w = wheels[vehicle.flat_wheel]
+            if abs(float(f.wheel_radius) - float(w.radius)) > 1e-12:
+                raise ValueError(f"flat.wheel_radius ({float(f.wheel_radius)} m) must equal the "
+                                 f"flat wheel's radius ({float(w.radius)} m)")
+        flats = vehicle.flat_list(Flat.none(float(wheels[vehicle.flat_wheel].radius)),
+                                  lambda i: float(wheels[i].radius))
+        laws = vehicle_laws(contact, flats, wheels, track, material, config, cache_dir)
+        others = tuple(None if i == vehicle.flat_wheel else law for i, law in enumerate(laws))
+        return cls(vehicle, vehicle_structure(vehicle, wheels, track, config, cache_dir),
+                   others, flats, vehicle_placement(vehicle, float(track.sleeper_spacing)),
+                   np.array([float(w.preload) for w in wheels]), track, speeds, config)
+
+    def window_flat(self, swept: Flat) -> Flat:
+        """The window of a group whose flats are sized by ``swept``, checked on the track."""
+        flats = list(self.flats)
+        flats[self.vehicle.flat_wheel] = swept
+        window = vehicle_window_flat(self.vehicle, flats)
+        spacing = float(self.track.sleeper_spacing)
+        for speed in (float(np.min(self.speeds)), float(np.max(self.speeds))):
+            s0, s1 = simulation_window(window, speed, self.config)
+            check_on_track(self.vehicle, self.track, self.shift + s0, self.shift + s1 + spacing)
+        return window
 
 
 def prefetch_tables(flats: Sequence[Flat], contact: str, wheel: Wheel, track: Track,

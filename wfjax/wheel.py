@@ -93,20 +93,27 @@ class WheelModal(NamedTuple):
     factor 2 of conjugate-pair representatives (Im pole > 0); real poles have real residues.
 
     Fields: poles complex [n] [rad/s]; residues complex [n] [m/(N s)]; n = 2 for the default
-    (underdamped) wheel.
+    (underdamped) wheel. axle_residues: complex [n] [m/(N s)], the same for the displacement
+    of the wheelset mass M_W (the axle box) per unit impulse at the contact: its acceleration
+    is -Re sum axle_residues lambda^2 q for the modal states q of the input (the sums of
+    axle_residues and of axle_residues lambda vanish: M_W neither moves nor gains speed at the
+    instant of an impulse on m_W).
     """
 
     poles: jax.Array
     residues: jax.Array
+    axle_residues: jax.Array | None = None
 
 
 def modal_model(wheel: Wheel) -> WheelModal:
-    """Complex modes of the 2-DOF wheel at the contact point (:class:`WheelModal`)."""
+    """Complex modes of the 2-DOF wheel at the contact point and the axle box
+    (:class:`WheelModal`)."""
     m, c, k = system_matrices(wheel)
     w2, phi = scipy.linalg.eigh(k, m)
     poles, weights, a = complex_modes(w2, phi.T @ c @ phi)
     u = phi @ a
-    return WheelModal(jnp.asarray(poles), jnp.asarray(weights * u[0] ** 2))
+    return WheelModal(jnp.asarray(poles), jnp.asarray(weights * u[0] ** 2),
+                      jnp.asarray(weights * u[0] * u[1]))
 
 
 def greens_function(wheel: Wheel, t) -> jax.Array:

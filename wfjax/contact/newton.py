@@ -17,7 +17,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["bracketed_newton", "solve_contact_step", "static_approach"]
+__all__ = ["bracketed_newton", "solve_contact_step", "static_approach", "newton_system",
+           "solve_contact_system", "solve_small"]
 
 
 def bracketed_newton(evaluate, delta_free, compliance, aux0, max_iter: int = 30,
@@ -95,6 +96,107 @@ def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol
     f_star, df_star = jax.value_and_grad(force_fn)(delta_star)
     r_star = delta_star - delta_free + compliance * f_star
     delta = delta_star - r_star / jax.lax.stop_gradient(1.0 + c * df_star)
+    return delta, force_fn(delta), jax.lax.stop_gradient(r_abs)
+
+
+def newton_system(evaluate, delta_free, compliance, max_iter: int = 30, tol: float = 1e-15):
+    """Root of r(delta) = delta - delta_free + C F(delta) for n contacts, no gradients.
+
+    F_i depends on delta_i only and is non-decreasing, C [n, n] is the structure's symmetric
+    positive definite compliance, so J = I + C diag(F') is invertible and the root unique.
+    Newton from delta_free (every F at its largest) with step halving whenever a step does not
+    reduce max |r_i| (a contact opening or closing within the step makes F' jump); a halving
+    below 1/32 is taken anyway, so the loop cannot stall. A contact with F_i = 0 at the root
+    has lost contact: its row reads delta_i = delta_free_i - sum_j C_ij F_j.
+
+    Args:
+        evaluate: delta [n] -> (F [n] N, dF/d delta [n] N/m).
+        delta_free: [n] approaches if every F were zero [m]. compliance: C [n, n] [m/N].
+        max_iter: iteration cap (static). tol: tolerance on max |r_i| [m].
+
+    Returns:
+        (delta [n] m, |r| [n] m).
+    """
+    eye = jnp.eye(delta_free.shape[0], dtype=delta_free.dtype)
+
+    def residual(delta):
+        f, df = evaluate(delta)
+        return delta - delta_free + compliance @ f, df
+
+    def size(r):
+        return jnp.max(jnp.abs(r))
+
+    def cond(state):
+        return (size(state[1]) > tol) & (state[4] < max_iter)
+
+    def body(state):
+        delta, r, df, t, it = state
+        trial = delta - t * solve_small(eye + compliance * df[None, :], r)
+        r_trial, df_trial = residual(trial)
+        take = (size(r_trial) < size(r)) | (t < 1.0 / 32)
+        return (jnp.where(take, trial, delta), jnp.where(take, r_trial, r),
+                jnp.where(take, df_trial, df), jnp.where(take, 1.0, 0.5 * t), it + 1)
+
+    r0, df0 = residual(delta_free)
+    one = jnp.ones((), delta_free.dtype)
+    delta, r, *_ = jax.lax.while_loop(cond, body, (delta_free, r0, df0, one, 0))
+    return delta, jnp.abs(r)
+
+
+def solve_small(a, b):
+    """x with a x = b for a small [n, n] ``a`` (n static) by Gaussian elimination without
+    pivoting, unrolled: under ``vmap`` it is n^2 vector operations, where a LAPACK call per
+    Newton iteration costs more than the whole step. For the step's Jacobians
+    I + C diag(F'), which are strongly diagonally dominant (the wheels' coupling within one
+    step is ~1e-3 of their own compliance), no pivoting is needed."""
+    n = b.shape[0]
+    rows = [a[i] for i in range(n)]
+    rhs = [b[i] for i in range(n)]
+    for k in range(n):
+        for i in range(k + 1, n):
+            m = rows[i][k] / rows[k][k]
+            rows[i] = rows[i] - m * rows[k]
+            rhs[i] = rhs[i] - m * rhs[k]
+    x = [None] * n
+    for i in reversed(range(n)):
+        acc = rhs[i]
+        for j in range(i + 1, n):
+            acc = acc - rows[i][j] * x[j]
+        x[i] = acc / rows[i][i]
+    return jnp.stack(x)
+
+
+def solve_contact_system(force_fn, delta_free, compliance, max_iter: int = 30,
+                         tol: float = 1e-15, loop_force_fn=None):
+    """Solve delta = delta_free - C F(delta) for n contacts (delta [n] m, C [n, n] m/N).
+
+    :func:`newton_system` made differentiable by the implicit function theorem, as
+    :func:`solve_contact_step`: one Newton step from the converged root with the root and
+    the Jacobian I + C diag(F') held fixed.
+
+    Args:
+        force_fn: delta [n] -> F [n] [N], F_i a function of delta_i only, differentiable.
+        loop_force_fn: ``force_fn`` with its parameters under ``stop_gradient`` (used inside
+            the loop; default ``force_fn``).
+        Others as :func:`newton_system`.
+
+    Returns:
+        (delta [n] m, F [n] N, |r| [n] m).
+    """
+    loop_force_fn = loop_force_fn or force_fn
+    ones = jnp.ones_like(delta_free)
+
+    def evaluate(delta):  # F and its diagonal Jacobian in one forward pass
+        return jax.jvp(loop_force_fn, (delta,), (ones,))
+
+    d_free = jax.lax.stop_gradient(delta_free)
+    c = jax.lax.stop_gradient(compliance)
+    delta_star, r_abs = newton_system(evaluate, d_free, c, max_iter, tol)
+    delta_star = jax.lax.stop_gradient(delta_star)
+    f_star, df_star = jax.jvp(force_fn, (delta_star,), (ones,))
+    r_star = delta_star - delta_free + compliance @ f_star
+    jac = jax.lax.stop_gradient(jnp.eye(ones.shape[0], dtype=ones.dtype) + c * df_star[None, :])
+    delta = delta_star - solve_small(jac, r_star)
     return delta, force_fn(delta), jax.lax.stop_gradient(r_abs)
 
 

@@ -1,0 +1,266 @@
+"""Several wheels on one rail (issue 17): the coupled loop against independent references."""
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse
+import scipy.sparse.linalg
+
+import wfjax as wf
+from wfjax import geometry
+from wfjax import interaction as it
+from wfjax import track as track_mod
+from wfjax import wheel as wheel_mod
+from wfjax.vehicle import Vehicle, placement, residual_pairs, transfer_receptance
+
+REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
+ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
+V = 100 / 3.6
+
+
+@pytest.mark.parametrize("contact", ["hertz-profile", "hertz-trajectory", "2d", "3d"])
+def test_one_wheel_vehicle_reproduces_the_single_wheel_loop(contact):
+    # tests/data holds the histories of the one-wheel loop before the several-wheels rewrite
+    ref = np.load(REFERENCE)
+    plain = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1)
+    one = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1,
+                      vehicle=Vehicle.single())
+    for res in (plain, one):
+        for key in ("force", "rail_disp", "wheel_disp", "approach"):
+            want = ref[f"{contact}/{key}"]
+            got = np.asarray(getattr(res, key))
+            assert np.max(np.abs(got - want)) <= 1e-9 * np.max(np.abs(want)), key
+    assert np.asarray(one.wheel_force).shape == (plain.force.shape[0], 1)
+
+
+def test_one_wheel_sensors_reproduce_the_single_wheel_loop():
+    ref = np.load(REFERENCE)
+    res = wf.simulate(ROUNDED, V, contact="hertz-trajectory", impact_position=0.1,
+                      sensors=[0.2, 0.5], sensor_quantities=("shear", "seat_force"))
+    for q, hist in res.sensors.items():
+        want = ref[f"sensors/{q}"]
+        assert np.max(np.abs(np.asarray(hist) - want)) <= 1e-9 * np.max(np.abs(want))
+
+
+def _single_run(flat, x_start, impact, n, dt, config, contact="hertz-trajectory"):
+    wheel, track = wf.Wheel(), wf.Track()
+    law = it.prepare(contact, flat, wheel, track, wf.Material(), config)
+    return it.run_scan(law, it.structure(wheel, track, config), V, dt, x_start, impact, n)
+
+
+def test_two_wheels_far_apart_each_match_their_single_wheel_run():
+    # 20 m apart; modes to 20 kHz (the truncated modal sum's non-causal precursor between
+    # wheels this far apart is 0.6 % of P at 10 kHz, 0.08 % at 20 kHz)
+    config = wf.SimConfig(track_max_frequency=20e3)
+    res = wf.simulate(ROUNDED, V, contact="hertz-trajectory", impact_position=0.1,
+                      vehicle=Vehicle((0.0, 20.0)), config=config)
+    x = np.asarray(res.wheel_x)
+    n, dt = x.shape[0], float(res.time_step)
+    lead = _single_run(ROUNDED, x[0, 0], x[0, 0] - float(res.s[0]), n, dt, config)
+    trail = _single_run(wf.Flat.none(), x[0, 1], x[0, 1] - float(res.s[0]), n, dt, config)
+    t, f = np.asarray(res.t), np.asarray(res.wheel_force)
+    after = t >= 0.5 * it.RUN_IN_TIME
+    f_lead = np.asarray(lead["force"])
+    assert float(res.wheel_max_force[0]) == pytest.approx(f_lead[after].max(), rel=1e-3)
+    assert float(res.wheel_min_force[0]) == pytest.approx(f_lead[after].min(),
+                                                          abs=1e-3 * f_lead.max())
+    # the smooth wheel runs as if alone until the impact's rail waves reach it (they do:
+    # a swing of ~4.7 kN about 13 ms after the impact, the same with modes to 10 kHz)
+    before = t < -float(res.s[0]) / V
+    assert np.max(np.abs(f[before, 1] - np.asarray(trail["force"])[before])) < 1e-3 * 118e3
+
+
+def _direct_static(track, positions, loads):
+    fe = track_mod.assemble(track)
+    b = track_mod._load_vector(fe, positions).toarray()
+    u = scipy.sparse.linalg.spsolve(fe.stiffness.tocsc(), b @ loads)
+    return b.T @ u
+
+
+def test_static_deflections_under_several_wheels_superpose_the_direct_solves():
+    # three wheels of different loads; the reference wheel on a point of the residual table
+    track, config = wf.Track(), wf.SimConfig()
+    wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3, 140e3)]
+    vehicle = Vehicle((0.0, 1.6, 4.1))
+    struct = it.vehicle_structure(vehicle, wheels, track, config)
+    laws = it.vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
+                           wheels, track, wf.Material(), config)
+    x0 = placement(vehicle, 0.65) + 7 * 0.65 / 32
+    hist = it.run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
+    x = x0 + vehicle.offsets()
+    want = _direct_static(track, x, np.array([118e3, 90e3, 140e3]))
+    np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], want, rtol=1e-9)
+    # superposition: the same from three one-wheel direct solves
+    singles = sum(_direct_static(track, x, np.eye(3)[i] * w.preload)
+                  for i, w in enumerate(wheels))
+    np.testing.assert_allclose(want, singles, rtol=1e-12)
+
+
+def test_residual_pairs_are_symmetric_and_their_diagonal_is_the_tracks_residual():
+    track, config = wf.Track(), wf.SimConfig()
+    model = track_mod.modal_model(track, max_frequency=config.track_max_frequency)
+    pairs = residual_pairs(track, model, np.array([0.0, -2.5]))
+    np.testing.assert_allclose(pairs, np.swapaxes(pairs, 1, 2), rtol=1e-10, atol=1e-22)
+    np.testing.assert_allclose(pairs[:, 0, 0], np.asarray(model.residual), rtol=1e-9)
+
+
+def test_transfer_receptance_is_reciprocal_and_matches_the_direct_solve():
+    track = wf.Track()
+    freqs = np.array([20.0, 100.0, 300.0, 800.0, 1500.0])
+    a, b = 0.1, -2.4
+    direct_ab = track_mod.receptance(track, freqs, x=a, x_response=b)
+    direct_ba = track_mod.receptance(track, freqs, x=b, x_response=a)
+    np.testing.assert_allclose(direct_ab, direct_ba, rtol=1e-9)
+    model = track_mod.modal_model(track, max_frequency=20e3)
+    modal_ab = transfer_receptance(track, model, freqs, a, b)
+    modal_ba = transfer_receptance(track, model, freqs, b, a)
+    np.testing.assert_allclose(modal_ab, modal_ba, rtol=1e-9)
+    np.testing.assert_allclose(modal_ab, direct_ab, rtol=0.02)
+
+
+def test_axle_box_acceleration_is_the_second_derivative_of_the_axle_displacement():
+    wheel = wf.Wheel()
+    modes = wheel_mod.modal_model(wheel)
+    # M_W neither moves nor gains speed at the instant of an impulse on m_W
+    assert abs(float(jnp.real(jnp.sum(modes.axle_residues)))) < 1e-15
+    assert abs(float(jnp.real(jnp.sum(modes.axle_residues * modes.poles)))) < 1e-12
+    res = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.1,
+                      vehicle=Vehicle.bogie())
+    # the axle displacement from the same modal states, differentiated twice numerically
+    t = np.asarray(res.t)
+    f = np.asarray(res.wheel_force)[:, 0]
+    dt = t[1] - t[0]
+    disp = np.asarray(wheel_mod.response(
+        wheel_mod.WheelModal(modes.poles, modes.axle_residues), f - 118e3, dt))
+    acc_fd = -(disp[2:] - 2 * disp[1:-1] + disp[:-2]) / dt**2
+    acc = np.asarray(res.wheel_axle_acc)[1:-1, 0]
+    assert np.max(np.abs(acc_fd - acc)) < 0.02 * np.max(np.abs(acc))
+    assert float(res.wheel_axle_acc_peak[0]) > float(res.wheel_axle_acc_peak[1]) > 1.0
+
+
+def test_bogie_gradient_reaches_the_flat_and_matches_finite_differences():
+    wheel, track, config, mat = wf.Wheel(), wf.Track(), wf.SimConfig(), wf.Material()
+    vehicle = Vehicle.bogie()
+    struct = it.vehicle_structure(vehicle, [wheel, wheel], track, config)
+    smooth = it.prepare("hertz-profile", wf.Flat.none(), wheel, track, mat, config)
+    x_imp = placement(vehicle, 0.65) + 0.2
+    n, dt = 500, 2.5e-5
+
+    def peak(depth):
+        flat = wf.Flat("rounded", depth, 0.1)
+        law = it.prepare("hertz-profile", flat, wheel, track, mat, config)
+        hist = it.run_scan((law, smooth), struct, V, dt, x_imp - 0.3, x_imp, n)
+        return jnp.max(hist["force"][:, 0]) + 0.5 * jnp.max(hist["force"][:, 1])
+
+    d0, h = 0.9e-3, 1e-6
+    grad = float(jax.grad(peak)(d0))
+    fd = (float(peak(d0 + h)) - float(peak(d0 - h))) / (2 * h)
+    assert grad == pytest.approx(fd, rel=1e-2)
+
+
+def test_bogie_sweep_gives_every_wheels_extremes():
+    speeds = np.array([60.0, 140.0]) / 3.6
+    sw = wf.sweep(ROUNDED, speeds, 2, contact="hertz-trajectory", vehicle=Vehicle.bogie(),
+                  progress=False)
+    assert sw.wheel_max_force.shape == (1, 2, 2, 2)
+    np.testing.assert_array_equal(sw.wheel_max_force[..., 0], sw.max_force)
+    res = wf.simulate(ROUNDED, speeds[1], contact="hertz-trajectory",
+                      impact_position=float(sw.impact_positions[1]), vehicle=Vehicle.bogie(),
+                      n_steps=it.batch_windows(ROUNDED, speeds, wf.SimConfig())[0])
+    np.testing.assert_allclose(sw.wheel_max_force[0, 1, 1], res.wheel_max_force, rtol=1e-9)
+    np.testing.assert_allclose(sw.wheel_axle_acc_peak[0, 1, 1], res.wheel_axle_acc_peak,
+                               rtol=1e-9)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(positions=(0.0, 0.5)), "wheel diameter"),
+    (dict(positions=(0.0, 2.5), flat_wheel=2), "flat_wheel"),
+    (dict(positions=(0.0, -2.5)), "increase"),
+    (dict(positions=(0.0, 40.0)), "n_bays"),
+])
+def test_bad_vehicles_are_refused(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        wf.simulate(ROUNDED, V, contact="hertz-profile", vehicle=Vehicle(**kwargs))
+
+
+def test_bad_wheel_load_is_refused():
+    with pytest.raises(ValueError, match="preload"):
+        Vehicle((0.0, 2.5), wheels=(wf.Wheel(), wf.Wheel(preload=-1.0)))
+
+
+# -- an independent reference: the full FE track and two wheels by Newmark integration ------
+def _newmark_two_wheels(flat, speed, x_lead, impact, offset, dt, n_steps):
+    """Contact forces [n_steps, 2] of two wheels (Hertz, profile input; the flat on the
+    first) on the full FE track (every mode, no modal reduction), average-acceleration
+    Newmark for the track and both 2-DOF wheels, Newton on the two forces every step."""
+    track, wheel = wf.Track(), wf.Wheel()
+    fe = track_mod.assemble(track)
+    k, m, c = fe.stiffness.tocsc(), fe.mass.tocsc(), fe.damping.tocsc()
+    c_h = float(it.prepare("hertz-profile", flat, wheel, track, wf.Material(),
+                           wf.SimConfig()).c_h)
+    mw, cw, kw = wheel_mod.system_matrices(wheel)
+    a0, a1 = 4 / dt**2, 2 / dt
+    lu = scipy.sparse.linalg.splu((k + a0 * m + a1 * c).tocsc())
+    kw_inv = np.linalg.inv(kw + a0 * mw + a1 * cw)
+    p = float(wheel.preload)
+    offsets = np.array([0.0, offset])
+
+    def deviation(s):  # profile deviation at each wheel (the second is smooth)
+        return np.array([float(geometry.profile_deviation(flat, s)), 0.0])
+
+    def loads(x):
+        return track_mod._load_vector(fe, x).toarray()
+
+    # static start: the rail under both loads, each wheel compressed to carry P
+    b = loads(x_lead + offsets)
+    u = scipy.sparse.linalg.spsolve(k, b @ np.array([p, p]))
+    v, acc = np.zeros_like(u), np.zeros_like(u)
+    contact_ref = b.T @ u + (p / c_h) ** (2 / 3) + deviation(x_lead - impact)
+    # wheel i around its static state: M q'' + C q' + K q = e1 (P - F_i), q1 downwards
+    q, qv, qa = np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2))
+    forces = np.full((n_steps, 2), p)
+    w_c = kw_inv[0, 0]
+    for n in range(1, n_steps):
+        x = x_lead + speed * dt * n + offsets
+        b = loads(x)
+        u_free = lu.solve(m @ (a0 * u + 4 / dt * v + acc) + c @ (a1 * u + v))
+        g = lu.solve(b)
+        rail_free, rail_c = b.T @ u_free, b.T @ g
+        rhs_w = (mw @ (a0 * q + 4 / dt * qv + qa).T + cw @ (a1 * q + qv).T).T  # [2 wheels, 2]
+        w_free = (kw_inv @ (rhs_w + np.array([p, 0.0])).T)[0]
+        z = deviation(x[0] - impact)
+        compliance = w_c * np.eye(2) + rail_c
+        f = forces[n - 1].copy()
+        for _ in range(60):
+            comp = contact_ref + w_free - rail_free - compliance @ f - z
+            fh = c_h * np.maximum(comp, 0.0) ** 1.5
+            dfh = 1.5 * c_h * np.sqrt(np.maximum(comp, 0.0))
+            step = np.linalg.solve(np.eye(2) + dfh[:, None] * compliance, f - fh)
+            f = np.maximum(f - step, 0.0)
+            if np.max(np.abs(step)) < 1e-7:
+                break
+        forces[n] = f
+        u_new = u_free + g @ f
+        acc_new = a0 * (u_new - u) - 4 / dt * v - acc
+        v, u, acc = v + 0.5 * dt * (acc + acc_new), u_new, acc_new
+        q_new = (kw_inv @ (rhs_w + np.stack([p - f, np.zeros(2)], axis=1)).T).T
+        qa_new = a0 * (q_new - q) - 4 / dt * qv - qa
+        qv, q, qa = qv + 0.5 * dt * (qa + qa_new), q_new, qa_new
+    return forces
+
+
+@pytest.mark.slow
+def test_two_wheels_agree_with_a_direct_fe_time_integration():
+    res = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.1,
+                      vehicle=Vehicle.bogie())
+    x = np.asarray(res.wheel_x)
+    forces = _newmark_two_wheels(ROUNDED, V, x[0, 0], x[0, 0] - float(res.s[0]), -2.5,
+                                 float(res.time_step), x.shape[0])
+    after = np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME
+    for i in range(2):
+        fm, fn = np.asarray(res.wheel_force)[after, i], forces[after, i]
+        assert fn.max() == pytest.approx(fm.max(), rel=0.02), i
+        assert fn.min() == pytest.approx(fm.min(), abs=0.02 * fm.max()), i
