@@ -54,9 +54,9 @@ from .interaction import (
 )
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import summarise, summarise_vehicle
+from .sensors import QUANTITIES, detector_spec, sensor_spec
 from .vehicle import check_on_track
 from .vehicle import placement as vehicle_placement
-from .sensors import QUANTITIES, detector_spec, sensor_spec
 
 __all__ = ["SweepResult", "sweep", "impact_positions_grid", "chunk_width"]
 
@@ -243,7 +243,8 @@ def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, spee
         res = summarise({k: hist[k] for k in keys}, speed, impact_position, dt, run_in_steps)
         per_wheel = ()
     else:
-        res = summarise_vehicle({k: hist[k] for k in keys}, [o is None for o in others].index(True), speed,
+        flat_wheel = [o is None for o in others].index(True)
+        res = summarise_vehicle({k: hist[k] for k in keys}, flat_wheel, speed,
                                 impact_position, dt, run_in_steps)
         per_wheel = (res.wheel_max_force, res.wheel_min_force, res.wheel_loss_of_contact,
                      res.wheel_axle_acc_peak)
