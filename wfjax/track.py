@@ -39,8 +39,9 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from . import _cache
+from . import supports as _supports
 from ._modal import complex_modes, discrete_step_coefficients
-from .params import Track, concrete_positive_numbers
+from .params import SUPPORT_FIELDS, Track, concrete_positive_numbers
 
 __all__ = [
     "ModalModel",
@@ -59,20 +60,26 @@ __all__ = [
     "discrete_step_coefficients",
 ]
 
-_TRACK_FIELDS = (
+_RAIL_FIELDS = (
     "bending_stiffness", "shear_stiffness", "rail_mass", "rail_rotary_inertia",
-    "sleeper_spacing", "pad_stiffness", "pad_damping", "sleeper_mass",
-    "ballast_stiffness", "ballast_damping",
+    "sleeper_spacing",
 )
 
 
 # --------------------------------------------------------------------------------------------
 # validation helpers
 # --------------------------------------------------------------------------------------------
-def _track_numbers(track: Track) -> dict[str, float]:
+def _track_numbers(track: Track) -> dict[str, float | np.ndarray]:
+    """Rail numbers (floats) and supports: a float per field when every sleeper has the same
+    value (the uniform track: exactly today's numbers and cache keys), else the whole
+    per-sleeper array [n_bays - 1] of every support field."""
     if not isinstance(track, Track):
         raise ValueError(f"track must be a wfjax.Track, got {type(track).__name__}")
-    out = concrete_positive_numbers(track, _TRACK_FIELDS)
+    out: dict[str, float | np.ndarray] = dict(concrete_positive_numbers(track, _RAIL_FIELDS))
+    arrays = _supports.support_arrays(track)
+    uniform = _supports.is_uniform(track)
+    for name in SUPPORT_FIELDS:
+        out[name] = float(arrays[name][0]) if uniform else arrays[name]
     for name, low in (("n_bays", 4), ("elements_per_bay", 1)):
         value = getattr(track, name)
         if not isinstance(value, (int, np.integer)) or value < low:
@@ -169,7 +176,11 @@ def shape_functions(xi, phi, length):
 
 
 def assemble(track: Track) -> FEModel:
-    """Assemble the sparse stiffness, mass and damping matrices of the track FE model."""
+    """Assemble the sparse stiffness, mass and damping matrices of the track FE model.
+
+    Per-sleeper supports (arrays ``[n_bays - 1]`` in the track's support fields, see
+    :mod:`wfjax.supports`) enter sleeper by sleeper; scalars are the same at every sleeper.
+    """
     p = _track_numbers(track)
     nb, ne = int(track.n_bays), int(track.elements_per_bay)
     n_el = nb * ne
@@ -196,17 +207,18 @@ def assemble(track: Track) -> FEModel:
     sl = n_rail + j - 1
     s_rows = np.concatenate([rw, sl, rw, sl])
     s_cols = np.concatenate([rw, sl, sl, rw])
-    kp, kb = p["pad_stiffness"], p["ballast_stiffness"]
-    cp, cb = p["pad_damping"], p["ballast_damping"]
     ones = np.ones(n_sl)
-    ks_v = np.concatenate([kp * ones, (kp + kb) * ones, -kp * ones, -kp * ones])
-    cs_v = np.concatenate([cp * ones, (cp + cb) * ones, -cp * ones, -cp * ones])
+    kp, kb, cp, cb, msl = (p[n] * ones for n in ("pad_stiffness", "ballast_stiffness",
+                                                  "pad_damping", "ballast_damping",
+                                                  "sleeper_mass"))
+    ks_v = np.concatenate([kp, kp + kb, -kp, -kp])
+    cs_v = np.concatenate([cp, cp + cb, -cp, -cp])
 
     shape = (n_dof, n_dof)
     k = scipy.sparse.coo_matrix((np.concatenate([kv, ks_v]),
                                  (np.concatenate([rows, s_rows]), np.concatenate([cols, s_cols]))),
                                 shape=shape).tocsc()
-    m = scipy.sparse.coo_matrix((np.concatenate([mv, p["sleeper_mass"] * ones]),
+    m = scipy.sparse.coo_matrix((np.concatenate([mv, msl]),
                                  (np.concatenate([rows, sl]), np.concatenate([cols, sl]))),
                                 shape=shape).tocsc()
     c = scipy.sparse.coo_matrix((cs_v, (s_rows, s_cols)), shape=shape).tocsc()
@@ -290,9 +302,11 @@ class ModalModel(NamedTuple):
         node_x: float [n_nodes] rail node positions [m], x = 0 at the middle sleeper.
         shapes: complex [n_modes, n_nodes, 2] (displacement [sqrt(1/kg)-like units such that
             phi*phi has m/(N s)], rotation per m of that) at the nodes; clamped ends are 0.
-        residual_x: float [n_res] positions across one bay [0, L_S] [m].
+        residual_x: float [n_res] positions [m] of the residual table: across one bay
+            [0, L_S] for a uniform track (periodic in the bay); along the whole rail (absolute
+            coordinates, ``n_residual - 1`` intervals per bay) when the supports vary.
         residual: float [n_res] static compliance [m/N] of the truncated modes at (x, x):
-            K^-1(x, x) - sum_kept Re(w phi^2 / (-lambda)); periodic in the bay.
+            K^-1(x, x) - sum_kept Re(w phi^2 / (-lambda)).
         sleeper_spacing: L_S [m].
         element_phi: Timoshenko shear parameter 12 EI/(kGA Le^2) of the rail elements (needed
             by the shape functions in :func:`mode_shapes_at`).
@@ -353,12 +367,16 @@ def interpolate_nodal(model: ModalModel, nodal, x) -> jax.Array:
 
 
 def residual_compliance_at(model: ModalModel, x) -> jax.Array:
-    """Static compliance [m/N] of the truncated modes at (x, x), periodic in the bay.
+    """Static compliance [m/N] of the truncated modes at (x, x).
 
+    A table across one bay (uniform track) is read periodically, ``x mod L_S``; a table along
+    the whole rail (supports that vary) is read at the absolute position ``x`` (clamped to
+    the rail ends). Which one is told by the table's span, so the test also runs under ``jit``.
     ``x`` [m] any shape; returns float [...]. Pure ``jax.numpy``.
     """
     x = jnp.asarray(x, dtype=jnp.result_type(x, float))  # float32 stays float32
-    s = jnp.mod(x, model.sleeper_spacing)
+    periodic = model.residual_x[-1] - model.residual_x[0] < 1.5 * model.sleeper_spacing
+    s = jnp.where(periodic, jnp.mod(x, model.sleeper_spacing), x)
     return jnp.interp(s, model.residual_x, model.residual)
 
 
@@ -419,8 +437,12 @@ def _mirror_bases(fe: FEModel, n_bays: int) -> list[scipy.sparse.csc_matrix]:
 def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[str, np.ndarray]:
     fe = assemble(track)
     w_max = 2 * np.pi * max_frequency
+    nb = int(track.n_bays)
+    # the mirror split needs supports symmetric about x = 0 (always so for a uniform track)
+    bases = (_mirror_bases(fe, nb) if _supports.is_mirror_symmetric(track)
+             else [scipy.sparse.identity(fe.stiffness.shape[0], format="csc")])
     parts = []
-    for basis in _mirror_bases(fe, int(track.n_bays)):
+    for basis in bases:
         k = (basis.T @ fe.stiffness @ basis).toarray()
         m = (basis.T @ fe.mass @ basis).toarray()
         w2, vec = scipy.linalg.eigh(k, m, driver="gvd", check_finite=False)
@@ -439,9 +461,13 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     shapes[:, 1:-1, :] = u[: fe.n_rail_dof].T.reshape(poles.size, n_nodes - 2, 2)
     sleeper_shapes = u[fe.n_rail_dof:].T  # [n_modes, n_sleepers]
 
-    # static correction of the truncated modes across the central bay
+    # static correction of the truncated modes: across the central bay (uniform track,
+    # periodic), else along the whole rail in absolute coordinates
     ls = float(track.sleeper_spacing)
-    res_x = np.linspace(0.0, ls, n_residual)
+    if _supports.is_uniform(track):
+        res_x = np.linspace(0.0, ls, n_residual)
+    else:
+        res_x = np.linspace(fe.node_x[0], fe.node_x[-1], (n_residual - 1) * nb + 1)
     b = _load_vector(fe, res_x)
     full = np.einsum("ij,ij->j", b.toarray(),
                      scipy.sparse.linalg.splu(fe.stiffness).solve(b.toarray()))
@@ -464,6 +490,12 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
     bay (``n_residual`` points). Speed independent; cached with :mod:`wfjax._cache` keyed by
     every track parameter, ``max_frequency``, ``n_residual`` and the wfjax version.
 
+    Supports that vary from sleeper to sleeper (:mod:`wfjax.supports`): the cache key holds
+    the per-sleeper arrays; the symmetric/antisymmetric split is used only when the supports
+    are mirror symmetric about ``x = 0``, else the full eigenproblem is solved; the residual
+    is tabulated along the whole rail (``n_residual - 1`` intervals per bay) and read at
+    absolute positions (:func:`residual_compliance_at`).
+
     Args:
         track: track parameters (concrete numbers).
         max_frequency: highest undamped natural frequency kept [Hz] (> 0).
@@ -485,6 +517,8 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
     if use_cache:
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
                "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 2}
+        if not _supports.is_uniform(track):
+            key["supports"] = "per-sleeper arrays; residual along the rail"
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
     else:
         arrays = build()
