@@ -94,7 +94,7 @@ def test_static_deflection_over_void_sleeper_equals_direct_solve(void_track):
     np.testing.assert_allclose(ms, ds, rtol=1e-3)
     # the void matters: over it the rail deflects far more than over a supported sleeper
     uniform = _direct_static(wfjax.Track(n_bays=NB), np.array([xv]))
-    assert ds[0] > 1.3 * uniform[0]
+    assert ds[0] > 1.5 * uniform[0]  # 1.9x
 
 
 def test_static_deflection_scattered_equals_direct_solve(scattered_track):
