@@ -18,6 +18,8 @@ from . import contact as contact  # noqa: E402  (after the x64 switch)
 from . import fit as fit
 from . import geometry as geometry
 from . import params as params
+from . import roughness as roughness
+from . import supports as supports
 from . import track as track
 from . import wheel as wheel
 from ._cache import load_or_build as load_or_build

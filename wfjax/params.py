@@ -21,7 +21,8 @@ from typing import Any, ClassVar
 import jax
 import numpy as np
 
-__all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT_KINDS"]
+__all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT_KINDS",
+           "SUPPORT_FIELDS"]
 
 MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (half-space, Eq. 1)
 MAX_FLAT_LENGTH = 0.3  # m; about a tenth of a 0.45 m wheel's circumference
@@ -193,6 +194,31 @@ class Wheel(_Validated):
     }
 
 
+SUPPORT_FIELDS = ("pad_stiffness", "pad_damping", "sleeper_mass", "ballast_stiffness",
+                  "ballast_damping")
+"""Track fields that may vary from sleeper to sleeper (scalar or ``[n_bays - 1]`` array)."""
+_ZERO_ALLOWED = ("pad_damping", "ballast_stiffness", "ballast_damping")
+
+
+def _check_per_sleeper(name: str, value: Any, unit: str, n_sleepers: int) -> None:
+    """Check one per-sleeper support array: length, finiteness, sign (one-line errors)."""
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (n_sleepers,):
+        raise ValueError(
+            f"Track.{name} must be a scalar or an array of n_bays - 1 = {n_sleepers} values "
+            f"(one per interior sleeper), got shape {arr.shape}"
+        )
+    zero_ok = name in _ZERO_ALLOWED
+    bad = ~np.isfinite(arr) | ((arr < 0) if zero_ok else (arr <= 0))
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        rng = f"[0, inf) {unit}" if zero_ok else f"(0, inf) {unit}"
+        raise ValueError(
+            f"Track.{name}[{i}] must be finite and {'>=' if zero_ok else '>'} 0 {unit}, got "
+            f"{arr[i]!r} (allowed range: {rng})"
+        )
+
+
 @_pytree(static=("n_bays", "elements_per_bay"))
 class Track(_Validated):
     """Discretely supported track of Table 2 (Nielsen & Igeland 1995).
@@ -210,6 +236,14 @@ class Track(_Validated):
         ballast_damping: c_B [N s/m].
         n_bays (static): number of sleeper bays of the finite model.
         elements_per_bay (static): rail beam elements per sleeper bay.
+
+    Supports that vary from sleeper to sleeper: each of the five support fields
+    (:data:`SUPPORT_FIELDS`) is a scalar (every sleeper alike, Table 2) or a float array
+    ``[n_bays - 1]``, one value per interior sleeper, left to right (sleeper ``i`` at
+    ``x = (i + 1 - n_bays // 2) L_S``). In an array, the pad damping and the ballast stiffness
+    and damping may be 0 (a hanging sleeper, :func:`wfjax.supports.void_sleeper`); pad
+    stiffness and sleeper mass stay > 0 (a sleeper must hang from the rail and have mass).
+    Presets and random scatter: :mod:`wfjax.supports`.
     """
 
     bending_stiffness: Any = 6.4e6
@@ -241,13 +275,20 @@ class Track(_Validated):
     }
 
     def __post_init__(self):
-        super().__post_init__()
         for name, low in (("n_bays", 4), ("elements_per_bay", 1)):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(
                     f"Track.{name} must be an integer >= {low}, got {value!r}"
                 )
+        for name, unit in self._positive.items():
+            value = getattr(self, name)
+            if not _is_concrete(value):
+                continue
+            if name in SUPPORT_FIELDS and np.ndim(value) > 0:
+                _check_per_sleeper(name, value, unit, int(self.n_bays) - 1)
+            else:
+                _check_positive("Track", name, value, unit)
 
     @classmethod
     def comparison(cls, **overrides) -> Track:

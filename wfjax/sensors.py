@@ -51,6 +51,7 @@ import scipy.sparse.linalg
 
 from . import track as track_mod
 from .params import Track, _pytree
+from .supports import support_arrays
 
 __all__ = ["QUANTITIES", "END_BAYS", "SensorSpec", "sensor_spec", "evaluate", "check_positions",
            "Detector", "DetectorSpec", "detector_spec", "detector_load"]
@@ -149,7 +150,7 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
     ke, _, _ = track_mod.element_matrices(
         float(track.bending_stiffness), float(track.shear_stiffness), float(track.rail_mass),
         float(track.rail_rotary_inertia), le)
-    kp, cp = float(track.pad_stiffness), float(track.pad_damping)
+    sup = support_arrays(track)  # per sleeper [n_bays - 1]
     node_x = fe.node_x
     elem = np.clip(np.floor((x - node_x[0]) / le + 1e-9).astype(int), 0, n_nodes - 2)
     local = x - node_x[elem]
@@ -188,6 +189,8 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
             damp.append(q == "seat_force")
     o = np.stack(obs, axis=1)  # [dof, rows]
     kinds, damp = np.array(kinds), np.array(damp)
+    row_sleeper = np.tile(sleeper, len(quantities))  # the sleeper under each row's position
+    kp, cp = sup["pad_stiffness"][row_sleeper], sup["pad_damping"][row_sleeper]
     c = u.T @ o  # [m, rows] complex: o . u_r
     scale = np.where(damp, kp, 1.0)
     rows = wts[:, None] * c * lam[:, None] ** kinds[None, :]  # w (o.u) lambda^k

@@ -36,11 +36,13 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
 import scipy.sparse
+import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
 from . import _cache
+from . import supports as _supports
 from ._modal import complex_modes, discrete_step_coefficients
-from .params import Track, concrete_positive_numbers
+from .params import SUPPORT_FIELDS, Track, concrete_positive_numbers
 
 __all__ = [
     "ModalModel",
@@ -59,20 +61,26 @@ __all__ = [
     "discrete_step_coefficients",
 ]
 
-_TRACK_FIELDS = (
+_RAIL_FIELDS = (
     "bending_stiffness", "shear_stiffness", "rail_mass", "rail_rotary_inertia",
-    "sleeper_spacing", "pad_stiffness", "pad_damping", "sleeper_mass",
-    "ballast_stiffness", "ballast_damping",
+    "sleeper_spacing",
 )
 
 
 # --------------------------------------------------------------------------------------------
 # validation helpers
 # --------------------------------------------------------------------------------------------
-def _track_numbers(track: Track) -> dict[str, float]:
+def _track_numbers(track: Track) -> dict[str, float | np.ndarray]:
+    """Rail numbers (floats) and supports: a float per field when every sleeper has the same
+    value (the uniform track: exactly today's numbers and cache keys), else the whole
+    per-sleeper array [n_bays - 1] of every support field."""
     if not isinstance(track, Track):
         raise ValueError(f"track must be a wfjax.Track, got {type(track).__name__}")
-    out = concrete_positive_numbers(track, _TRACK_FIELDS)
+    out: dict[str, float | np.ndarray] = dict(concrete_positive_numbers(track, _RAIL_FIELDS))
+    arrays = _supports.support_arrays(track)
+    uniform = _supports.is_uniform(track)
+    for name in SUPPORT_FIELDS:
+        out[name] = float(arrays[name][0]) if uniform else arrays[name]
     for name, low in (("n_bays", 4), ("elements_per_bay", 1)):
         value = getattr(track, name)
         if not isinstance(value, (int, np.integer)) or value < low:
@@ -169,7 +177,11 @@ def shape_functions(xi, phi, length):
 
 
 def assemble(track: Track) -> FEModel:
-    """Assemble the sparse stiffness, mass and damping matrices of the track FE model."""
+    """Assemble the sparse stiffness, mass and damping matrices of the track FE model.
+
+    Per-sleeper supports (arrays ``[n_bays - 1]`` in the track's support fields, see
+    :mod:`wfjax.supports`) enter sleeper by sleeper; scalars are the same at every sleeper.
+    """
     p = _track_numbers(track)
     nb, ne = int(track.n_bays), int(track.elements_per_bay)
     n_el = nb * ne
@@ -196,17 +208,18 @@ def assemble(track: Track) -> FEModel:
     sl = n_rail + j - 1
     s_rows = np.concatenate([rw, sl, rw, sl])
     s_cols = np.concatenate([rw, sl, sl, rw])
-    kp, kb = p["pad_stiffness"], p["ballast_stiffness"]
-    cp, cb = p["pad_damping"], p["ballast_damping"]
     ones = np.ones(n_sl)
-    ks_v = np.concatenate([kp * ones, (kp + kb) * ones, -kp * ones, -kp * ones])
-    cs_v = np.concatenate([cp * ones, (cp + cb) * ones, -cp * ones, -cp * ones])
+    kp, kb, cp, cb, msl = (p[n] * ones for n in ("pad_stiffness", "ballast_stiffness",
+                                                  "pad_damping", "ballast_damping",
+                                                  "sleeper_mass"))
+    ks_v = np.concatenate([kp, kp + kb, -kp, -kp])
+    cs_v = np.concatenate([cp, cp + cb, -cp, -cp])
 
     shape = (n_dof, n_dof)
     k = scipy.sparse.coo_matrix((np.concatenate([kv, ks_v]),
                                  (np.concatenate([rows, s_rows]), np.concatenate([cols, s_cols]))),
                                 shape=shape).tocsc()
-    m = scipy.sparse.coo_matrix((np.concatenate([mv, p["sleeper_mass"] * ones]),
+    m = scipy.sparse.coo_matrix((np.concatenate([mv, msl]),
                                  (np.concatenate([rows, sl]), np.concatenate([cols, sl]))),
                                 shape=shape).tocsc()
     c = scipy.sparse.coo_matrix((cs_v, (s_rows, s_cols)), shape=shape).tocsc()
@@ -290,9 +303,11 @@ class ModalModel(NamedTuple):
         node_x: float [n_nodes] rail node positions [m], x = 0 at the middle sleeper.
         shapes: complex [n_modes, n_nodes, 2] (displacement [sqrt(1/kg)-like units such that
             phi*phi has m/(N s)], rotation per m of that) at the nodes; clamped ends are 0.
-        residual_x: float [n_res] positions across one bay [0, L_S] [m].
+        residual_x: float [n_res] positions [m] of the residual table: across one bay
+            [0, L_S] for a uniform track (periodic in the bay); along the whole rail (absolute
+            coordinates, ``n_residual - 1`` intervals per bay) when the supports vary.
         residual: float [n_res] static compliance [m/N] of the truncated modes at (x, x):
-            K^-1(x, x) - sum_kept Re(w phi^2 / (-lambda)); periodic in the bay.
+            K^-1(x, x) - sum_kept Re(w phi^2 / (-lambda)).
         sleeper_spacing: L_S [m].
         element_phi: Timoshenko shear parameter 12 EI/(kGA Le^2) of the rail elements (needed
             by the shape functions in :func:`mode_shapes_at`).
@@ -353,12 +368,16 @@ def interpolate_nodal(model: ModalModel, nodal, x) -> jax.Array:
 
 
 def residual_compliance_at(model: ModalModel, x) -> jax.Array:
-    """Static compliance [m/N] of the truncated modes at (x, x), periodic in the bay.
+    """Static compliance [m/N] of the truncated modes at (x, x).
 
+    A table across one bay (uniform track) is read periodically, ``x mod L_S``; a table along
+    the whole rail (supports that vary) is read at the absolute position ``x`` (clamped to
+    the rail ends). Which one is told by the table's span, so the test also runs under ``jit``.
     ``x`` [m] any shape; returns float [...]. Pure ``jax.numpy``.
     """
     x = jnp.asarray(x, dtype=jnp.result_type(x, float))  # float32 stays float32
-    s = jnp.mod(x, model.sleeper_spacing)
+    periodic = model.residual_x[-1] - model.residual_x[0] < 1.5 * model.sleeper_spacing
+    s = jnp.where(periodic, jnp.mod(x, model.sleeper_spacing), x)
     return jnp.interp(s, model.residual_x, model.residual)
 
 
@@ -416,16 +435,87 @@ def _mirror_bases(fe: FEModel, n_bays: int) -> list[scipy.sparse.csc_matrix]:
     return bases
 
 
+def _lowest_modes(stiffness, mass, w2_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """Undamped modes with omega^2 <= ``w2_max``: ``(w2 [m], vectors [n, m])``, M-normalised.
+
+    Cholesky reduction to the standard problem L^-1 K L^-T (M = L L^T) and LAPACK's MRRR
+    solver for the wanted eigenvalues only (``subset_by_value``): about twice as fast as
+    all modes of the generalised problem when half of them are kept.
+    """
+    ll = scipy.linalg.cholesky(mass.toarray(), lower=True, check_finite=False)
+    a = scipy.linalg.solve_triangular(ll, stiffness.toarray(), lower=True, check_finite=False)
+    a = scipy.linalg.solve_triangular(ll, a.T, lower=True, check_finite=False)
+    w2, y = scipy.linalg.eigh(a, driver="evr", subset_by_value=(-np.inf, w2_max),
+                              check_finite=False, overwrite_a=True)
+    return w2, scipy.linalg.solve_triangular(ll.T, y, lower=False, check_finite=False)
+
+
+def _point_compliance_banded(fe: FEModel, x: np.ndarray) -> np.ndarray:
+    """Static point compliance K^-1(x, x) [m/N] at many rail positions ``x`` [n_x].
+
+    Only the 4 x 4 blocks of K^-1 over each element's DOFs are needed. K is banded after a
+    reverse Cuthill-McKee ordering (bandwidth p ~ 7), and the entries of K^-1 inside that
+    band follow from the banded Cholesky factor by the Takahashi recurrence (Takahashi,
+    Fagan & Chin 1973), O(n p^2): far cheaper than thousands of solves.
+    """
+    k = scipy.sparse.csr_matrix(fe.stiffness)
+    n = k.shape[0]
+    perm = scipy.sparse.csgraph.reverse_cuthill_mckee(k, symmetric_mode=True)
+    pos = np.empty(n, dtype=int)
+    pos[perm] = np.arange(n)
+    kp = scipy.sparse.triu(k[perm][:, perm]).tocoo()
+    p = int(np.max(kp.col - kp.row))
+    ab = np.zeros((p + 1, n))
+    ab[p + kp.row - kp.col, kp.col] = kp.data
+    u = scipy.linalg.cholesky_banded(ab, check_finite=False)  # K = U^T U, U upper banded
+    d = u[p] ** 2  # K = L D L^T with L = U^T diag(U)^-1 unit lower
+    lower = np.zeros((n + p, p))  # lower[i, r] = L[i + 1 + r, i]
+    for r in range(p):
+        lower[: n - r - 1, r] = u[p - 1 - r, r + 1:] / u[p, : n - r - 1]
+    z = np.zeros((n + p, p + 1))  # z[i, r] = Z[i, i + r] (Z = K^-1, zero beyond the end)
+    for i in range(n - 1, -1, -1):
+        li = lower[i]  # L[i+1 .. i+p, i]
+        # Z[i+1+a, i+1+b] for a, b < p from the band of later rows
+        a = np.arange(p)
+        lo, hi = np.minimum.outer(a, a), np.maximum.outer(a, a)
+        blk = z[i + 1 + lo, hi - lo]
+        zi = -blk @ li  # Z[i, i+1+b]
+        z[i, 1:] = zi
+        z[i, 0] = 1.0 / d[i] - li @ zi
+    # element DOFs and shape functions of every position (as _load_vector)
+    n_el = fe.node_x.size - 1
+    e = np.clip(np.floor((x - fe.node_x[0]) / fe.element_length).astype(int), 0, n_el - 1)
+    xi = (x - fe.node_x[e]) / fe.element_length
+    nf = np.stack(shape_functions(xi, fe.phi, fe.element_length), axis=1)  # [n_x, 4]
+    g = np.stack([2 * e, 2 * e + 1, 2 * e + 2, 2 * e + 3], axis=1) - 2
+    ok = (g >= 0) & (g < fe.n_rail_dof)
+    nf = np.where(ok, nf, 0.0)
+    pg = pos[np.where(ok, g, 0)]  # permuted positions [n_x, 4]
+    first_free = pg[np.arange(g.shape[0]), np.argmax(ok, axis=1)]
+    pg = np.where(ok, pg, first_free[:, None])  # clamped DOFs (nf = 0) point at a free one
+    pa, pb = pg[:, :, None], pg[:, None, :]
+    zab = z[np.minimum(pa, pb), np.abs(pa - pb)]  # [n_x, 4, 4]; |pa - pb| <= p (one element)
+    return np.einsum("ja,jab,jb->j", nf, zab, nf)
+
+
 def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[str, np.ndarray]:
     fe = assemble(track)
     w_max = 2 * np.pi * max_frequency
+    nb = int(track.n_bays)
+    # the mirror split needs supports symmetric about x = 0 (always so for a uniform track;
+    # a uniform track with odd n_bays gets the identity basis, as it always has)
+    symmetric = _supports.is_uniform(track) or _supports.is_mirror_symmetric(track)
     parts = []
-    for basis in _mirror_bases(fe, int(track.n_bays)):
-        k = (basis.T @ fe.stiffness @ basis).toarray()
-        m = (basis.T @ fe.mass @ basis).toarray()
-        w2, vec = scipy.linalg.eigh(k, m, driver="gvd", check_finite=False)
-        keep = w2 <= w_max**2
-        vec = basis @ vec[:, keep]
+    for basis in _mirror_bases(fe, nb) if symmetric else [None]:
+        if basis is None:  # supports that vary: the full problem, only the modes kept
+            w2, vec = _lowest_modes(fe.stiffness, fe.mass, w_max**2)
+            keep = np.ones(w2.size, dtype=bool)
+        else:
+            k = (basis.T @ fe.stiffness @ basis).toarray()
+            m = (basis.T @ fe.mass @ basis).toarray()
+            w2, vec = scipy.linalg.eigh(k, m, driver="gvd", check_finite=False)
+            keep = w2 <= w_max**2
+            vec = basis @ vec[:, keep]
         c_modal = vec.T @ (fe.damping @ vec)
         lam, wts, a = complex_modes(w2[keep], c_modal)
         parts.append((lam, wts, vec @ a))
@@ -439,12 +529,19 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     shapes[:, 1:-1, :] = u[: fe.n_rail_dof].T.reshape(poles.size, n_nodes - 2, 2)
     sleeper_shapes = u[fe.n_rail_dof:].T  # [n_modes, n_sleepers]
 
-    # static correction of the truncated modes across the central bay
+    # static correction of the truncated modes: across the central bay (uniform track,
+    # periodic), else along the whole rail in absolute coordinates
     ls = float(track.sleeper_spacing)
-    res_x = np.linspace(0.0, ls, n_residual)
+    if _supports.is_uniform(track):
+        res_x = np.linspace(0.0, ls, n_residual)
+    else:
+        res_x = np.linspace(fe.node_x[0], fe.node_x[-1], (n_residual - 1) * nb + 1)
     b = _load_vector(fe, res_x)
-    full = np.einsum("ij,ij->j", b.toarray(),
-                     scipy.sparse.linalg.splu(fe.stiffness).solve(b.toarray()))
+    if res_x.size == n_residual:
+        full = np.einsum("ij,ij->j", b.toarray(),
+                         scipy.sparse.linalg.splu(fe.stiffness).solve(b.toarray()))
+    else:  # thousands of positions along the rail: the band of K^-1, not thousands of solves
+        full = _point_compliance_banded(fe, res_x)
     phi = (b.T @ u)  # [n_res, n_modes]: the same Timoshenko interpolation as mode_shapes_at
     kept = np.real(weights * phi**2 / (-poles)).sum(axis=1)
     residual = full - kept
@@ -463,6 +560,12 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
     to the rail nodes, and the static compliance of the truncated modes tabulated across one
     bay (``n_residual`` points). Speed independent; cached with :mod:`wfjax._cache` keyed by
     every track parameter, ``max_frequency``, ``n_residual`` and the wfjax version.
+
+    Supports that vary from sleeper to sleeper (:mod:`wfjax.supports`): the cache key holds
+    the per-sleeper arrays; the symmetric/antisymmetric split is used only when the supports
+    are mirror symmetric about ``x = 0``, else the full eigenproblem is solved; the residual
+    is tabulated along the whole rail (``n_residual - 1`` intervals per bay) and read at
+    absolute positions (:func:`residual_compliance_at`).
 
     Args:
         track: track parameters (concrete numbers).
@@ -485,6 +588,8 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
     if use_cache:
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
                "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 2}
+        if not _supports.is_uniform(track):
+            key["supports"] = "per-sleeper arrays; residual along the rail"
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
     else:
         arrays = build()
