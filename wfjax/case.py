@@ -194,6 +194,7 @@ def _model_keys() -> list[Key]:
 
 
 _FLAT_CMDS = ("sweep", "simulate", "fit", "geometry", "detector")
+_VEHICLE_CMDS = ("sweep", "simulate")
 _OTHER_KEYS = [
     Key("run", "contact", "str", choices=CONTACT_MODELS, doc="contact model",
         commands=("sweep", "simulate", "fit", "detector")),
@@ -240,6 +241,18 @@ _OTHER_KEYS = [
     Key("flat", "profile_smoothing_mm", "float", "mm", 0.0, 20.0,
         doc="Gaussian smoothing (standard deviation) of the measured profile; 0: none",
         commands=_FLAT_CMDS),
+    Key("vehicle", "preset", "str", choices=("single", "bogie", "wagon"),
+        doc="wheels on the rail: the paper's single wheel, a two-axle bogie or a four-axle "
+            "wagon (docs/vehicle.md)", commands=_VEHICLE_CMDS),
+    Key("vehicle", "axle_spacing", "float", "m", 0.3, 10.0,
+        doc="distance between a bogie's axles", commands=_VEHICLE_CMDS),
+    Key("vehicle", "bogie_distance", "float", "m", 1.0, 30.0,
+        doc="distance between the wagon's bogie centres", commands=_VEHICLE_CMDS),
+    Key("vehicle", "positions", "floats", "m", 0.0, 60.0,
+        doc="any layout: every wheel's distance behind the leading wheel (0 first, "
+            "increasing); replaces vehicle.preset", commands=_VEHICLE_CMDS),
+    Key("vehicle", "flat_wheel", "int", "", 0, 31,
+        doc="the wheel that carries the flat (0 = the leading wheel)", commands=_VEHICLE_CMDS),
     Key("fit", "data", "str", doc="measured CSV (speed_kmh,max_force_kN or t_s,force_kN); "
         "relative to the case file", commands=("fit",)),
     Key("fit", "example", "bool", doc="fit the embedded synthetic dataset instead of data",
@@ -478,6 +491,9 @@ def default_layer(command: str) -> dict:
         layer["flat.kind"] = "both"
     if command == "simulate":
         layer.update({"run.speed_kmh": 100.0, "run.impact_position": 0.0})
+    if command in _VEHICLE_CMDS:
+        layer.update({"vehicle.preset": "single", "vehicle.axle_spacing": 2.5,
+                      "vehicle.bogie_distance": 17.5, "vehicle.flat_wheel": 0})
     if command == "detector":  # sensors/Detector defaults (a 3-bay crib detector)
         layer.update({"run.speeds_kmh": "20:200:20", "run.impact_positions": 5,
                       "run.sensors": [0.0, 0.325], "detector.n_bays": 3, "detector.first_bay": -1,
@@ -609,6 +625,33 @@ class Case:
     def flat(self) -> P.Flat:
         """The one flat of a simulate/fit/geometry case."""
         return self.flats()[0]
+
+    def vehicle(self):
+        """The case's :class:`wfjax.vehicle.Vehicle`, or None for the paper's single wheel."""
+        from .vehicle import Vehicle
+
+        positions = self.values.get("vehicle.positions")
+        preset = self.values.get("vehicle.preset", "single")
+        flat_wheel = int(self.values.get("vehicle.flat_wheel", 0))
+        try:
+            if positions is not None:
+                if isinstance(positions, str):
+                    positions = parse_number_list(positions)
+                vehicle = Vehicle(tuple(float(x) for x in np.atleast_1d(positions)),
+                                  flat_wheel=flat_wheel)
+            elif preset == "single":
+                if flat_wheel != 0:
+                    raise ValueError("vehicle.flat_wheel must be 0 for the single wheel, got "
+                                     f"{flat_wheel}")
+                return None
+            elif preset == "bogie":
+                vehicle = Vehicle.bogie(self.values["vehicle.axle_spacing"], flat_wheel)
+            else:
+                vehicle = Vehicle.wagon(self.values["vehicle.axle_spacing"],
+                                        self.values["vehicle.bogie_distance"], flat_wheel)
+        except ValueError as exc:
+            raise CaseError(str(exc)) from None
+        return None if vehicle.n_wheels == 1 else vehicle
 
     def speeds(self) -> np.ndarray:
         """[n] speeds [m/s] of ``run.speeds_kmh``."""

@@ -408,6 +408,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
      detector) = cast_precision((laws, struct, coefficients, speed, dt, x_start,
                                  impact_position, sensors, detector), precision)
     (e_r, ap_r, an_r), (e_w, ap_w, an_w) = coefficients
+    wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))  # in the loop's precision
     model = struct.track
     w_r = model.weights
     real = jnp.asarray(struct.preload).dtype  # the loop's precision
@@ -415,7 +416,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     wheel_res = jnp.reshape(struct.wheel_residues, (n_wheels, -1))
     axle_res = (jnp.zeros_like(wheel_res) if struct.axle_residues is None
                 else jnp.reshape(struct.axle_residues, (n_wheels, -1)))
-    axle_acc_res = -axle_res * wheel_poles.astype(wheel_res.dtype) ** 2
+    axle_acc_res = -axle_res * wheel_poles**2
     offsets = jnp.zeros(1, real) if struct.offsets is None else struct.offsets
     delays = jnp.zeros(1, real) if struct.delays is None else struct.delays
     c_wheel = jnp.real(jnp.sum(wheel_res * an_w, axis=-1))  # [n]
@@ -493,7 +494,8 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
                extra)
         return (q_new, p_new, f, load, states, acc), out
 
-    carry0 = (q0, p0, preload, _loads(preload, phi0), tuple(law.init_state() for law in laws), acc0)
+    carry0 = (q0, p0, preload, _loads(preload, phi0), tuple(law.init_state() for law in laws),
+              acc0)
     (*_, acc), outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
                                    jnp.arange(1, n_steps))
     first = (x0, s0, preload, delta0, xi_w_ref, xi_r0, jnp.zeros_like(preload),

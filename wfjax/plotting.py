@@ -165,3 +165,59 @@ def detector_figure(result, flat_index: int = 0):
     b.legend(fontsize=7)
     fig.tight_layout()
     return fig
+
+
+def vehicle_history_figure(result, vehicle, preload: float = 118e3):
+    """Every wheel's contact force [kN] (top) and axle-box acceleration [m/s^2] (bottom)
+    against time [ms] for a vehicle's :class:`wfjax.SimResult` (``simulate(vehicle=...)``).
+
+    Args:
+        result: the result (its ``wheel_force``, ``wheel_axle_acc``).
+        vehicle: the :class:`wfjax.vehicle.Vehicle` (labels: wheel positions).
+        preload: the static wheel load P [N] (dotted line).
+    """
+    t = np.asarray(result.t) * 1e3
+    f = np.asarray(result.wheel_force) / 1e3
+    acc = np.asarray(result.wheel_axle_acc)
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True,
+                                  gridspec_kw={"height_ratios": [3, 2]})
+    for i in range(f.shape[1]):
+        flat = " (flat)" if i == vehicle.flat_wheel else ""
+        label = f"wheel {i}, {vehicle.positions[i]:g} m behind{flat}"
+        ax.plot(t, f[:, i], lw=1.1, label=label)
+        ax2.plot(t, acc[:, i], lw=0.9)
+    ax.axhline(preload / 1e3, color="k", ls=":", lw=0.8, label="static load P")
+    ax.set_ylabel("contact force [kN]")
+    ax.set_title(f"{f.shape[1]} wheels at {float(result.speed) * 3.6:.0f} km/h: flat wheel max "
+                 f"{float(result.max_force) / 1e3:.1f} kN, min "
+                 f"{float(result.min_force) / 1e3:.1f} kN")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+    ax2.set_xlabel("time [ms]")
+    ax2.set_ylabel("axle-box acceleration [m/s$^2$]")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def sweep_wheels_figure(result, preload: float = 118e3):
+    """Every wheel's max (solid) and min (dashed) contact force [kN] over impact positions
+    against speed [km/h], one panel per flat, for a vehicle sweep (``sweep(vehicle=...)``)."""
+    v = np.asarray(result.speeds) * 3.6
+    n_flats = len(result.flats)
+    fig, axes = plt.subplots(1, n_flats, figsize=(6 * n_flats, 4.2), squeeze=False)
+    for k, ax in enumerate(axes[0]):
+        for i, p in enumerate(np.asarray(result.wheel_positions)):
+            flat = " (flat)" if i == int(result.flat_wheel) else ""
+            line, = ax.plot(v, np.max(result.wheel_max_force[k, ..., i], axis=-1) / 1e3,
+                            lw=1.3, label=f"wheel {i}, {p:g} m{flat}")
+            ax.plot(v, np.min(result.wheel_min_force[k, ..., i], axis=-1) / 1e3, "--",
+                    color=line.get_color(), lw=1.0)
+        ax.axhline(preload / 1e3, color="k", ls=":", lw=0.8)
+        ax.set_xlabel("speed [km/h]")
+        ax.set_ylabel("contact force [kN] (max solid, min dashed)")
+        ax.set_title(result.flats[k], fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

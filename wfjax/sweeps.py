@@ -204,7 +204,27 @@ class SweepResult(NamedTuple):
                     np.ptp(self.max_force[i], axis=-1) / np.min(self.max_force[i], axis=-1)
                 )) * 100,
             }
+        if self.wheel_max_force is not None:
+            out["flat_wheel"] = int(self.flat_wheel)
+            out["wheels"] = self.wheel_summary()
+        if self.axle_acc_peak is not None:
+            out["peak_axle_acc_m_s2"] = float(np.max(self.axle_acc_peak))
         return out
+
+    def wheel_summary(self) -> list[dict]:
+        """Per wheel of a vehicle sweep (over flats, speeds and positions): peak max force,
+        lowest min force [kN] and peak axle-box acceleration [m/s^2]; [] without a vehicle."""
+        if self.wheel_max_force is None:
+            return []
+        axes = (0, 1, 2)
+        return [{"position_m": float(p),
+                 "peak_max_force_kN": float(mx) / 1e3, "lowest_min_force_kN": float(mn) / 1e3,
+                 "loss_of_contact": bool(lost), "peak_axle_acc_m_s2": float(acc)}
+                for p, mx, mn, lost, acc in zip(
+                    self.wheel_positions, np.max(self.wheel_max_force, axis=axes),
+                    np.min(self.wheel_min_force, axis=axes),
+                    np.any(self.wheel_loss_of_contact, axis=axes),
+                    np.max(self.wheel_axle_acc_peak, axis=axes), strict=True)]
 
     def to_json(self) -> str:
         """:meth:`summary` as JSON text."""

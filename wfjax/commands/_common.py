@@ -40,6 +40,36 @@ def sensor_positions(case: case_mod.Case, track) -> list[float] | None:
     return [float(x) for x in check_positions(value, track, "--sensors-m / run.sensors")]
 
 
+VEHICLE_FLAGS = {"vehicle": ("vehicle.preset", 1.0),
+                 "axle_spacing_m": ("vehicle.axle_spacing", 1.0),
+                 "bogie_distance_m": ("vehicle.bogie_distance", 1.0),
+                 "wheel_positions_m": ("vehicle.positions", 1.0),
+                 "flat_wheel": ("vehicle.flat_wheel", 1.0)}
+
+
+def add_vehicle_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--vehicle``, ``--axle-spacing-m``, ``--bogie-distance-m``, ``--wheel-positions-m``,
+    ``--flat-wheel``: several wheels on the rail (docs/vehicle.md)."""
+    parser.add_argument("--vehicle", help="single (default) | bogie (2 axles) | wagon (4 axles)")
+    parser.add_argument("--axle-spacing-m", type=float,
+                        help="bogie axle spacing in m (default 2.5)")
+    parser.add_argument("--bogie-distance-m", type=float,
+                        help="wagon's bogie centre distance in m (default 17.5)")
+    parser.add_argument("--wheel-positions-m",
+                        help="any layout: 'p0,p1,...' distances behind the leading wheel in m "
+                             "(0 first); replaces --vehicle")
+    parser.add_argument("--flat-wheel", type=int,
+                        help="the wheel that carries the flat, 0 = leading (default 0)")
+
+
+def case_vehicle(case: case_mod.Case, wheel):
+    """The case's vehicle (None: one wheel) with its wheel spacing checked."""
+    vehicle = case.vehicle()
+    if vehicle is not None:
+        vehicle.check_spacing(vehicle.wheel_list(wheel))
+    return vehicle
+
+
 def add_out_argument(parser: argparse.ArgumentParser, default: str) -> None:
     """``--out DIR``: where CSV, JSON and PNG results go."""
     parser.add_argument("--out", default=default, help=f"output directory (default: {default})")

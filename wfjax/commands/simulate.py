@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 from ._common import (
+    VEHICLE_FLAGS,
     add_case_arguments,
     add_out_argument,
+    add_vehicle_arguments,
+    case_vehicle,
     check_finite,
     prepare_out,
     resolve_case,
@@ -19,7 +22,8 @@ from .sweep import FLAT_FLAGS, MODEL_FLAGS, add_model_arguments, add_profile_arg
 HELP = "contact force history of one wheel-flat passage (CSV, JSON, PNG)"
 
 FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "speed_kmh": ("run.speed_kmh", 1.0),
-         "impact_position_mm": ("run.impact_position", 1e-3), "sensors_m": ("run.sensors", 1.0)}
+         "impact_position_mm": ("run.impact_position", 1e-3), "sensors_m": ("run.sensors", 1.0),
+         **VEHICLE_FLAGS}
 
 
 def add_arguments(parser) -> None:
@@ -31,6 +35,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--sensors-m",
                         help="rail sensor positions in m, 'x1,x2,...' (x = 0 at a sleeper): "
                              "their histories go to sensors.csv (docs/detector.md)")
+    add_vehicle_arguments(parser)
     add_model_arguments(parser)
     add_case_arguments(parser)
     add_out_argument(parser, "out/simulate")
@@ -39,15 +44,16 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     case = resolve_case(args, "simulate", FLAGS)
     from ..interaction import simulate
-    from ..plotting import force_history_figure
+    from ..plotting import force_history_figure, vehicle_history_figure
 
     flat = case.flat()
     wheel, track, material, config = case.model()
     contact, speed_kmh = case["run.contact"], case["run.speed_kmh"]
     sensors = sensor_positions(case, track)
+    vehicle = case_vehicle(case, wheel)
     result = simulate(flat, speed_kmh / 3.6, contact=contact,
                       impact_position=case["run.impact_position"], wheel=wheel, track=track,
-                      material=material, config=config, sensors=sensors)
+                      material=material, config=config, sensors=sensors, vehicle=vehicle)
     check_finite("simulate", force=result.force, wheel_disp=result.wheel_disp,
                  rail_disp=result.rail_disp)
     out = prepare_out(args.out)
@@ -60,10 +66,18 @@ def run(args) -> int:
         summary["length_mm"] = float(flat.length) * 1e3
     write_summary(out / "simulate.json", summary, case,
                   {"profile_csv": case.get("flat.profile_csv")})
-    save_figure(force_history_figure(result, flat, float(wheel.preload)), out / "simulate.png")
+    if vehicle is None:
+        figure = force_history_figure(result, flat, float(wheel.preload))
+    else:
+        figure = vehicle_history_figure(result, vehicle, float(wheel.preload))
+    save_figure(figure, out / "simulate.png")
     loss = (f"loss of contact for {summary['loss_of_contact_duration_ms']:.2f} ms"
             if summary["loss_of_contact"] else "no loss of contact")
     print(f"{flat.kind} flat d = {summary['depth_mm']:g} mm at {speed_kmh:g} km/h ({contact}):"
           f" max {summary['max_force_kN']:.1f} kN, min {summary['min_force_kN']:.1f} kN, {loss}")
+    for w in summary.get("wheels", []):
+        print(f"  wheel {w['wheel']} ({vehicle.positions[w['wheel']]:g} m behind the leading): "
+              f"max {w['max_force_kN']:.1f} kN, min {w['min_force_kN']:.1f} kN, axle-box "
+              f"acceleration up to {w['axle_box_acceleration_peak_m_s2']:.0f} m/s^2")
     print(f"wrote {out}/simulate.csv, simulate.json, simulate.png, case.toml")
     return 0

@@ -14,9 +14,12 @@ import time
 import numpy as np
 
 from ._common import (
+    VEHICLE_FLAGS,
     add_case_arguments,
     add_out_argument,
     add_speed_arguments,
+    add_vehicle_arguments,
+    case_vehicle,
     check_finite,
     prepare_out,
     resolve_case,
@@ -36,7 +39,8 @@ FLAT_FLAGS = {"flat": ("flat.kind", 1.0), "depth_mm": ("flat.depth", MM),
               "length_mm": ("flat.length", MM), "profile_csv": ("flat.profile_csv", 1.0),
               "profile_smoothing_mm": ("flat.profile_smoothing_mm", 1.0)}
 FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "length_factor": ("flat.length_factor", 1.0),
-         "speeds_kmh": ("run.speeds_kmh", 1.0), "positions": ("run.impact_positions", 1.0)}
+         "speeds_kmh": ("run.speeds_kmh", 1.0), "positions": ("run.impact_positions", 1.0),
+         **VEHICLE_FLAGS}
 
 
 def parse_range_kmh(text: str) -> np.ndarray:
@@ -99,6 +103,7 @@ def add_arguments(parser) -> None:
     add_profile_arguments(parser)
     parser.add_argument("--wheel-radius-m", type=float, help=argparse_hide())
     add_speed_arguments(parser, "20:300:10", 10)
+    add_vehicle_arguments(parser)
     add_model_arguments(parser)
     add_case_arguments(parser)
     add_out_argument(parser, "out/sweep")
@@ -112,7 +117,7 @@ def argparse_hide():
 
 def run(args) -> int:
     case = resolve_case(args, "sweep", FLAGS)
-    from ..plotting import sweep_figure
+    from ..plotting import sweep_figure, sweep_wheels_figure
     from ..sweeps import sweep
 
     speeds = case.speeds()
@@ -120,13 +125,14 @@ def run(args) -> int:
     flats = case.flats()
     wheel, track, material, config = case.model()
     contact = case["run.contact"]
+    vehicle = case_vehicle(case, wheel)
     out = prepare_out(args.out)
     print(f"wfjax sweep: {len(flats)} flat(s) x {speeds.size} speeds x {positions} "
           f"positions, {contact} contact, R_R = {float(track.rail_head_radius):g} m, "
           f"{case['config.precision']}")
     t0 = time.perf_counter()
     result = sweep(flats, speeds, positions, contact=contact, wheel=wheel, track=track,
-                   material=material, config=config)
+                   material=material, config=config, vehicle=vehicle)
     elapsed = time.perf_counter() - t0
     check_finite("sweep", max_force=result.max_force, min_force=result.min_force)
     write_atomic(out / "sweep.csv", result.to_csv())
@@ -137,12 +143,20 @@ def run(args) -> int:
     write_summary(out / "sweep.json", summary, case,
                   {"profile_csv": case.get("flat.profile_csv")})
     save_figure(sweep_figure(result, preload=float(wheel.preload)), out / "sweep.png")
+    if vehicle is not None:
+        save_figure(sweep_wheels_figure(result, preload=float(wheel.preload)),
+                    out / "sweep_wheels.png")
     for label, s in summary["flats"].items():
         loss = s["first_loss_of_contact_kmh"]
         loss_text = f"from {loss:.0f} km/h" if loss is not None else "none"
         print(f"  {label}: peak max force {s['peak_max_force_kN']:.1f} kN at "
               f"{s['at_speed_kmh']:.0f} km/h; loss of contact {loss_text}; spread over "
               f"positions up to {s['max_spread_over_positions_percent']:.1f} %")
-    print(f"  {elapsed:.1f} s; wrote {out}/sweep.csv, sweep.json, sweep.npz, sweep.png, "
+    for w, row in enumerate(summary.get("wheels", [])):
+        print(f"  wheel {w} ({row['position_m']:g} m behind the leading): peak max force "
+              f"{row['peak_max_force_kN']:.1f} kN, lowest min {row['lowest_min_force_kN']:.1f} "
+              f"kN, axle-box acceleration up to {row['peak_axle_acc_m_s2']:.0f} m/s^2")
+    extra = ", sweep_wheels.png" if vehicle is not None else ""
+    print(f"  {elapsed:.1f} s; wrote {out}/sweep.csv, sweep.json, sweep.npz, sweep.png{extra}, "
           "case.toml")
     return 0
