@@ -53,6 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import roughness as rough_mod
 from . import sensors as sensor_mod
 from . import track as track_mod
 from . import vehicle as vehicle_mod
@@ -76,6 +77,7 @@ __all__ = [
     "vehicle_structure",
     "vehicle_laws",
     "solve_contacts",
+    "loop_roughness",
 ]
 
 RUN_IN_TIME = 0.02  # s of travel before the flat's window, from static equilibrium
@@ -295,7 +297,8 @@ def _pointwise(law: ContactLaw) -> bool:
     return type(law).step is ContactLaw.step
 
 
-def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int):
+def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int,
+                   roughness=None):
     """The step's n-contact equation delta = delta_free - C F(delta) for every contact law.
 
     One wheel: the law's own :meth:`ContactLaw.step`. Several wheels with point laws (every
@@ -309,17 +312,27 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
         laws: [n] prepared contact laws. delta_free: [n] approaches if F were 0 [m].
         compliance: C [n, n] [m/N]. s: [n] flat positions [m]. states: [n] law states.
         max_iter: Newton iteration cap (static).
+        roughness: None, or [n] per wheel: None (a point law: its roughness is already in
+            ``delta_free``) or the pair (roughness at the law's :meth:`rough_nodes` [m], its
+            contact-filtered value [m]).
 
     Returns:
         (delta [n] m, F [n] N, |r| [n] m, states).
     """
+    rough = (None,) * len(laws) if roughness is None else roughness
+
+    def kw(i):
+        return {} if rough[i] is None else {"roughness": rough[i]}
+
     if len(laws) == 1:
         (law,), (state,) = laws, states
-        delta, f, r, state = law.step(delta_free[0], compliance[0, 0], s[0], state, max_iter)
+        delta, f, r, state = law.step(delta_free[0], compliance[0, 0], s[0], state, max_iter,
+                                      **kw(0))
         return delta[None], f[None], r[None], (state,)
     if all(_pointwise(law) for law in laws):
         frozen = jax.lax.stop_gradient(laws)
-        points = [law.point(si) for law, si in zip(laws, s, strict=True)]
+        points = [law.point(si) if ri is None else law.rough_point(si, ri[0])
+                  for law, si, ri in zip(laws, s, rough, strict=True)]
         points_ng = jax.lax.stop_gradient(points)
 
         def forces(ls, ps, delta):
@@ -330,10 +343,10 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
             lambda d: forces(laws, points, d), delta_free, compliance, max_iter,
             loop_force_fn=lambda d: forces(frozen, points_ng, d))
         return delta, f, r, states
-    return _gauss_seidel(laws, delta_free, compliance, s, states, max_iter)
+    return _gauss_seidel(laws, delta_free, compliance, s, states, max_iter, kw)
 
 
-def _gauss_seidel(laws, delta_free, compliance, s, states, max_iter, sweeps: int = 20):
+def _gauss_seidel(laws, delta_free, compliance, s, states, max_iter, kw, sweeps: int = 20):
     """Gauss-Seidel over the wheels of laws with their own step (no gradients)."""
     diag = jnp.diagonal(compliance)
 
@@ -344,7 +357,7 @@ def _gauss_seidel(laws, delta_free, compliance, s, states, max_iter, sweeps: int
         for i, law in enumerate(laws):
             coupling = compliance[i] @ f - diag[i] * f[i]
             d_i, f_i, r_i, st = law.step(delta_free[i] - coupling, diag[i], s[i], states[i],
-                                         max_iter)
+                                         max_iter, **kw(i))
             delta, f, r = delta.at[i].set(d_i), f.at[i].set(f_i), r.at[i].set(r_i)
             new_states.append(st)
         change = jnp.max(jnp.abs(f - f_old)) / jnp.maximum(jnp.max(jnp.abs(f)), 1.0)
@@ -357,10 +370,41 @@ def _gauss_seidel(laws, delta_free, compliance, s, states, max_iter, sweeps: int
     return delta, f, r, states
 
 
+def _roughness_inputs(laws, roughness, x, s):
+    """(approach offsets [n] m, per-wheel element inputs) of the roughness at the wheels'
+    rail positions ``x`` [n] and flat coordinates ``s`` [n]: a point law's offset is the
+    contact-filtered roughness (its element input None); a law with ``rough_nodes`` gets
+    offset 0 and the pair (roughness at its nodes, the filtered value)."""
+    if roughness is None:
+        return (0.0,) * len(laws), (None,) * len(laws)
+    r_eq = rough_mod.loop_equivalent(roughness, x, s)
+    shift, rough = [], []
+    for i, law in enumerate(laws):
+        nodes = law.rough_nodes()
+        if nodes is None:
+            shift.append(r_eq[i])
+            rough.append(None)
+        else:
+            shift.append(jnp.zeros_like(r_eq[i]))
+            rough.append((rough_mod.loop_at_nodes(roughness, x[i], s[i], nodes), r_eq[i]))
+    return jnp.stack(shift), tuple(rough)
+
+
+def _static_force(law, s, shift, rough):
+    """F(d) [N] of ``law`` at kinematic approach d (xi_W - xi_R) [m] with roughness: the
+    static start (a law with its own step, the direct 3D mode, starts on its table)."""
+    if rough is None:
+        return lambda d: law.force(d + shift, s)
+    if not _pointwise(law):
+        return lambda d: law.force(d + rough[1], s)
+    point = law.rough_point(s, rough[0])
+    return lambda d: law.point_force(point, d)
+
+
 def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
               n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
               detector=None, run_in_steps=0, sensor_history: bool = True,
-              precision: str = "float64"):
+              precision: str = "float64", roughness=None):
     """The time loop under ``lax.scan`` for any contact law and any number of wheels (pure).
 
     Args:
@@ -388,6 +432,12 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
             propagation coefficients exp(pole dt) and their hold integrals are computed in the
             inputs' precision (float64) and then cast: their series in pole dt cancels to
             ~1e-3 relative in float32.
+        roughness: a :class:`wfjax.roughness.LoopRoughness` (rail and wheel profiles and the
+            contact filter's length; traced: ``vmap`` over realisations of its values), or
+            None (the smooth program, unchanged). Point-contact laws (Hertz, the 3D table and
+            family) see the contact-filtered roughness added to the approach; laws with
+            :meth:`~wfjax.contact.laws.ContactLaw.rough_nodes` (the 2D bedding, the direct 3D
+            solve) see it element by element in the gap. ``approach`` stays xi_W - xi_R.
 
     Returns:
         dict of [n_steps] arrays (one law) or [n_steps, n_wheels] (a tuple of laws): x, s,
@@ -405,8 +455,9 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     coefficients = (discrete_step_coefficients(struct.track.poles, dt),
                     discrete_step_coefficients(wheel_poles, dt))
     (laws, struct, coefficients, speed, dt, x_start, impact_position, sensors,
-     detector) = cast_precision((laws, struct, coefficients, speed, dt, x_start,
-                                 impact_position, sensors, detector), precision)
+     detector, roughness) = cast_precision((laws, struct, coefficients, speed, dt, x_start,
+                                            impact_position, sensors, detector, roughness),
+                                           precision)
     (e_r, ap_r, an_r), (e_w, ap_w, an_w) = coefficients
     wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))  # in the loop's precision
     model = struct.track
@@ -432,8 +483,10 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     q0 = -_loads(preload, phi0) / model.poles
     xi_r0 = (jnp.real(jnp.sum(phi0 * (w_r * q0), axis=-1))
              + _residual_matrix(struct, model, x_start) @ preload)
-    delta0 = jnp.stack([static_approach(lambda d, lw=lw, si=si: lw.force(d, si), p)
-                        for lw, si, p in zip(laws, s0, preload, strict=True)])
+    shift0, rough0 = _roughness_inputs(laws, roughness, x0, s0)
+    delta0 = jnp.stack([static_approach(_static_force(lw, si, sh, ri), p)
+                        for lw, si, p, sh, ri in zip(laws, s0, preload, shift0, rough0,
+                                                     strict=True)])
     xi_w_ref = xi_r0 + delta0
     p0 = jnp.zeros_like(wheel_poles)
 
@@ -483,8 +536,16 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         p_hat = e_w * p + ap_w * (f_prev - preload)[:, None]
         xi_w_free = (xi_w_ref - jnp.real(jnp.sum(wheel_res * p_hat, axis=-1))
                      + c_wheel * preload)
-        delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free,
-                                             jnp.diag(c_wheel) + c_rail, s, states, max_iter)
+        if roughness is None:
+            delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free,
+                                                 jnp.diag(c_wheel) + c_rail, s, states,
+                                                 max_iter)
+        else:
+            shift, rough = _roughness_inputs(laws, roughness, x, s)
+            delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free + shift,
+                                                 jnp.diag(c_wheel) + c_rail, s, states,
+                                                 max_iter, rough)
+            delta = delta - shift
         load = _loads(f, phi)
         q_new = q_hat + an_r * load
         p_new = p_hat + an_w * (f - preload)[:, None]
@@ -525,7 +586,8 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
              material: Material | None = None, config: SimConfig | None = None,
              angle0: float | None = None, cache_dir=None,
              n_steps: int | None = None, sensors=None, detector=None,
-             sensor_quantities=sensor_mod.QUANTITIES, vehicle=None) -> SimResult:
+             sensor_quantities=sensor_mod.QUANTITIES, vehicle=None, roughness=None,
+             wheel_roughness=None) -> SimResult:
     """Simulate a wheel with ``flat`` rolling at ``speed`` over the discretely supported track.
 
     Args:
@@ -554,6 +616,10 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
             wheels roll together on the track, ``flat`` on ``vehicle.flat_wheel`` (whose
             impact ``impact_position`` places), the others with the vehicle's flats or
             smooth; ``wheel`` is every wheel's model unless the vehicle gives its own.
+        roughness: rail roughness, a :class:`wfjax.roughness.Roughness` (``values [n]``,
+            rail coordinate x [m]; see :func:`loop_roughness` for how each model reads it).
+        wheel_roughness: wheel roughness (periodic :class:`wfjax.roughness.Roughness`),
+            read at the circumferential coordinate s [m] of each wheel.
 
     Returns:
         :class:`SimResult` with time histories [n_steps] and summary values (a vehicle's:
@@ -611,9 +677,10 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
                    else sensor_mod.sensor_spec(sensors, track, struct.track, sensor_quantities))
     det_spec = (None if detector is None
                 else sensor_mod.detector_spec(detector, track, struct.track))
+    rough = loop_roughness(roughness, wheel_roughness, wheels, track, material)
     hist = run_scan(law, struct, v, dt, x_abs + s_start, x_abs, int(n_steps),
                     config.newton_iterations, sensors=sensor_spec, detector=det_spec,
-                    run_in_steps=run_in_steps, precision=config.precision)
+                    run_in_steps=run_in_steps, precision=config.precision, roughness=rough)
     quantities = () if sensor_spec is None else sensor_spec.quantities
     if vehicle is None:
         res = summarise(hist, v, x_imp, dt, run_in_steps, quantities, struct.preload)
@@ -623,6 +690,38 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
     if sensor_spec is None:
         return res
     return res._replace(sensor_positions=np.asarray(sensor_spec.positions))
+
+
+def loop_roughness(rail=None, wheel=None, wheels=None, track: Track | None = None,
+                   material: Material | None = None):
+    """The time loop's :class:`wfjax.roughness.LoopRoughness` (None when both are None).
+
+    The contact filter's length (point-contact laws) is each wheel's static Hertz contact
+    length (:func:`wfjax.roughness.static_contact_length` at its preload, on the Hertz radius
+    sqrt(R_W R_R)), ~12 mm for the paper's wheel: the patch the wheel rolls on between
+    impacts, where roughness excites it.
+
+    Args:
+        rail: rail :class:`wfjax.roughness.Roughness` (``values [n]`` or, for
+            :func:`wfjax.sweep`'s Monte Carlo, ``[R, n]``) or None.
+        wheel: wheel roughness (periodic) or None. wheels: [n_wheels] :class:`Wheel`
+            (default: one default wheel). track, material: as :func:`simulate`.
+    """
+    if rail is None and wheel is None:
+        return None
+    from .contact.laws import hertz_radius
+
+    if rail is not None and rail.periodic:
+        raise ValueError("roughness (rail) must not be periodic; a wheel profile goes to "
+                         "wheel_roughness")
+    if wheel is not None and not wheel.periodic:
+        raise ValueError("wheel_roughness must be periodic (roughness.read_csv(..., "
+                         "wheel_radius=R) or roughness.generate_wheel)")
+    wheels = wheels or [Wheel()]
+    track, material = track or Track(), material or Material()
+    length = np.array([float(rough_mod.static_contact_length(
+        float(w.preload), material, float(hertz_radius(w, track)))) for w in wheels])
+    return rough_mod.LoopRoughness(rail, wheel, jnp.asarray(length))
 
 
 def vehicle_window_flat(vehicle, flats: list[Flat]) -> Flat:

@@ -57,6 +57,10 @@ __all__ = [
     "roughness_at",
     "contact_filter",
     "contact_filter_response",
+    "LoopRoughness",
+    "static_contact_length",
+    "loop_equivalent",
+    "loop_at_nodes",
 ]
 
 MAX_SPACING = 1e-3  # m
@@ -525,3 +529,71 @@ def contact_filter_response(wavelengths, contact_length, kind: str = "ellipse") 
     if kind == "ellipse":
         return 2 * scipy.special.j1(ka) / ka
     return np.sin(ka) / ka
+
+
+# --------------------------------------------------------------------------------------------
+# the time loop's roughness input
+# --------------------------------------------------------------------------------------------
+class LoopRoughness(NamedTuple):
+    """Rail and wheel roughness as the time loop reads it (a pytree: ``time_loop(roughness=)``).
+
+    Attributes:
+        rail: :class:`Roughness` of the rail (``values [n]``), read at the rail coordinate
+            ``x`` [m] of each wheel's nominal contact point, or None.
+        wheel: :class:`Roughness` of the wheels (periodic, ``values [n]``), read at the
+            circumferential coordinate ``s_w = s`` [m] (the wheel's flat coordinate: the
+            distance rolled relative to the impact, so the tread point at ``s_w = 0`` meets
+            the rail where the flat centre does), or None. A vehicle's wheels share it.
+        contact_length: 2a [m], scalar or [n_wheels]: the length of the contact filter of the
+            point-contact laws (:func:`static_contact_length`: the Hertz contact under the
+            wheel's static load).
+    """
+
+    rail: Any = None
+    wheel: Any = None
+    contact_length: Any = 0.0
+
+
+def static_contact_length(preload, material, radius) -> float:
+    """Hertz contact length 2a [m] under the static wheel load (the contact filter's length).
+
+    ``a = sqrt(R delta)`` with ``delta = (P / C_H)^(2/3)`` (equal radii ``R``; the time loop's
+    Hertz radius ``sqrt(R_W R_R)``): about 12 mm for 118 kN on R = 0.45 m. The filter keeps
+    this length through the run (see ``docs/real_track.md``: a load-dependent length would
+    make the input depend on the step's unknown force; ``a`` changes with ``F^(1/3)``).
+
+    Args:
+        preload: P [N] (scalar or [n_wheels]). material: :class:`wfjax.Material`.
+        radius: equivalent radius [m].
+    """
+    from .contact import hertz
+
+    approach = hertz.approach_for_force(np.asarray(preload, dtype=float), material, radius)
+    return np.asarray(2 * hertz.contact_radius(approach, radius))
+
+
+def _parts(lr: LoopRoughness):
+    return [(p, is_wheel) for p, is_wheel in ((lr.rail, False), (lr.wheel, True))
+            if p is not None]
+
+
+def loop_equivalent(lr: LoopRoughness, x, s) -> jax.Array:
+    """Contact-filtered rail + wheel roughness [m] at the wheels' rail positions ``x`` [n] and
+    flat coordinates ``s`` [n] (the approach offset of a point-contact law), shape [n]."""
+    length = jnp.broadcast_to(jnp.asarray(lr.contact_length, dtype=x.dtype), x.shape)
+    out = jnp.zeros_like(x)
+    for part, is_wheel in _parts(lr):
+        out = out + contact_filter(part, s if is_wheel else x, length)
+    return out
+
+
+def loop_at_nodes(lr: LoopRoughness, x, s, nodes) -> jax.Array:
+    """Rail + wheel roughness [m] at offsets ``nodes`` [m] (relative to the nominal contact
+    point, along the travel direction) of one wheel at rail position ``x`` and flat coordinate
+    ``s`` (scalars): the element-by-element input of the 2D bedding and the direct 3D law,
+    shape [n_nodes]."""
+    nodes = jnp.asarray(nodes, dtype=jnp.result_type(x, float))
+    out = jnp.zeros_like(nodes)
+    for part, is_wheel in _parts(lr):
+        out = out + roughness_at(part, (s if is_wheel else x) + nodes)
+    return out

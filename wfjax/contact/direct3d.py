@@ -72,19 +72,25 @@ class Direct3DLaw(TableLaw):
         return dataclasses.replace(self, window_sizes=((self.layout.nx, self.layout.ny),),
                                    **zeros)
 
-    def _evaluate(self, s, delta, pressure):
-        """Force [N], stiffness [N/m] and the whole-grid pressure of one solve at (delta, s)."""
+    def rough_nodes(self):
+        """[nx] element centres x' [m] of the contact grid: the roughness is read there."""
+        return jnp.asarray(self.layout.x)
+
+    def _evaluate(self, s, delta, pressure, rough_x=None, rough_eq=0.0):
+        """Force [N], stiffness [N/m] and the whole-grid pressure of one solve at (delta, s),
+        with ``rough_x`` [nx] [m] (or None) taken off the gap along x'."""
         layout = self.layout
         n_s, n_t = self.window_index.shape
         j = jnp.clip(jnp.round((s + layout.s_max) / (2 * layout.s_max) * (n_s - 1)), 0,
                      n_s - 1).astype(jnp.int32)
-        c = delta - tables.table_onset(self.table, s)
+        c = delta + rough_eq - tables.table_onset(self.table, s)
         k = jnp.clip(jnp.ceil(jnp.sqrt(jnp.maximum(c, 0.0) / layout.c_max) * (n_t - 1)), 1,
                      n_t - 1).astype(jnp.int32)
 
         def solve_on(nx, ny, i0, j0):
             res, gap, full, _ = tables.window_solve(layout, self.flat, self.material, s, delta,
-                                                    (nx, ny), (i0, j0), pressure, KALKER_TOL)
+                                                    (nx, ny), (i0, j0), pressure, KALKER_TOL,
+                                                    rough_x=rough_x)
             # The window holds the contact unless the overlap {gap < delta} reaches its edge.
             edge = jnp.minimum(jnp.minimum(gap[0].min(), gap[-1].min()),
                                jnp.minimum(gap[:, 0].min(), gap[:, -1].min()))
@@ -101,12 +107,13 @@ class Direct3DLaw(TableLaw):
 
         return jax.lax.cond(inside, lambda _: (force, stiff, full), whole_grid, None)
 
-    def step(self, delta_free, compliance, s, state, max_iter: int = 30):
+    def step(self, delta_free, compliance, s, state, max_iter: int = 30, roughness=None):
         layout = self.layout
+        rough_x, rough_eq = (None, 0.0) if roughness is None else roughness
 
         def near(delta_free, compliance, s, pressure):
             def evaluate(delta, p):
-                return self._evaluate(s, delta, p)
+                return self._evaluate(s, delta, p, rough_x, rough_eq)
 
             delta, r, pressure = bracketed_newton(evaluate, delta_free, compliance, pressure,
                                                   max_iter, 1e-14)
@@ -114,8 +121,9 @@ class Direct3DLaw(TableLaw):
             return delta, f, r, pressure
 
         def far(delta_free, compliance, s, pressure):
-            delta, f, r, _ = TableLaw.step(self, delta_free, compliance, s, None, max_iter)
-            return delta, f, r, jnp.zeros_like(pressure)
+            delta, f, r, _ = TableLaw.step(self, delta_free + rough_eq, compliance, s, None,
+                                           max_iter)
+            return delta - rough_eq, f, r, jnp.zeros_like(pressure)
 
         return jax.lax.cond(jnp.abs(s) < layout.s_max, near, far, delta_free, compliance, s,
                             state)

@@ -99,20 +99,33 @@ class ContactLaw:
         """Initial per-step solver state carried by the time loop (``None``: stateless)."""
         return None
 
-    def step(self, delta_free, compliance, s, state, max_iter: int = 30):
+    def rough_nodes(self):
+        """[n] offsets x' [m] from the nominal contact point (travel direction) where the law
+        reads rail and wheel roughness element by element, or None: a point-contact law,
+        to whose approach the time loop adds the contact-filtered roughness instead."""
+        return None
+
+    def rough_point(self, s, roughness):
+        """:meth:`point` with ``roughness`` [n] [m] (positive = surface raised) at
+        :meth:`rough_nodes` taken off the gap (laws with :meth:`rough_nodes` only)."""
+        raise NotImplementedError
+
+    def step(self, delta_free, compliance, s, state, max_iter: int = 30, roughness=None):
         """Solve the step's contact equation delta = delta_free - compliance F(delta, s).
 
         Args:
             delta_free: approach if F were zero [m]. compliance: structure's c > 0 [m/N].
             s: flat position [m]. state: solver state (:meth:`init_state`).
             max_iter: Newton iteration cap (static).
+            roughness: None, or for a law with :meth:`rough_nodes` the pair (roughness at
+                the nodes [n] m, its contact-filtered value [m]).
 
         Returns:
             (delta [m], F [N], |r| [m], state); differentiable by the implicit function
             theorem (:func:`wfjax.contact.newton.solve_contact_step`).
         """
         frozen = jax.lax.stop_gradient(self)
-        point = self.point(s)
+        point = self.point(s) if roughness is None else self.rough_point(s, roughness[0])
         point_ng = jax.lax.stop_gradient(point)
         delta, f, r = solve_contact_step(
             lambda d: self.point_force(point, d), delta_free, compliance, max_iter,
@@ -182,6 +195,12 @@ class WinklerLaw(ContactLaw):
 
     def point(self, s):
         return winkler.gap_at_nodes(self.flat, s, self.radius, self.nodes)
+
+    def rough_nodes(self):
+        return self.nodes
+
+    def rough_point(self, s, roughness):
+        return self.point(s) - roughness
 
     def point_force(self, point, delta):
         return winkler.force_from_gap(point, delta, self.material, self.nodes)

@@ -405,7 +405,7 @@ def assign_windows(spec: TableSpec, boxes: OverlapBoxes, sizes) -> WindowPlan:
 
 
 def window_solve(spec: TableSpec, flat: Flat, material: Material, s, approach, size, start,
-                 p_full, tol: float, z_full=None):
+                 p_full, tol: float, z_full=None, rough_x=None):
     """One approach-controlled Kalker solve on a window of the grid of ``spec`` (traceable).
 
     Args:
@@ -415,7 +415,8 @@ def window_solve(spec: TableSpec, flat: Flat, material: Material, s, approach, s
             first element (may be traced).
         p_full: [nx, ny] whole-grid pressure [Pa] of the warm start.
         tol: CG tolerance. z_full: [nx, ny] whole-grid warm start of the stiffness solve, or
-            None (cold).
+            None (cold). rough_x: [nx] rail + wheel roughness [m] along x' (positive =
+            surface raised: taken off the gap), or None.
 
     Returns:
         (:class:`wfjax.contact.kalker.KalkerResult` on the window, the window's gap [wx, wy] m,
@@ -427,6 +428,8 @@ def window_solve(spec: TableSpec, flat: Flat, material: Material, s, approach, s
     x = jax.lax.dynamic_slice(jnp.asarray(spec.x), (i0,), (wx,))
     y = jax.lax.dynamic_slice(jnp.asarray(spec.y), (j0,), (wy,))
     gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
+    if rough_x is not None:
+        gap = gap - jax.lax.dynamic_slice(rough_x, (i0,), (wx,))[:, None]
     cfg = kalker._Config(wx, wy, h, h, "fft", tol, 1000)
     z0 = None if z_full is None else jax.lax.dynamic_slice(z_full, (i0, j0), (wx, wy))
     r, z = kalker._solve_impl(cfg, gap, material, approach, None,
