@@ -120,7 +120,16 @@ def _check_speed(speed) -> float:
     return v
 
 
-def _check_impact_position(position, spacing: float) -> float:
+def _check_impact_position(position, spacing: float, track: Track | None = None) -> float:
+    """``position`` [m] in one bay [0, L_S) (a uniform track) or, on a track whose supports
+    vary, an absolute rail coordinate (:func:`wfjax.sweeps.check_impact_positions`)."""
+    if track is not None:
+        from .supports import is_uniform
+
+        if not is_uniform(track):
+            from .sweeps import check_impact_positions
+
+            return float(check_impact_positions([position], track)[0])
     p = float(position)
     if not math.isfinite(p) or p < 0 or p >= spacing:
         raise ValueError(
@@ -653,7 +662,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
         impact_position = float(impact_position_from_angle(
             angle0, s_start, float(wheels[0 if vehicle is None else vehicle.flat_wheel].radius),
             spacing))
-    x_imp = _check_impact_position(impact_position, spacing)
+    x_imp = _check_impact_position(impact_position, spacing, track)
     n_auto, dt = n_steps_for(window_flat, v, config)
     if n_steps is None:
         n_steps = n_auto

@@ -66,6 +66,7 @@ __all__ = ["SweepResult", "sweep", "impact_positions_grid", "chunk_width"]
 CHUNK_CAP = {"cpu": 64}
 ACCELERATOR_CHUNK_CAP = 8192
 MEMORY_FRACTION = 0.5  # of a device's free memory one chunk may take
+PERCENTILES = (50.0, 95.0, 99.0)  # % of the Monte Carlo summaries
 
 
 class SweepResult(NamedTuple):
@@ -124,6 +125,37 @@ class SweepResult(NamedTuple):
     wheel_axle_acc_peak: Any = None
     wheel_positions: Any = None
     flat_wheel: int = 0
+    realisation_max_force: Any = None
+    realisation_min_force: Any = None
+
+    def percentiles(self, q=PERCENTILES) -> np.ndarray:
+        """Percentiles ``q`` [%] over the roughness realisations of each realisation's max
+        force (its max over the impact positions): [n_flats, n_speeds, len(q)] [N].
+
+        Linear interpolation between order statistics (``numpy.percentile``'s default).
+        Needs a sweep over realisations (``sweep(roughness=...)`` with ``values [R, n]``).
+        """
+        if self.realisation_max_force is None:
+            raise ValueError("this sweep has no roughness realisations "
+                             "(sweep(..., roughness=Roughness with values [R, n]))")
+        worst = np.max(np.asarray(self.realisation_max_force), axis=2)  # [f, v, R]
+        return np.moveaxis(np.percentile(worst, np.asarray(q, dtype=float), axis=-1), 0, -1)
+
+    def percentiles_to_csv(self, q=PERCENTILES) -> str:
+        """One row per (flat, speed): the percentiles of the max force [kN] over the
+        realisations (:meth:`percentiles`), their mean and the realisation count."""
+        pct = self.percentiles(q)
+        worst = np.max(np.asarray(self.realisation_max_force), axis=2)
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["flat", "contact", "speed_kmh", "realisations", "mean_max_force_kN"]
+                   + [f"p{g:g}_max_force_kN" for g in q])
+        for i, label in enumerate(self.flats):
+            for j, v in enumerate(np.asarray(self.speeds)):
+                w.writerow([label, self.contact, f"{v * 3.6:.6g}", worst.shape[-1],
+                            f"{worst[i, j].mean() / 1e3:.6f}"]
+                           + [f"{x / 1e3:.6f}" for x in pct[i, j]])
+        return buf.getvalue()
 
     def envelope(self) -> dict[str, np.ndarray]:
         """Max over positions of max_force, min over positions of min_force: [n_flats, n_speeds]."""
@@ -209,6 +241,13 @@ class SweepResult(NamedTuple):
             out["wheels"] = self.wheel_summary()
         if self.axle_acc_peak is not None:
             out["peak_axle_acc_m_s2"] = float(np.max(self.axle_acc_peak))
+        if self.realisation_max_force is not None:
+            pct = self.percentiles()
+            out["realisations"] = int(np.shape(self.realisation_max_force)[-1])
+            out["max_force_percentiles_kN"] = {
+                label: {f"p{g:g}": [float(x) / 1e3 for x in pct[i, :, k]]
+                        for k, g in enumerate(PERCENTILES)}
+                for i, label in enumerate(self.flats)}
         return out
 
     def wheel_summary(self) -> list[dict]:
@@ -248,15 +287,29 @@ def flat_label(flat: Flat) -> str:
     return f"{flat.kind} d={d:.2f}mm"
 
 
+def _realisation(rough, index):
+    """The loop roughness of realisation ``index`` (a rail profile's ``values [R, n]``)."""
+    if rough is None:
+        return None
+    rail = rough.rail
+    if rail is not None and jnp.ndim(rail.values) == 2:
+        rail = dataclasses.replace(rail, values=rail.values[index])
+    wheel = rough.wheel
+    if wheel is not None and jnp.ndim(wheel.values) == 2:
+        wheel = dataclasses.replace(wheel, values=wheel.values[index])
+    return rough._replace(rail=rail, wheel=wheel)
+
+
 def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, speed, dt,
-            x_start, impact_position, run_in_steps):
+            x_start, impact_position, run_in_steps, realisation):
     batched, others = laws
     law = jax.tree.map(lambda a: a[flat_index], batched)
     if others is not None:  # a vehicle: the swept flat's law on its wheel, the others fixed
         law = tuple(law if o is None else o for o in others)
     hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
                     sensors=extras["sensors"], detector=extras["detector"],
-                    run_in_steps=run_in_steps, sensor_history=False, precision=precision)
+                    run_in_steps=run_in_steps, sensor_history=False, precision=precision,
+                    roughness=_realisation(extras.get("roughness"), realisation))
     keys = ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual",
             "axle_acc")
     if others is None:
@@ -289,7 +342,7 @@ def _batched(mesh: Mesh, n_steps: int, max_iter: int, precision: str = "float64"
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
-                                 in_specs=(PartitionSpec(),) * 3 + (by_run,) * 6))
+                                 in_specs=(PartitionSpec(),) * 3 + (by_run,) * 7))
 
 
 def _device_mesh() -> Mesh:
@@ -356,7 +409,8 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
           wheel: Wheel | None = None, track: Track | None = None,
           material: Material | None = None, config: SimConfig | None = None,
           chunk_size: int | None = None, progress: bool = True, cache_dir=None, sensors=None,
-          detector=None, sensor_quantities=QUANTITIES, vehicle=None) -> SweepResult:
+          detector=None, sensor_quantities=QUANTITIES, vehicle=None, roughness=None,
+          wheel_roughness=None) -> SweepResult:
     """Max/min contact force for every flat x speed x impact position.
 
     Args:
@@ -378,9 +432,19 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         vehicle: a :class:`wfjax.vehicle.Vehicle` (as :func:`wfjax.simulate`): every flat is
             swept on ``vehicle.flat_wheel``, the other wheels roll with it on the same track;
             per-wheel extremes in the ``wheel_*`` fields (a detector's peak per wheel and bay).
+        roughness: rail roughness (:class:`wfjax.roughness.Roughness`, as
+            :func:`wfjax.simulate`). Monte Carlo: ``values [R, n]`` are R realisations, a
+            batch axis of the runs (one compile, chunked like the runs): every flat x speed
+            x position runs on every realisation.
+        wheel_roughness: wheel roughness (periodic), ``values [n]`` or ``[R, n]`` (the same
+            R as ``roughness``'s when both are batched).
 
     Returns:
-        :class:`SweepResult` with arrays shaped [n_flats, n_speeds, n_positions].
+        :class:`SweepResult` with arrays shaped [n_flats, n_speeds, n_positions]: with
+        roughness realisations, the extremes over them (max of ``max_force``, min of
+        ``min_force``, any loss of contact), and every realisation's in
+        ``realisation_max_force`` / ``realisation_min_force`` [n_flats, n_speeds,
+        n_positions, R]; :meth:`SweepResult.percentiles` summarises them.
     """
     wheel = wheel or Wheel()
     track = track or Track()
@@ -394,10 +458,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     if np.ndim(impact_positions) == 0:
         pos = impact_positions_grid(impact_positions, spacing)
     else:
-        pos = np.asarray(impact_positions, dtype=float)
-        if pos.ndim != 1 or np.any(pos < 0) or np.any(pos >= spacing) or not np.all(
-                np.isfinite(pos)):
-            raise ValueError(f"impact_positions must lie in [0, {spacing}) m, got {pos!r}")
+        pos = check_impact_positions(impact_positions, track)
     if chunk_size is not None and (int(chunk_size) != chunk_size or chunk_size < 1):
         raise ValueError(f"chunk_size must be an integer >= 1 or None, got {chunk_size!r}")
     if contact not in CONTACT_MODELS:
@@ -410,8 +471,10 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     struct_host = fleet.struct if vehicle is not None else structure(wheel, track, config,
                                                                       cache_dir)
     struct = _replicate(struct_host, mesh)
+    rough, n_real = _sweep_roughness(roughness, wheel_roughness, vehicle, wheel, track,
+                                     material)
     extras = _replicate(_sensor_extras(sensors, sensor_quantities, detector, track,
-                                       struct_host.track), mesh)
+                                       struct_host.track) | {"roughness": rough}, mesh)
     others = None if vehicle is None else _replicate(fleet.others, mesh)
     keys = ["max", "min", "lost", "lost_t", "res", "acc"] + [
         k for k, on in (("w_max", vehicle is not None), ("w_min", vehicle is not None),
@@ -435,10 +498,17 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             window_flat = fleet.window_flat(window_flat)
         cols = _run_group((_replicate(laws, mesh), others), struct, extras, window_flat,
                           len(members), v, pos + fleet.shift, config, mesh, chunk_size,
-                          _Progress(len(members) * v.size * pos.size, label, enabled=progress))
+                          _Progress(len(members) * v.size * pos.size * n_real, label,
+                                    enabled=progress), n_real)
         for key, col in zip(keys, cols, strict=True):
+            if rough is not None and key in ("max", "min"):
+                out.setdefault("r_" + key, np.zeros((len(flat_list),) + col.shape[1:]))[
+                    group] = col
+            col = _over_realisations(key, col) if rough is not None else col[:, :, :, 0]
             out.setdefault(key, np.zeros((len(flat_list),) + col.shape[1:]))[group] = col
     det = {"axle_acc_peak": out["acc"]}
+    if rough is not None:
+        det |= {"realisation_max_force": out["r_max"], "realisation_min_force": out["r_min"]}
     if detector is not None:
         loads = fleet.preloads[:, None] if vehicle is not None else float(wheel.preload)
         det |= {"detector_bays": detector.bays(), "detector_peak": out["det"],
@@ -600,8 +670,9 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
 
 def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
                config: SimConfig, mesh: Mesh, chunk_size: int | None,
-               bar: _Progress) -> list[np.ndarray]:
-    """Summaries [n_flats, n_speeds, n_positions] of one batch of laws, chunked and sharded.
+               bar: _Progress, n_real: int = 1) -> list[np.ndarray]:
+    """Summaries [n_flats, n_speeds, n_positions, n_real] of one batch of laws, chunked and
+    sharded (the realisation axis: roughness realisations, 1 without).
 
     Every chunk is dispatched before the previous one is collected (one chunk in flight)."""
     n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
@@ -611,8 +682,9 @@ def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
         if jax.process_count() > 1:  # every process must compile and run the same chunks
             per_device = int(np.min(multihost_utils.process_allgather(np.int32(per_device))))
         chunk_size = mesh.devices.size * per_device
-    ff, jj, kk = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
-                                                 np.arange(pos.size), indexing="ij"))
+    ff, jj, kk, rr = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
+                                                     np.arange(pos.size), np.arange(n_real),
+                                                     indexing="ij"))
     vv, pp, dt, s_start, run_in = v[jj], pos[kk], dt_v[jj], s0_v[jj], run_in_v[jj]
     program = _batched(mesh, n_steps, config.newton_iterations, config.precision)
     results, in_flight = [], None
@@ -630,13 +702,63 @@ def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
             return _shard_runs(np.concatenate([a, np.repeat(a[-1:], pad)]), mesh)
 
         batch = program(laws, struct, extras, padded(ff[sl]), padded(vv[sl]), padded(dt[sl]),
-                        padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]))
+                        padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]),
+                        padded(rr[sl]))
         if in_flight is not None:
             collect(*in_flight)
         in_flight = (batch, n)
     collect(*in_flight)
-    return [np.concatenate(c).reshape((n_flats, v.size, pos.size) + c[0].shape[1:])
+    return [np.concatenate(c).reshape((n_flats, v.size, pos.size, n_real) + c[0].shape[1:])
             for c in zip(*results, strict=True)]
+
+
+_MIN_KEYS = ("min", "w_min", "s_min")
+
+
+def _over_realisations(key: str, col: np.ndarray) -> np.ndarray:
+    """A per-run summary [n_flats, n_speeds, n_positions, R, ...] reduced over the
+    realisations: min for minima, max for the rest (maxima, peaks, loss-of-contact flags and
+    durations, residuals)."""
+    return np.min(col, axis=3) if key in _MIN_KEYS else np.max(col, axis=3)
+
+
+def _sweep_roughness(rail, wheel, vehicle, wheel_model, track, material):
+    """(the loop roughness with its realisations, R) of a sweep (None, 1 without)."""
+    from .interaction import loop_roughness
+
+    if rail is None and wheel is None:
+        return None, 1
+    counts = {int(np.shape(r.values)[0]) for r in (rail, wheel)
+              if r is not None and np.ndim(r.values) == 2}
+    if len(counts) > 1:
+        raise ValueError(f"roughness and wheel_roughness must hold the same number of "
+                         f"realisations, got {sorted(counts)}")
+    wheels = None if vehicle is None else vehicle.wheel_list(wheel_model or Wheel())
+    rough = loop_roughness(rail, wheel, wheels or [wheel_model or Wheel()], track, material)
+    return rough, counts.pop() if counts else 1
+
+
+def check_impact_positions(positions, track: Track) -> np.ndarray:
+    """``positions`` [n] [m] checked for ``track``: within one bay, ``[0, L_S)``, on a uniform
+    track; absolute rail coordinates (x = 0 above the middle sleeper) within
+    ``|x| <= (n_bays // 2 - 1) L_S`` when the supports vary (:func:`wfjax.supports.is_uniform`:
+    every bay differs, so the impact's bay matters). One-line ``ValueError`` otherwise."""
+    from .supports import is_uniform
+
+    pos = np.asarray(positions, dtype=float)
+    spacing = float(track.sleeper_spacing)
+    if pos.ndim != 1 or pos.size == 0 or not np.all(np.isfinite(pos)):
+        raise ValueError(f"impact_positions must be a 1-D array of finite numbers [m], "
+                         f"got {positions!r}")
+    if is_uniform(track):
+        if np.any(pos < 0) or np.any(pos >= spacing):
+            raise ValueError(f"impact_positions must lie in [0, {spacing}) m, got {pos!r}")
+        return pos
+    reach = (int(track.n_bays) // 2 - 1) * spacing
+    if np.any(np.abs(pos) > reach):
+        raise ValueError(f"impact_positions on a track whose supports vary are absolute rail "
+                         f"coordinates within [-{reach:g}, {reach:g}] m, got {pos!r}")
+    return pos
 
 
 def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64") -> int:
