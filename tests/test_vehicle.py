@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import scipy.sparse
 import scipy.sparse.linalg
+from fe_reference import newmark_wheels
 
 import wfjax as wf
-from wfjax import geometry
 from wfjax import interaction as it
 from wfjax import track as track_mod
 from wfjax import wheel as wheel_mod
@@ -193,63 +193,9 @@ def test_bad_wheel_load_is_refused():
 
 # -- an independent reference: the full FE track and two wheels by Newmark integration ------
 def _newmark_two_wheels(flat, speed, x_lead, impact, offset, dt, n_steps):
-    """Contact forces [n_steps, 2] of two wheels (Hertz, profile input; the flat on the
-    first) on the full FE track (every mode, no modal reduction), average-acceleration
-    Newmark for the track and both 2-DOF wheels, Newton on the two forces every step."""
-    track, wheel = wf.Track(), wf.Wheel()
-    fe = track_mod.assemble(track)
-    k, m, c = fe.stiffness.tocsc(), fe.mass.tocsc(), fe.damping.tocsc()
-    c_h = float(it.prepare("hertz-profile", flat, wheel, track, wf.Material(),
-                           wf.SimConfig()).c_h)
-    mw, cw, kw = wheel_mod.system_matrices(wheel)
-    a0, a1 = 4 / dt**2, 2 / dt
-    lu = scipy.sparse.linalg.splu((k + a0 * m + a1 * c).tocsc())
-    kw_inv = np.linalg.inv(kw + a0 * mw + a1 * cw)
-    p = float(wheel.preload)
-    offsets = np.array([0.0, offset])
-
-    def deviation(s):  # profile deviation at each wheel (the second is smooth)
-        return np.array([float(geometry.profile_deviation(flat, s)), 0.0])
-
-    def loads(x):
-        return track_mod._load_vector(fe, x).toarray()
-
-    # static start: the rail under both loads, each wheel compressed to carry P
-    b = loads(x_lead + offsets)
-    u = scipy.sparse.linalg.spsolve(k, b @ np.array([p, p]))
-    v, acc = np.zeros_like(u), np.zeros_like(u)
-    contact_ref = b.T @ u + (p / c_h) ** (2 / 3) + deviation(x_lead - impact)
-    # wheel i around its static state: M q'' + C q' + K q = e1 (P - F_i), q1 downwards
-    q, qv, qa = np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2))
-    forces = np.full((n_steps, 2), p)
-    w_c = kw_inv[0, 0]
-    for n in range(1, n_steps):
-        x = x_lead + speed * dt * n + offsets
-        b = loads(x)
-        u_free = lu.solve(m @ (a0 * u + 4 / dt * v + acc) + c @ (a1 * u + v))
-        g = lu.solve(b)
-        rail_free, rail_c = b.T @ u_free, b.T @ g
-        rhs_w = (mw @ (a0 * q + 4 / dt * qv + qa).T + cw @ (a1 * q + qv).T).T  # [2 wheels, 2]
-        w_free = (kw_inv @ (rhs_w + np.array([p, 0.0])).T)[0]
-        z = deviation(x[0] - impact)
-        compliance = w_c * np.eye(2) + rail_c
-        f = forces[n - 1].copy()
-        for _ in range(60):
-            comp = contact_ref + w_free - rail_free - compliance @ f - z
-            fh = c_h * np.maximum(comp, 0.0) ** 1.5
-            dfh = 1.5 * c_h * np.sqrt(np.maximum(comp, 0.0))
-            step = np.linalg.solve(np.eye(2) + dfh[:, None] * compliance, f - fh)
-            f = np.maximum(f - step, 0.0)
-            if np.max(np.abs(step)) < 1e-7:
-                break
-        forces[n] = f
-        u_new = u_free + g @ f
-        acc_new = a0 * (u_new - u) - 4 / dt * v - acc
-        v, u, acc = v + 0.5 * dt * (acc + acc_new), u_new, acc_new
-        q_new = (kw_inv @ (rhs_w + np.stack([p - f, np.zeros(2)], axis=1)).T).T
-        qa_new = a0 * (q_new - q) - 4 / dt * qv - qa
-        qv, q, qa = qv + 0.5 * dt * (qa + qa_new), q_new, qa_new
-    return forces
+    """Contact forces [n_steps, 2] of two wheels on the full FE track (the flat on the first):
+    :func:`fe_reference.newmark_wheels`."""
+    return newmark_wheels(flat, speed, x_lead, impact, [0.0, offset], dt, n_steps)
 
 
 @pytest.mark.slow

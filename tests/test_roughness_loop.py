@@ -1,0 +1,161 @@
+"""Roughness in the time loop and Monte Carlo over its realisations (issue 18)."""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import wfjax as wf
+from wfjax import roughness as rough_mod
+from wfjax import supports
+from wfjax.sweeps import check_impact_positions
+
+from fe_reference import newmark_wheels
+
+REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
+ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
+V = 100 / 3.6
+DX = 2.5e-4
+X = np.arange(-3.0, 3.0, DX)
+
+
+def _sine(amplitude, wavelength=0.1, phase=0.0):
+    return rough_mod.Roughness(float(X[0]), DX,
+                               amplitude * np.sin(2 * np.pi * X / wavelength + phase))
+
+
+def _fluctuation(contact, rough, flat=None, **kw):
+    """(force [n], force minus the smooth run's [n], t [n]) of a run with ``rough``."""
+    flat = flat or wf.Flat.none()
+    base = wf.simulate(flat, V, contact=contact, impact_position=0.1, **kw)
+    res = wf.simulate(flat, V, contact=contact, impact_position=0.1, roughness=rough, **kw)
+    return np.asarray(res.force), np.asarray(res.force) - np.asarray(base.force), res
+
+
+def _amplitude(d, t):
+    late = t >= 0.01
+    return 0.5 * (d[late].max() - d[late].min())
+
+
+@pytest.mark.parametrize("contact", ["hertz-profile", "hertz-trajectory", "2d",
+                                     pytest.param("3d", marks=pytest.mark.slow)])
+def test_zero_roughness_reproduces_the_smooth_loop(contact):
+    ref = np.load(REFERENCE)
+    res = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1,
+                      roughness=_sine(0.0))
+    for key in ("force", "rail_disp", "wheel_disp", "approach"):
+        want = ref[f"{contact}/{key}"]
+        got = np.asarray(getattr(res, key))
+        assert np.max(np.abs(got - want)) <= 1e-9 * np.max(np.abs(want)), key
+
+
+@pytest.mark.parametrize("contact", ["hertz-profile", "2d"])
+def test_force_fluctuation_is_linear_in_the_roughness_amplitude(contact):
+    _, d1, res = _fluctuation(contact, _sine(1e-6))
+    _, d2, _ = _fluctuation(contact, _sine(2e-6))
+    t = np.asarray(res.t)
+    a1, a2 = _amplitude(d1, t), _amplitude(d2, t)
+    assert a1 > 100.0  # N: a real excitation (about 170 N per um at 278 Hz)
+    assert a2 == pytest.approx(2 * a1, rel=0.01)
+
+
+def test_raised_rail_adds_approach():
+    # a constant 1 um raised rail is a static offset: the force does not change, the
+    # kinematic approach xi_W - xi_R drops by the offset (the wheel rides 1 um higher)
+    flat = wf.Flat.none()
+    base = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1)
+    up = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1,
+                     roughness=rough_mod.Roughness(float(X[0]), DX, np.full(X.size, 1e-6)))
+    assert np.max(np.abs(np.asarray(up.force) - np.asarray(base.force))) < 1e-6 * 118e3
+    assert np.asarray(up.approach) == pytest.approx(np.asarray(base.approach) - 1e-6,
+                                                    abs=1e-12)
+    assert np.asarray(up.wheel_disp) == pytest.approx(np.asarray(base.wheel_disp) - 1e-6,
+                                                      abs=1e-12)
+
+
+def test_wheel_roughness_equals_the_same_rail_roughness_under_one_wheel():
+    # a wheel harmonic read at s = x - impact is the rail sinusoid shifted by the impact
+    circ = 2 * np.pi * 0.45
+    n = int(round(circ / DX))
+    lam = circ / 28
+    s = np.arange(n) * (circ / n)
+    wheel = rough_mod.Roughness(0.0, circ / n, 1e-6 * np.sin(2 * np.pi * s / lam),
+                                periodic=True)
+    rail = _sine(1e-6, lam, phase=-2 * np.pi * 0.1 / lam)
+    flat = wf.Flat.none()
+    a = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1, roughness=rail)
+    b = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1,
+                    wheel_roughness=wheel)
+    fa, fb = np.asarray(a.force), np.asarray(b.force)
+    assert np.max(np.abs(fa - fb)) < 1e-3 * np.ptp(fa)
+
+
+@pytest.mark.slow
+def test_roughness_response_agrees_with_a_direct_fe_time_integration():
+    # independent reference: the full FE track by Newmark, Hertz on the point roughness times
+    # the contact filter's response at the static Hertz contact length (what the loop's
+    # point-contact laws see for a sinusoid)
+    lam, amp = 0.1, 2e-6
+    f, d, res = _fluctuation("hertz-profile", _sine(amp, lam))
+    length = float(wf.interaction.loop_roughness(_sine(amp, lam)).contact_length[0])
+    gain = float(rough_mod.contact_filter_response(lam, length))
+    x0, s0, dt = float(res.x[0]), float(res.s[0]), float(res.time_step)
+    n = f.size
+    smooth = newmark_wheels(wf.Flat.none(), V, x0, x0 - s0, [0.0], dt, n)[:, 0]
+    rough = newmark_wheels(wf.Flat.none(), V, x0, x0 - s0, [0.0], dt, n,
+                           rail_roughness=lambda x: gain * amp * np.sin(2 * np.pi * x / lam))
+    t = np.asarray(res.t)
+    want = _amplitude(rough - smooth, t)
+    assert _amplitude(d, t) == pytest.approx(want, rel=0.03)
+    late = t >= 0.01
+    assert f[late].max() == pytest.approx(rough[late].max(), rel=0.03)
+
+
+def test_monte_carlo_percentiles_equal_a_loop_over_the_realisations():
+    rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 3, 4.0, x_start=-2.0,
+                               n_realisations=5)
+    speeds = [V, 120 / 3.6]
+    res = wf.sweep(ROUNDED, speeds, impact_positions=[0.1], contact="hertz-trajectory",
+                   roughness=rough, progress=False, chunk_size=4)
+    n_steps = wf.interaction.batch_windows(ROUNDED, speeds, wf.SimConfig())[0]
+    loop = np.array([[wf.simulate(ROUNDED, v, contact="hertz-trajectory", impact_position=0.1,
+                                  roughness=dataclasses.replace(rough, values=rough.values[r]),
+                                  n_steps=n_steps).max_force for r in range(5)]
+                     for v in speeds])
+    got = np.asarray(res.realisation_max_force)[0, :, 0, :]
+    assert got == pytest.approx(loop, rel=1e-9)
+    assert res.percentiles()[0] == pytest.approx(
+        np.percentile(loop, [50, 95, 99], axis=-1).T, rel=1e-9)
+    assert np.asarray(res.max_force)[0, :, 0] == pytest.approx(loop.max(axis=-1), rel=1e-9)
+    csv_text = res.percentiles_to_csv()
+    assert csv_text.splitlines()[0].endswith("p99_max_force_kN")
+    assert res.summary()["realisations"] == 5
+
+
+def test_impact_positions_are_absolute_on_a_track_whose_supports_vary():
+    tr = wf.Track()
+    with pytest.raises(ValueError, match=r"\[0, 0.65\)"):
+        check_impact_positions([0.7], tr)
+    void = supports.void_sleeper(tr, 35)
+    assert check_impact_positions([-0.65, 0.7, 1.95], void) == pytest.approx([-0.65, 0.7, 1.95])
+    with pytest.raises(ValueError, match="absolute rail coordinates"):
+        check_impact_positions([30.0], void)
+
+
+def test_bad_roughness_inputs_are_refused():
+    circ_wheel = rough_mod.generate_wheel(rough_mod.ISO3095_LIMIT, 0)
+    with pytest.raises(ValueError, match="must not be periodic"):
+        wf.interaction.loop_roughness(circ_wheel)
+    with pytest.raises(ValueError, match="must be periodic"):
+        wf.interaction.loop_roughness(None, _sine(1e-6))
+    two = rough_mod.generate(rough_mod.ISO3095_LIMIT, 0, 4.0, n_realisations=2)
+    three = rough_mod.generate_wheel(rough_mod.ISO3095_LIMIT, 0, n_realisations=3)
+    with pytest.raises(ValueError, match="same number of realisations"):
+        wf.sweep(ROUNDED, [V], impact_positions=[0.1], contact="hertz-trajectory",
+                 roughness=two, wheel_roughness=three, progress=False)
+
+
+def test_static_contact_length_is_the_hertz_patch():
+    length = float(wf.interaction.loop_roughness(_sine(1e-6)).contact_length[0])
+    assert 10e-3 < length < 14e-3
