@@ -5,13 +5,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fe_reference import newmark_wheels
 
 import wfjax as wf
 from wfjax import roughness as rough_mod
 from wfjax import supports
 from wfjax.sweeps import check_impact_positions
-
-from fe_reference import newmark_wheels
 
 REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
@@ -41,13 +40,18 @@ def _amplitude(d, t):
 @pytest.mark.parametrize("contact", ["hertz-profile", "hertz-trajectory", "2d",
                                      pytest.param("3d", marks=pytest.mark.slow)])
 def test_zero_roughness_reproduces_the_smooth_loop(contact):
+    # tests/data: the histories before roughness existed; the 3D table is rebuilt in each
+    # cache (its Kalker solves agree to ~2e-9 relative between builds), so the 3D run is
+    # compared with the same table's run without roughness as well
     ref = np.load(REFERENCE)
     res = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1,
                       roughness=_sine(0.0))
+    plain = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1)
     for key in ("force", "rail_disp", "wheel_disp", "approach"):
-        want = ref[f"{contact}/{key}"]
         got = np.asarray(getattr(res, key))
-        assert np.max(np.abs(got - want)) <= 1e-9 * np.max(np.abs(want)), key
+        for want, tol in ((np.asarray(getattr(plain, key)), 1e-9),
+                          (ref[f"{contact}/{key}"], 1e-8 if contact == "3d" else 1e-9)):
+            assert np.max(np.abs(got - want)) <= tol * np.max(np.abs(want)), key
 
 
 @pytest.mark.parametrize("contact", ["hertz-profile", "2d"])
@@ -91,7 +95,6 @@ def test_wheel_roughness_equals_the_same_rail_roughness_under_one_wheel():
     assert np.max(np.abs(fa - fb)) < 1e-3 * np.ptp(fa)
 
 
-@pytest.mark.slow
 def test_roughness_response_agrees_with_a_direct_fe_time_integration():
     # independent reference: the full FE track by Newmark, Hertz on the point roughness times
     # the contact filter's response at the static Hertz contact length (what the loop's
@@ -104,7 +107,8 @@ def test_roughness_response_agrees_with_a_direct_fe_time_integration():
     n = f.size
     smooth = newmark_wheels(wf.Flat.none(), V, x0, x0 - s0, [0.0], dt, n)[:, 0]
     rough = newmark_wheels(wf.Flat.none(), V, x0, x0 - s0, [0.0], dt, n,
-                           rail_roughness=lambda x: gain * amp * np.sin(2 * np.pi * x / lam))
+                           rail_roughness=lambda x: gain * amp * np.sin(2 * np.pi * x / lam)
+                           )[:, 0]
     t = np.asarray(res.t)
     want = _amplitude(rough - smooth, t)
     assert _amplitude(d, t) == pytest.approx(want, rel=0.03)

@@ -48,6 +48,7 @@ PRECISIONS = P.PRECISIONS
 MAX_SPEED_KMH = 540.0  # = 150 m/s, the API's limit
 MAX_FLAT_LENGTH = P.MAX_FLAT_LENGTH  # m; about a tenth of a 0.45 m wheel's circumference
 PROFILE_STEP = 0.1e-3  # m; measured profiles are resampled on this uniform grid
+PATH_KEYS = ("profile_csv", "data", "rail_csv", "wheel_csv")  # file names, relative to a case
 
 
 class CaseError(ValueError):
@@ -194,6 +195,7 @@ def _model_keys() -> list[Key]:
 
 
 _FLAT_CMDS = ("sweep", "simulate", "fit", "geometry", "detector")
+_MODEL_CMDS_EARLY = ("sweep", "simulate")
 _VEHICLE_CMDS = ("sweep", "simulate")
 _OTHER_KEYS = [
     Key("run", "contact", "str", choices=CONTACT_MODELS, doc="contact model",
@@ -221,8 +223,9 @@ _OTHER_KEYS = [
     Key("run", "speed_kmh", "float", "km/h", 0.0, MAX_SPEED_KMH, low_open=True,
         doc="train speed of one run (fit: of a force-history dataset)",
         commands=("simulate", "fit")),
-    Key("run", "impact_position", "float", "m", 0.0, 1.5, high_open=True,
-        doc="impact position from a sleeper centre, in [0, track.sleeper_spacing)",
+    Key("run", "impact_position", "float", "m", -50.0, 50.0,
+        doc="impact position from a sleeper centre, in [0, track.sleeper_spacing); on a "
+            "track whose supports vary an absolute rail coordinate (docs/real_track.md)",
         commands=("simulate", "fit")),
     Key("flat", "kind", "str", choices=("both", "rounded", "new", "profile"),
         doc="flat kind; both = a rounded and a new flat (sweep); profile = flat.profile_csv",
@@ -253,6 +256,33 @@ _OTHER_KEYS = [
             "increasing); replaces vehicle.preset", commands=_VEHICLE_CMDS),
     Key("vehicle", "flat_wheel", "int", "", 0, 31,
         doc="the wheel that carries the flat (0 = the leading wheel)", commands=_VEHICLE_CMDS),
+    Key("roughness", "rail_csv", "str",
+        doc="rail roughness CSV, columns x_m|x_mm, roughness_m|roughness_mm|roughness_um "
+            "(docs/real_track.md); relative to the case file", commands=_VEHICLE_CMDS),
+    Key("roughness", "wheel_csv", "str",
+        doc="wheel roughness CSV over one circumference 2 pi R (same columns)",
+        commands=_VEHICLE_CMDS),
+    Key("roughness", "preset", "str", choices=("none", "iso3095"),
+        doc="random rail roughness: iso3095 = the ISO 3095 limit spectrum (replaces "
+            "roughness.rail_csv)", commands=_VEHICLE_CMDS),
+    Key("roughness", "realisations", "int", "", 1, 100000,
+        doc="random rail roughness realisations (sweep: Monte Carlo percentiles; simulate: 1)",
+        commands=_VEHICLE_CMDS),
+    Key("roughness", "seed", "int", "", 0, 2**31 - 1,
+        doc="seed of the random roughness", commands=_VEHICLE_CMDS),
+    Key("roughness", "length", "float", "m", 0.5, 200.0,
+        doc="length of the random rail profile, centred on x = 0", commands=_VEHICLE_CMDS),
+    Key("supports", "void_sleepers", "floats", "", 0, 10000,
+        doc="indices of hanging sleepers (0 = leftmost modelled; n_bays // 2 - 1 above x = 0)",
+        commands=_MODEL_CMDS_EARLY),
+    Key("supports", "void_remaining", "float", "", 0.0, 1.0,
+        doc="fraction of the ballast stiffness and damping left under a void sleeper",
+        commands=_MODEL_CMDS_EARLY),
+    Key("supports", "scatter_cv", "float", "", 0.0, 2.0,
+        doc="lognormal scatter of pad and ballast stiffness, coefficient of variation "
+            "(0: none)", commands=_MODEL_CMDS_EARLY),
+    Key("supports", "scatter_seed", "int", "", 0, 2**31 - 1,
+        doc="seed of the support scatter", commands=_MODEL_CMDS_EARLY),
     Key("fit", "data", "str", doc="measured CSV (speed_kmh,max_force_kN or t_s,force_kN); "
         "relative to the case file", commands=("fit",)),
     Key("fit", "example", "bool", doc="fit the embedded synthetic dataset instead of data",
@@ -433,7 +463,7 @@ def layer_from_mapping(data: Mapping, source: str, base_dir: Path | None = None)
             raise CaseError(f"{source}: {key.path} given twice (as {path} and another "
                             "spelling)")
         value = check_value(key, value, source, factor, unit, name=path)
-        if key.name in ("profile_csv", "data") and base_dir is not None:
+        if key.name in PATH_KEYS and base_dir is not None:
             value = str((base_dir / value).resolve()) if not os.path.isabs(value) else value
         layer[key.path] = value
     return layer
@@ -491,6 +521,12 @@ def default_layer(command: str) -> dict:
         layer["flat.kind"] = "both"
     if command == "simulate":
         layer.update({"run.speed_kmh": 100.0, "run.impact_position": 0.0})
+    if command in _VEHICLE_CMDS:
+        layer.update({"roughness.preset": "none", "roughness.realisations": 1,
+                      "roughness.seed": 0, "roughness.length": 6.0})
+    if command in _MODEL_CMDS_EARLY:
+        layer.update({"supports.void_remaining": 0.0, "supports.scatter_cv": 0.0,
+                      "supports.scatter_seed": 0})
     if command in _VEHICLE_CMDS:
         layer.update({"vehicle.preset": "single", "vehicle.axle_spacing": 2.5,
                       "vehicle.bogie_distance": 17.5, "vehicle.flat_wheel": 0})
@@ -653,6 +689,53 @@ class Case:
             raise CaseError(str(exc)) from None
         return None if vehicle.n_wheels == 1 else vehicle
 
+    def supports(self, track: P.Track) -> P.Track:
+        """``track`` with the case's void sleepers and support scatter
+        (:func:`wfjax.supports.void_sleeper`, :func:`wfjax.supports.scatter`)."""
+        from . import supports as S
+
+        try:
+            voids = self.values.get("supports.void_sleepers")
+            if voids is not None:
+                idx = [int(v) for v in np.atleast_1d(voids)]
+                if any(i != v for i, v in zip(idx, np.atleast_1d(voids), strict=True)):
+                    raise ValueError(f"supports.void_sleepers must be integers, got {voids!r}")
+                track = S.void_sleeper(track, idx,
+                                       remaining=self.values.get("supports.void_remaining", 0.0))
+            cv = float(self.values.get("supports.scatter_cv", 0.0))
+            if cv > 0:
+                track = S.scatter(track, key=int(self.values.get("supports.scatter_seed", 0)),
+                                  cv=cv)
+        except ValueError as exc:
+            raise CaseError(f"[supports]: {exc}") from None
+        return track
+
+    def roughness(self, wheel_radius: float):
+        """(rail, wheel) :class:`wfjax.roughness.Roughness` of the case (None where not
+        given): ``roughness.rail_csv``, or ``roughness.preset = "iso3095"`` with
+        ``realisations`` (values ``[R, n]`` when R > 1), ``seed`` and ``length``."""
+        from . import roughness as R
+
+        v = self.values
+        preset = v.get("roughness.preset", "none")
+        try:
+            rail = wheel = None
+            if v.get("roughness.rail_csv") and preset != "none":
+                raise ValueError("give roughness.rail_csv or roughness.preset, not both")
+            if v.get("roughness.rail_csv"):
+                rail = R.read_csv(v["roughness.rail_csv"])
+            elif preset == "iso3095":
+                n = int(v.get("roughness.realisations", 1))
+                length = float(v.get("roughness.length", 6.0))
+                rail = R.generate(R.ISO3095_LIMIT, int(v.get("roughness.seed", 0)), length,
+                                  x_start=-0.5 * length,
+                                  n_realisations=None if n == 1 else n)
+            if v.get("roughness.wheel_csv"):
+                wheel = R.read_csv(v["roughness.wheel_csv"], wheel_radius=wheel_radius)
+        except (ValueError, OSError) as exc:
+            raise CaseError(f"[roughness]: {exc}") from None
+        return rail, wheel
+
     def speeds(self) -> np.ndarray:
         """[n] speeds [m/s] of ``run.speeds_kmh``."""
         v = self.values["run.speeds_kmh"]
@@ -663,8 +746,23 @@ class Case:
         wheel, track, *_ = self.model()
         if self.command in _FLAT_CMDS:
             self.flats()
+        if self.command in _MODEL_CMDS_EARLY:
+            track = self.supports(track)
+        if self.command == "simulate" and int(self.values.get("roughness.realisations", 1)) > 1:
+            raise CaseError(f"roughness.realisations = {self.values['roughness.realisations']}: "
+                            "simulate runs one realisation; allowed: 1 (sweep runs many)")
         pos = self.values.get("run.impact_position")
-        if pos is not None and pos >= float(track.sleeper_spacing):
+        if pos is not None and self.command in _MODEL_CMDS_EARLY:
+            from .supports import is_uniform
+            from .sweeps import check_impact_positions
+
+            if not is_uniform(track):
+                try:
+                    check_impact_positions([pos], track)
+                except ValueError as exc:
+                    raise CaseError(f"run.impact_position = {pos:.6g} m: {exc}") from None
+                pos = None
+        if pos is not None and (pos >= float(track.sleeper_spacing) or pos < 0):
             raise CaseError(f"run.impact_position = {pos:.6g} m: out of range; allowed: [0, "
                             f"{float(track.sleeper_spacing):g}) m (track.sleeper_spacing)")
 

@@ -88,6 +88,34 @@ def sweep_figure(result, title: str | None = None, preload: float = 118e3):
     return fig
 
 
+def percentile_band_figure(result, preload: float = 118e3):
+    """Monte Carlo band: the max contact force [kN] over roughness realisations against
+    speed [km/h] for every flat: the 5-95 % band shaded, the 50, 95 and 99 % percentiles as
+    lines and the realisations' extremes dotted (:meth:`wfjax.SweepResult.percentiles`)."""
+    v = np.asarray(result.speeds) * 3.6
+    worst = np.max(np.asarray(result.realisation_max_force), axis=2) / 1e3  # [f, v, R]
+    pct = np.percentile(worst, [5, 50, 95, 99], axis=-1)
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for i, label in enumerate(result.flats):
+        color = f"C{i}"
+        ax.fill_between(v, pct[0, i], pct[2, i], color=color, alpha=0.2, lw=0,
+                        label=f"{label}: 5-95 %")
+        ax.plot(v, pct[1, i], "-o", color=color, mfc="none", label=f"{label}: median")
+        ax.plot(v, pct[2, i], "--", color=color, label=f"{label}: 95 %")
+        ax.plot(v, pct[3, i], "-.", color=color, label=f"{label}: 99 %")
+        ax.plot(v, worst[i].min(-1), ":", color=color, lw=0.8)
+        ax.plot(v, worst[i].max(-1), ":", color=color, lw=0.8)
+    ax.axhline(float(preload) / 1e3, color="k", lw=0.8, ls=":", label="static load")
+    ax.set_xlabel("train speed [km/h]")
+    ax.set_ylabel("max contact force [kN]")
+    ax.set_title(f"Max contact force over {worst.shape[-1]} roughness realisations "
+                 f"({result.contact} contact); dotted: min and max realisation")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 def force_history_figure(result, flat: Flat | None = None, preload: float = 118e3):
     """Contact force [kN] against wheel position relative to the impact [mm].
 

@@ -47,6 +47,36 @@ VEHICLE_FLAGS = {"vehicle": ("vehicle.preset", 1.0),
                  "flat_wheel": ("vehicle.flat_wheel", 1.0)}
 
 
+ROUGHNESS_FLAGS = {"roughness_csv": ("roughness.rail_csv", 1.0),
+                   "wheel_roughness_csv": ("roughness.wheel_csv", 1.0),
+                   "roughness": ("roughness.preset", 1.0),
+                   "realisations": ("roughness.realisations", 1.0),
+                   "seed": ("roughness.seed", 1.0),
+                   "void_sleepers": ("supports.void_sleepers", 1.0),
+                   "scatter_cv": ("supports.scatter_cv", 1.0)}
+
+
+def add_roughness_arguments(parser: argparse.ArgumentParser, monte_carlo: bool) -> None:
+    """Rail and wheel roughness and varying supports (docs/real_track.md); with
+    ``monte_carlo`` the realisation count (sweep)."""
+    parser.add_argument("--roughness-csv", metavar="FILE",
+                        help="rail roughness, columns x_m|x_mm,roughness_m|_mm|_um")
+    parser.add_argument("--wheel-roughness-csv", metavar="FILE",
+                        help="wheel roughness over one circumference (same columns)")
+    parser.add_argument("--roughness", choices=["none", "iso3095"],
+                        help="random rail roughness of the ISO 3095 limit spectrum "
+                             "(default none)")
+    if monte_carlo:
+        parser.add_argument("--realisations", type=int,
+                            help="Monte Carlo over this many roughness realisations "
+                                 "(percentiles in sweep_percentiles.csv; default 1)")
+    parser.add_argument("--seed", type=int, help="seed of the random roughness (default 0)")
+    parser.add_argument("--void-sleepers",
+                        help="hanging sleepers 'i,j,...' (n_bays // 2 - 1 is above x = 0)")
+    parser.add_argument("--scatter-cv", type=float,
+                        help="lognormal scatter of pad and ballast stiffness (cv, e.g. 0.3)")
+
+
 def add_vehicle_arguments(parser: argparse.ArgumentParser) -> None:
     """``--vehicle``, ``--axle-spacing-m``, ``--bogie-distance-m``, ``--wheel-positions-m``,
     ``--flat-wheel``: several wheels on the rail (docs/vehicle.md)."""
@@ -124,7 +154,7 @@ def flag_layer(args: argparse.Namespace, flags: dict[str, tuple[str, float]]) ->
         unit = "mm" if factor == 1e-3 else key.unit
         value = case_mod.check_value(key, value, "", factor, unit,
                                      name="--" + dest.replace("_", "-"))
-        if key.name in ("profile_csv", "data"):
+        if key.name in case_mod.PATH_KEYS:
             value = os.path.abspath(value)
         layer[path] = value
     return layer

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from ._common import (
+    ROUGHNESS_FLAGS,
     VEHICLE_FLAGS,
     add_case_arguments,
     add_out_argument,
+    add_roughness_arguments,
     add_vehicle_arguments,
     case_vehicle,
     check_finite,
@@ -23,7 +25,7 @@ HELP = "contact force history of one wheel-flat passage (CSV, JSON, PNG)"
 
 FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "speed_kmh": ("run.speed_kmh", 1.0),
          "impact_position_mm": ("run.impact_position", 1e-3), "sensors_m": ("run.sensors", 1.0),
-         **VEHICLE_FLAGS}
+         **VEHICLE_FLAGS, **ROUGHNESS_FLAGS}
 
 
 def add_arguments(parser) -> None:
@@ -31,11 +33,14 @@ def add_arguments(parser) -> None:
     add_profile_arguments(parser)
     parser.add_argument("--speed-kmh", type=float, help="train speed (default 100)")
     parser.add_argument("--impact-position-mm", type=float,
-                        help="impact position from a sleeper centre in mm, [0, 650) (default 0)")
+                        help="impact position from a sleeper centre in mm, [0, 650) (default 0); "
+                             "on a track whose supports vary an absolute rail coordinate "
+                             "(x = 0 above the middle sleeper)")
     parser.add_argument("--sensors-m",
                         help="rail sensor positions in m, 'x1,x2,...' (x = 0 at a sleeper): "
                              "their histories go to sensors.csv (docs/detector.md)")
     add_vehicle_arguments(parser)
+    add_roughness_arguments(parser, monte_carlo=False)
     add_model_arguments(parser)
     add_case_arguments(parser)
     add_out_argument(parser, "out/simulate")
@@ -48,12 +53,15 @@ def run(args) -> int:
 
     flat = case.flat()
     wheel, track, material, config = case.model()
+    track = case.supports(track)
+    rail_rough, wheel_rough = case.roughness(float(wheel.radius))
     contact, speed_kmh = case["run.contact"], case["run.speed_kmh"]
     sensors = sensor_positions(case, track)
     vehicle = case_vehicle(case, wheel)
     result = simulate(flat, speed_kmh / 3.6, contact=contact,
                       impact_position=case["run.impact_position"], wheel=wheel, track=track,
-                      material=material, config=config, sensors=sensors, vehicle=vehicle)
+                      material=material, config=config, sensors=sensors, vehicle=vehicle,
+                      roughness=rail_rough, wheel_roughness=wheel_rough)
     check_finite("simulate", force=result.force, wheel_disp=result.wheel_disp,
                  rail_disp=result.rail_disp)
     out = prepare_out(args.out)
@@ -65,7 +73,8 @@ def run(args) -> int:
     if flat.kind == "rounded":
         summary["length_mm"] = float(flat.length) * 1e3
     write_summary(out / "simulate.json", summary, case,
-                  {"profile_csv": case.get("flat.profile_csv")})
+                  {k: case.get(k) for k in ("flat.profile_csv", "roughness.rail_csv",
+                                            "roughness.wheel_csv")})
     if vehicle is None:
         figure = force_history_figure(result, flat, float(wheel.preload))
     else:

@@ -14,9 +14,11 @@ import time
 import numpy as np
 
 from ._common import (
+    ROUGHNESS_FLAGS,
     VEHICLE_FLAGS,
     add_case_arguments,
     add_out_argument,
+    add_roughness_arguments,
     add_speed_arguments,
     add_vehicle_arguments,
     case_vehicle,
@@ -40,7 +42,7 @@ FLAT_FLAGS = {"flat": ("flat.kind", 1.0), "depth_mm": ("flat.depth", MM),
               "profile_smoothing_mm": ("flat.profile_smoothing_mm", 1.0)}
 FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "length_factor": ("flat.length_factor", 1.0),
          "speeds_kmh": ("run.speeds_kmh", 1.0), "positions": ("run.impact_positions", 1.0),
-         **VEHICLE_FLAGS}
+         **VEHICLE_FLAGS, **ROUGHNESS_FLAGS}
 
 
 def parse_range_kmh(text: str) -> np.ndarray:
@@ -104,6 +106,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--wheel-radius-m", type=float, help=argparse_hide())
     add_speed_arguments(parser, "20:300:10", 10)
     add_vehicle_arguments(parser)
+    add_roughness_arguments(parser, monte_carlo=True)
     add_model_arguments(parser)
     add_case_arguments(parser)
     add_out_argument(parser, "out/sweep")
@@ -117,13 +120,15 @@ def argparse_hide():
 
 def run(args) -> int:
     case = resolve_case(args, "sweep", FLAGS)
-    from ..plotting import sweep_figure, sweep_wheels_figure
+    from ..plotting import percentile_band_figure, sweep_figure, sweep_wheels_figure
     from ..sweeps import sweep
 
     speeds = case.speeds()
     positions = case["run.impact_positions"]
     flats = case.flats()
     wheel, track, material, config = case.model()
+    track = case.supports(track)
+    rail_rough, wheel_rough = case.roughness(float(wheel.radius))
     contact = case["run.contact"]
     vehicle = case_vehicle(case, wheel)
     out = prepare_out(args.out)
@@ -132,16 +137,24 @@ def run(args) -> int:
           f"{case['config.precision']}")
     t0 = time.perf_counter()
     result = sweep(flats, speeds, positions, contact=contact, wheel=wheel, track=track,
-                   material=material, config=config, vehicle=vehicle)
+                   material=material, config=config, vehicle=vehicle, roughness=rail_rough,
+                   wheel_roughness=wheel_rough)
     elapsed = time.perf_counter() - t0
     check_finite("sweep", max_force=result.max_force, min_force=result.min_force)
     write_atomic(out / "sweep.csv", result.to_csv())
+    extra = ", sweep_wheels.png" if vehicle is not None else ""
+    if result.realisation_max_force is not None:
+        write_atomic(out / "sweep_percentiles.csv", result.percentiles_to_csv())
+        save_figure(percentile_band_figure(result, preload=float(wheel.preload)),
+                    out / "sweep_band.png")
+        extra += ", sweep_percentiles.csv, sweep_band.png"
     result.save_npz(out / "sweep.npz")
     summary = result.summary()
     summary["wall_time_s"] = elapsed
     summary["precision"] = case["config.precision"]
     write_summary(out / "sweep.json", summary, case,
-                  {"profile_csv": case.get("flat.profile_csv")})
+                  {k: case.get(k) for k in ("flat.profile_csv", "roughness.rail_csv",
+                                            "roughness.wheel_csv")})
     save_figure(sweep_figure(result, preload=float(wheel.preload)), out / "sweep.png")
     if vehicle is not None:
         save_figure(sweep_wheels_figure(result, preload=float(wheel.preload)),
@@ -156,7 +169,11 @@ def run(args) -> int:
         print(f"  wheel {w} ({row['position_m']:g} m behind the leading): peak max force "
               f"{row['peak_max_force_kN']:.1f} kN, lowest min {row['lowest_min_force_kN']:.1f} "
               f"kN, axle-box acceleration up to {row['peak_axle_acc_m_s2']:.0f} m/s^2")
-    extra = ", sweep_wheels.png" if vehicle is not None else ""
+    for label, pct in summary.get("max_force_percentiles_kN", {}).items():
+        j = int(np.argmax(pct["p95"]))
+        print(f"  {label}: over {summary['realisations']} roughness realisations, max force "
+              f"p50/p95/p99 {pct['p50'][j]:.1f} / {pct['p95'][j]:.1f} / {pct['p99'][j]:.1f} kN "
+              f"at {speeds[j] * 3.6:.0f} km/h")
     print(f"  {elapsed:.1f} s; wrote {out}/sweep.csv, sweep.json, sweep.npz, sweep.png{extra}, "
           "case.toml")
     return 0
