@@ -1,6 +1,7 @@
 """Roughness in the time loop and Monte Carlo over its realisations (issue 18)."""
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -163,3 +164,49 @@ def test_bad_roughness_inputs_are_refused():
 def test_static_contact_length_is_the_hertz_patch():
     length = float(wf.interaction.loop_roughness(_sine(1e-6)).contact_length[0])
     assert 10e-3 < length < 14e-3
+
+
+def test_cli_monte_carlo_writes_percentiles_and_the_band(tmp_path, capsys):
+    from wfjax.cli import main
+
+    out = tmp_path / "mc"
+    assert main(["sweep", "--flat", "rounded", "--contact", "hertz-trajectory",
+                 "--speeds-kmh", "80,120", "--positions", "1", "--roughness", "iso3095",
+                 "--realisations", "3", "--seed", "2", "--out", str(out)]) == 0
+    rows = (out / "sweep_percentiles.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[0].split(",")[-3:] == [
+        "p50_max_force_kN", "p95_max_force_kN", "p99_max_force_kN"]
+    summary = json.loads((out / "sweep.json").read_text())
+    assert summary["realisations"] == 3
+    assert summary["case"]["roughness"]["preset"] == "iso3095"
+    assert (out / "sweep_band.png").stat().st_size > 0
+    assert "p50/p95/p99" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--roughness-csv", "missing.csv"], ["missing.csv"]),
+    (["--roughness-csv", "BAD"], ["roughness_um", "1 mm"]),
+    (["--void-sleepers", "99"], ["[supports]", "99"]),
+    (["--realisations", "0"], ["--realisations", "[1, 100000]"]),
+])
+def test_bad_roughness_and_support_flags_fail_before_work(tmp_path, capsys, monkeypatch, argv,
+                                                         words):
+    from wfjax import interaction, sweeps
+    from wfjax.cli import main
+
+    def boom(*args, **kwargs):
+        raise AssertionError("a simulation ran")
+
+    monkeypatch.setattr(sweeps, "sweep", boom)
+    monkeypatch.setattr(interaction, "simulate", boom)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x_mm,roughness_um\n0,1\n0.25,2\n0.5,5000\n0.75,1\n")  # 5 mm: absurd
+    argv = [str(bad) if a == "BAD" else a for a in argv]
+    out = tmp_path / "out"
+    assert main(["sweep", "--contact", "hertz-trajectory", "--speeds-kmh", "80",
+                 "--positions", "1", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    for w in words:
+        assert w in err[0], (w, err[0])
+    assert not out.exists()
