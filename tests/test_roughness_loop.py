@@ -210,3 +210,25 @@ def test_bad_roughness_and_support_flags_fail_before_work(tmp_path, capsys, monk
     for w in words:
         assert w in err[0], (w, err[0])
     assert not out.exists()
+
+
+@pytest.mark.slow  # three modal models and three compiles of the loop: ~50 s on 2 cores
+def test_support_realisations_share_one_compile_and_equal_a_loop():
+    base = wf.Track(n_bays=20)
+    tracks = [supports.scatter(base, key=k, cv=0.3) for k in range(3)]
+    models = wf.sweeps.padded_models(tracks, wf.SimConfig())
+    counts = [int(wf.track.modal_model(t, max_frequency=wf.SimConfig().track_max_frequency)
+                  .poles.shape[0]) for t in tracks]
+    assert models.poles.shape[:2] == (3, max(counts))
+    rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 5, 4.0, x_start=-2.0,
+                               n_realisations=3)
+    res = wf.sweep(ROUNDED, [V], impact_positions=[0.1], contact="hertz-trajectory",
+                   tracks=tracks, roughness=rough, progress=False)
+    loop = [float(wf.simulate(ROUNDED, V, contact="hertz-trajectory", impact_position=0.1,
+                              track=tr,
+                              roughness=dataclasses.replace(rough, values=rough.values[r])
+                              ).max_force) for r, tr in enumerate(tracks)]
+    assert np.asarray(res.realisation_max_force)[0, 0, 0] == pytest.approx(loop, rel=1e-9)
+    with pytest.raises(ValueError, match="must be as many"):
+        wf.sweep(ROUNDED, [V], impact_positions=[0.1], contact="hertz-trajectory",
+                 tracks=tracks[:2], roughness=rough, progress=False)

@@ -283,6 +283,9 @@ _OTHER_KEYS = [
             "(0: none)", commands=_MODEL_CMDS_EARLY),
     Key("supports", "scatter_seed", "int", "", 0, 2**31 - 1,
         doc="seed of the support scatter", commands=_MODEL_CMDS_EARLY),
+    Key("supports", "realisations", "int", "", 1, 10000,
+        doc="support scatter realisations (sweep: Monte Carlo, seeds scatter_seed + k, one "
+            "modal model each; with random roughness: as many)", commands=("sweep",)),
     Key("fit", "data", "str", doc="measured CSV (speed_kmh,max_force_kN or t_s,force_kN); "
         "relative to the case file", commands=("fit",)),
     Key("fit", "example", "bool", doc="fit the embedded synthetic dataset instead of data",
@@ -527,6 +530,8 @@ def default_layer(command: str) -> dict:
     if command in _MODEL_CMDS_EARLY:
         layer.update({"supports.void_remaining": 0.0, "supports.scatter_cv": 0.0,
                       "supports.scatter_seed": 0})
+    if command == "sweep":
+        layer["supports.realisations"] = 1
     if command in _VEHICLE_CMDS:
         layer.update({"vehicle.preset": "single", "vehicle.axle_spacing": 2.5,
                       "vehicle.bogie_distance": 17.5, "vehicle.flat_wheel": 0})
@@ -689,9 +694,21 @@ class Case:
             raise CaseError(str(exc)) from None
         return None if vehicle.n_wheels == 1 else vehicle
 
-    def supports(self, track: P.Track) -> P.Track:
+    def support_realisations(self, track: P.Track) -> list[P.Track] | None:
+        """``supports.realisations`` > 1: that many scattered tracks (seeds ``scatter_seed +
+        k``) for :func:`wfjax.sweep`'s ``tracks``; None otherwise."""
+        n = int(self.values.get("supports.realisations", 1))
+        if n == 1:
+            return None
+        if float(self.values.get("supports.scatter_cv", 0.0)) <= 0:
+            raise CaseError(f"supports.realisations = {n}: needs supports.scatter_cv > 0")
+        seed = int(self.values.get("supports.scatter_seed", 0))
+        return [self.supports(track, seed=seed + k) for k in range(n)]
+
+    def supports(self, track: P.Track, seed: int | None = None) -> P.Track:
         """``track`` with the case's void sleepers and support scatter
-        (:func:`wfjax.supports.void_sleeper`, :func:`wfjax.supports.scatter`)."""
+        (:func:`wfjax.supports.void_sleeper`, :func:`wfjax.supports.scatter`; ``seed``
+        replaces ``supports.scatter_seed``)."""
         from . import supports as S
 
         try:
@@ -704,8 +721,8 @@ class Case:
                                        remaining=self.values.get("supports.void_remaining", 0.0))
             cv = float(self.values.get("supports.scatter_cv", 0.0))
             if cv > 0:
-                track = S.scatter(track, key=int(self.values.get("supports.scatter_seed", 0)),
-                                  cv=cv)
+                key = int(self.values.get("supports.scatter_seed", 0)) if seed is None else seed
+                track = S.scatter(track, key=key, cv=cv)
         except ValueError as exc:
             raise CaseError(f"[supports]: {exc}") from None
         return track

@@ -558,8 +558,8 @@ def static_contact_length(preload, material, radius) -> float:
     """Hertz contact length 2a [m] under the static wheel load (the contact filter's length).
 
     ``a = sqrt(R delta)`` with ``delta = (P / C_H)^(2/3)`` (equal radii ``R``; the time loop's
-    Hertz radius ``sqrt(R_W R_R)``): 13.1 mm for 118 kN with R_W = 0.45 m, R_R = 0.30 m. The filter keeps
-    this length through the run (see ``docs/real_track.md``: a load-dependent length would
+    Hertz radius ``sqrt(R_W R_R)``): 13.1 mm for 118 kN with R_W = 0.45 m, R_R = 0.30 m.
+    The filter keeps this length through the run (see ``docs/real_track.md``: a load-dependent length would
     make the input depend on the step's unknown force; ``a`` changes with ``F^(1/3)``).
 
     Args:

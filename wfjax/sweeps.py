@@ -303,6 +303,8 @@ def _realisation(rough, index):
 def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, speed, dt,
             x_start, impact_position, run_in_steps, realisation):
     batched, others = laws
+    if extras.get("tracks") is not None:  # support realisations: this run's modal model
+        struct = struct._replace(track=_pick_model(extras["tracks"], realisation))
     law = jax.tree.map(lambda a: a[flat_index], batched)
     if others is not None:  # a vehicle: the swept flat's law on its wheel, the others fixed
         law = tuple(law if o is None else o for o in others)
@@ -410,7 +412,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
           material: Material | None = None, config: SimConfig | None = None,
           chunk_size: int | None = None, progress: bool = True, cache_dir=None, sensors=None,
           detector=None, sensor_quantities=QUANTITIES, vehicle=None, roughness=None,
-          wheel_roughness=None) -> SweepResult:
+          wheel_roughness=None, tracks=None) -> SweepResult:
     """Max/min contact force for every flat x speed x impact position.
 
     Args:
@@ -438,6 +440,12 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             x position runs on every realisation.
         wheel_roughness: wheel roughness (periodic), ``values [n]`` or ``[R, n]`` (the same
             R as ``roughness``'s when both are batched).
+        tracks: support realisations, a sequence of R :class:`Track` (e.g.
+            ``[supports.scatter(track, key=k) for k in range(R)]``; replaces ``track``): one
+            modal model each (cached), padded to a common mode count (zero-weight modes) so
+            one compile serves them; realisation r runs on ``tracks[r]`` (and on roughness
+            realisation r when the roughness is batched too: the same R). Not with a
+            vehicle, sensors or a detector.
 
     Returns:
         :class:`SweepResult` with arrays shaped [n_flats, n_speeds, n_positions]: with
@@ -465,16 +473,33 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     if detector is not None:
         config = detector_config(detector, track, config)
+    models = None
+    if tracks is not None:
+        tracks = list(tracks)
+        if not tracks or vehicle is not None or sensors is not None or detector is not None:
+            raise ValueError("tracks (support realisations) must be a non-empty sequence of "
+                             "Track, and cannot be combined with a vehicle, sensors or a "
+                             "detector")
+        track = tracks[0]
+        models = padded_models(tracks, config, cache_dir)
     mesh = _device_mesh()
     fleet = _Fleet.of(vehicle, wheel, flat_list, contact, track, material, config, v,
                       cache_dir)
     struct_host = fleet.struct if vehicle is not None else structure(wheel, track, config,
                                                                       cache_dir)
+    if models is not None:
+        struct_host = struct_host._replace(track=_pick_model(models, 0))
     struct = _replicate(struct_host, mesh)
     rough, n_real = _sweep_roughness(roughness, wheel_roughness, vehicle, wheel, track,
                                      material)
+    if models is not None:
+        if rough is not None and n_real > 1 and n_real != len(tracks):
+            raise ValueError(f"roughness realisations ({n_real}) and support realisations "
+                             f"(tracks: {len(tracks)}) must be as many when both are given")
+        n_real = len(tracks)
     extras = _replicate(_sensor_extras(sensors, sensor_quantities, detector, track,
-                                       struct_host.track) | {"roughness": rough}, mesh)
+                                       struct_host.track)
+                        | {"roughness": rough, "tracks": models}, mesh)
     others = None if vehicle is None else _replicate(fleet.others, mesh)
     keys = ["max", "min", "lost", "lost_t", "res", "acc"] + [
         k for k, on in (("w_max", vehicle is not None), ("w_min", vehicle is not None),
@@ -501,13 +526,14 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
                           _Progress(len(members) * v.size * pos.size * n_real, label,
                                     enabled=progress), n_real)
         for key, col in zip(keys, cols, strict=True):
-            if rough is not None and key in ("max", "min"):
+            batch = rough is not None or models is not None
+            if batch and key in ("max", "min"):
                 out.setdefault("r_" + key, np.zeros((len(flat_list),) + col.shape[1:]))[
                     group] = col
-            col = _over_realisations(key, col) if rough is not None else col[:, :, :, 0]
+            col = _over_realisations(key, col) if batch else col[:, :, :, 0]
             out.setdefault(key, np.zeros((len(flat_list),) + col.shape[1:]))[group] = col
     det = {"axle_acc_peak": out["acc"]}
-    if rough is not None:
+    if rough is not None or models is not None:
         det |= {"realisation_max_force": out["r_max"], "realisation_min_force": out["r_min"]}
     if detector is not None:
         loads = fleet.preloads[:, None] if vehicle is not None else float(wheel.preload)
@@ -736,6 +762,59 @@ def _sweep_roughness(rail, wheel, vehicle, wheel_model, track, material):
     wheels = None if vehicle is None else vehicle.wheel_list(wheel_model or Wheel())
     rough = loop_roughness(rail, wheel, wheels or [wheel_model or Wheel()], track, material)
     return rough, counts.pop() if counts else 1
+
+
+def padded_models(tracks, config: SimConfig, cache_dir=None):
+    """The modal models of support realisations ``tracks`` [R] stacked along a leading axis,
+    every one padded to the largest mode count with zero-weight, zero-shape modes (pole -1
+    rad/s: they carry no load and add nothing), so one compiled program serves them.
+
+    The rails must share their mesh and residual table layout (same ``n_bays``,
+    ``elements_per_bay``, ``sleeper_spacing``; all uniform or all varying supports).
+
+    Returns:
+        :class:`wfjax.track.ModalModel` with array fields [R, ...] (``sleeper_spacing`` and
+        ``element_phi`` shared).
+    """
+    from . import track as track_mod
+
+    models = [track_mod.modal_model(tr, max_frequency=config.track_max_frequency,
+                                    cache_dir=cache_dir) for tr in tracks]
+    first = models[0]
+    for i, m in enumerate(models):
+        if (m.node_x.shape != first.node_x.shape or m.residual_x.shape != first.residual_x.shape
+                or float(m.sleeper_spacing) != float(first.sleeper_spacing)
+                or not np.allclose(np.asarray(m.residual_x), np.asarray(first.residual_x))):
+            raise ValueError(f"tracks[{i}]: support realisations must share the rail mesh and "
+                             f"residual table of tracks[0] (n_bays, elements_per_bay, "
+                             f"sleeper_spacing; all uniform or all varying supports)")
+    n = max(int(m.poles.shape[0]) for m in models)
+
+    def pad(a, fill):
+        a = np.asarray(a)
+        extra = np.full((n - a.shape[0],) + a.shape[1:], fill, dtype=a.dtype)
+        return np.concatenate([a, extra])
+
+    def stack(name, fill):
+        return jnp.asarray(np.stack([pad(getattr(m, name), fill) for m in models]))
+
+    sleeper = (None if first.sleeper_shapes is None else stack("sleeper_shapes", 0.0))
+    return first._replace(
+        poles=stack("poles", -1.0 + 0j), weights=stack("weights", 0.0),
+        shapes=stack("shapes", 0.0), sleeper_shapes=sleeper,
+        node_x=jnp.asarray(np.stack([np.asarray(m.node_x) for m in models])),
+        residual_x=jnp.asarray(np.stack([np.asarray(m.residual_x) for m in models])),
+        residual=jnp.asarray(np.stack([np.asarray(m.residual) for m in models])))
+
+
+_MODEL_BATCHED = ("poles", "weights", "shapes", "sleeper_shapes", "node_x", "residual_x",
+                  "residual")
+
+
+def _pick_model(models, index):
+    """Realisation ``index`` of :func:`padded_models`' stack."""
+    return models._replace(**{k: getattr(models, k)[index] for k in _MODEL_BATCHED
+                              if getattr(models, k) is not None})
 
 
 def check_impact_positions(positions, track: Track) -> np.ndarray:

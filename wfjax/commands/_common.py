@@ -53,7 +53,8 @@ ROUGHNESS_FLAGS = {"roughness_csv": ("roughness.rail_csv", 1.0),
                    "realisations": ("roughness.realisations", 1.0),
                    "seed": ("roughness.seed", 1.0),
                    "void_sleepers": ("supports.void_sleepers", 1.0),
-                   "scatter_cv": ("supports.scatter_cv", 1.0)}
+                   "scatter_cv": ("supports.scatter_cv", 1.0),
+                   "support_realisations": ("supports.realisations", 1.0)}
 
 
 def add_roughness_arguments(parser: argparse.ArgumentParser, monte_carlo: bool) -> None:
@@ -75,6 +76,10 @@ def add_roughness_arguments(parser: argparse.ArgumentParser, monte_carlo: bool) 
                         help="hanging sleepers 'i,j,...' (n_bays // 2 - 1 is above x = 0)")
     parser.add_argument("--scatter-cv", type=float,
                         help="lognormal scatter of pad and ballast stiffness (cv, e.g. 0.3)")
+    if monte_carlo:
+        parser.add_argument("--support-realisations", type=int,
+                            help="Monte Carlo over this many support scatter realisations "
+                                 "(one modal model each; default 1)")
 
 
 def add_vehicle_arguments(parser: argparse.ArgumentParser) -> None:

@@ -127,6 +127,7 @@ def run(args) -> int:
     positions = case["run.impact_positions"]
     flats = case.flats()
     wheel, track, material, config = case.model()
+    tracks = case.support_realisations(track)
     track = case.supports(track)
     rail_rough, wheel_rough = case.roughness(float(wheel.radius))
     contact = case["run.contact"]
@@ -138,7 +139,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     result = sweep(flats, speeds, positions, contact=contact, wheel=wheel, track=track,
                    material=material, config=config, vehicle=vehicle, roughness=rail_rough,
-                   wheel_roughness=wheel_rough)
+                   wheel_roughness=wheel_rough, tracks=tracks)
     elapsed = time.perf_counter() - t0
     check_finite("sweep", max_force=result.max_force, min_force=result.min_force)
     write_atomic(out / "sweep.csv", result.to_csv())
