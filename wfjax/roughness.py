@@ -559,8 +559,9 @@ def static_contact_length(preload, material, radius) -> float:
 
     ``a = sqrt(R delta)`` with ``delta = (P / C_H)^(2/3)`` (equal radii ``R``; the time loop's
     Hertz radius ``sqrt(R_W R_R)``): 13.1 mm for 118 kN with R_W = 0.45 m, R_R = 0.30 m.
-    The filter keeps this length through the run (see ``docs/real_track.md``: a load-dependent length would
-    make the input depend on the step's unknown force; ``a`` changes with ``F^(1/3)``).
+    The filter keeps this length through the run (see ``docs/real_track.md``: a
+    load-dependent length would make the input depend on the step's unknown force; ``a``
+    changes with ``F^(1/3)``).
 
     Args:
         preload: P [N] (scalar or [n_wheels]). material: :class:`wfjax.Material`.
