@@ -232,3 +232,19 @@ def test_support_realisations_share_one_compile_and_equal_a_loop():
     with pytest.raises(ValueError, match="must be as many"):
         wf.sweep(ROUNDED, [V], impact_positions=[0.1], contact="hertz-trajectory",
                  tracks=tracks[:2], roughness=rough, progress=False)
+
+
+def test_every_wheel_of_a_vehicle_rolls_on_the_rough_rail():
+    from wfjax.vehicle import Vehicle
+
+    bogie = Vehicle.bogie()
+    kw = dict(contact="2d", impact_position=0.1, vehicle=bogie)
+    plain = wf.simulate(wf.Flat.none(), V, **kw)
+    zero = wf.simulate(wf.Flat.none(), V, roughness=_sine(0.0), **kw)
+    rough = wf.simulate(wf.Flat.none(), V, roughness=_sine(1e-6), **kw)
+    f0, fz, fr = (np.asarray(r.wheel_force) for r in (plain, zero, rough))
+    assert np.max(np.abs(fz - f0)) <= 1e-9 * np.max(f0)
+    late = np.asarray(plain.t) >= 0.01
+    for i in range(2):  # each wheel sees the 1 um sinusoid: ~170 N of force change
+        change = 0.5 * np.ptp((fr - f0)[late, i])
+        assert 100.0 < change < 300.0, (i, change)
