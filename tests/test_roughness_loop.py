@@ -161,6 +161,16 @@ def test_bad_roughness_inputs_are_refused():
                  roughness=two, wheel_roughness=three, progress=False)
 
 
+def test_a_rail_profile_shorter_than_the_run_is_refused():
+    short = rough_mod.Roughness(0.0, DX, np.zeros(400))  # 0.1 m
+    with pytest.raises(ValueError, match="covers x in"):
+        wf.simulate(ROUNDED, V, contact="hertz-trajectory", impact_position=0.1,
+                    roughness=short)
+    with pytest.raises(ValueError, match="covers x in"):
+        wf.sweep(ROUNDED, [V], impact_positions=[0.1], contact="hertz-trajectory",
+                 roughness=short, progress=False)
+
+
 def test_static_contact_length_is_the_hertz_patch():
     length = float(wf.interaction.loop_roughness(_sine(1e-6)).contact_length[0])
     assert 10e-3 < length < 14e-3
@@ -248,3 +258,13 @@ def test_every_wheel_of_a_vehicle_rolls_on_the_rough_rail():
     for i in range(2):  # each wheel sees the 1 um sinusoid: ~170 N of force change
         change = 0.5 * np.ptp((fr - f0)[late, i])
         assert 100.0 < change < 300.0, (i, change)
+
+
+@pytest.mark.slow  # two direct 3D runs: a Kalker solve per Newton iterate near the flat
+def test_direct_3d_mode_with_zero_roughness_is_unchanged():
+    config = wf.SimConfig(contact_mode_3d="direct")
+    kw = dict(contact="3d", impact_position=0.1, track=wf.Track.comparison(), config=config)
+    plain = wf.simulate(ROUNDED, V, **kw)
+    zero = wf.simulate(ROUNDED, V, roughness=_sine(0.0), **kw)
+    want = np.asarray(plain.force)
+    assert np.max(np.abs(np.asarray(zero.force) - want)) <= 1e-9 * want.max()

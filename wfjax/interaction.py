@@ -78,6 +78,7 @@ __all__ = [
     "vehicle_laws",
     "solve_contacts",
     "loop_roughness",
+    "check_rail_span",
 ]
 
 RUN_IN_TIME = 0.02  # s of travel before the flat's window, from static equilibrium
@@ -687,6 +688,8 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
     det_spec = (None if detector is None
                 else sensor_mod.detector_spec(detector, track, struct.track))
     rough = loop_roughness(roughness, wheel_roughness, wheels, track, material)
+    offsets = np.zeros(1) if vehicle is None else vehicle.offsets()
+    check_rail_span(roughness, x_abs + s_start + offsets.min(), x_abs + s_end + offsets.max())
     hist = run_scan(law, struct, v, dt, x_abs + s_start, x_abs, int(n_steps),
                     config.newton_iterations, sensors=sensor_spec, detector=det_spec,
                     run_in_steps=run_in_steps, precision=config.precision, roughness=rough)
@@ -731,6 +734,20 @@ def loop_roughness(rail=None, wheel=None, wheels=None, track: Track | None = Non
     length = np.array([float(rough_mod.static_contact_length(
         float(w.preload), material, float(hertz_radius(w, track)))) for w in wheels])
     return rough_mod.LoopRoughness(rail, wheel, jnp.asarray(length))
+
+
+def check_rail_span(rail, x_lo: float, x_hi: float) -> None:
+    """One-line ``ValueError`` unless the rail roughness ``rail`` (or None) covers every
+    contact position of the run, ``[x_lo, x_hi]`` [m] (a profile holds its end values
+    beyond its span: the run would see a constant there)."""
+    if rail is None:
+        return
+    x0 = float(np.asarray(rail.x_start))
+    x1 = x0 + float(np.asarray(rail.spacing)) * (np.shape(rail.values)[-1] - 1)
+    if x_lo < x0 - 1e-9 or x_hi > x1 + 1e-9:
+        raise ValueError(f"roughness covers x in [{x0:.4g}, {x1:.4g}] m but the run's contacts "
+                         f"reach [{x_lo:.4g}, {x_hi:.4g}] m: give a profile over at least that "
+                         f"span (x_start, length)")
 
 
 def vehicle_window_flat(vehicle, flats: list[Flat]) -> Flat:

@@ -44,6 +44,7 @@ from ._parallel import map_per_core
 from .contact.laws import CONTACT_MODELS, cached_table_3d, prepare, prepare_family, resolve_mode_3d
 from .interaction import (
     batch_windows,
+    check_rail_span,
     detector_config,
     run_scan,
     simulation_window,
@@ -521,6 +522,12 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
                                           cache_dir, progress)
         if vehicle is not None:
             window_flat = fleet.window_flat(window_flat)
+        if roughness is not None:
+            _, _, s0_v, _ = batch_windows(window_flat, v, config)
+            s1 = max(simulation_window(window_flat, float(speed), config)[1] for speed in v)
+            offs = np.zeros(1) if vehicle is None else vehicle.offsets()
+            check_rail_span(roughness, float(pos.min() + fleet.shift + s0_v.min() + offs.min()),
+                            float(pos.max() + fleet.shift + s1 + offs.max()))
         cols = _run_group((_replicate(laws, mesh), others), struct, extras, window_flat,
                           len(members), v, pos + fleet.shift, config, mesh, chunk_size,
                           _Progress(len(members) * v.size * pos.size * n_real, label,
