@@ -33,6 +33,7 @@ from .params import Track as Track
 from .params import Wheel as Wheel
 from .params import kmh as kmh
 from .params import mm as mm
+from .roughness import Roughness as Roughness
 from .sweeps import SweepResult as SweepResult
 from .sweeps import sweep as sweep
 from .track import ModalModel as ModalModel
