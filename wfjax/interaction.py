@@ -295,7 +295,17 @@ def _pointwise(law: ContactLaw) -> bool:
     return type(law).step is ContactLaw.step
 
 
-def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int):
+def law_groups(laws: tuple) -> tuple:
+    """Indices of the wheels that share one law object (e.g. every smooth wheel of a vehicle):
+    each group's law is evaluated once, ``vmap``-ed over its wheels."""
+    groups: dict[int, list[int]] = {}
+    for i, law in enumerate(laws):
+        groups.setdefault(id(law), []).append(i)
+    return tuple(tuple(g) for g in groups.values())
+
+
+def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int,
+                   groups: tuple | None = None):
     """The step's n-contact equation delta = delta_free - C F(delta) for every contact law.
 
     One wheel: the law's own :meth:`ContactLaw.step`. Several wheels with point laws (every
@@ -309,6 +319,8 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
         laws: [n] prepared contact laws. delta_free: [n] approaches if F were 0 [m].
         compliance: C [n, n] [m/N]. s: [n] flat positions [m]. states: [n] law states.
         max_iter: Newton iteration cap (static).
+        groups: :func:`law_groups` of ``laws`` (wheels that share a law; default: each
+            wheel its own).
 
     Returns:
         (delta [n] m, F [n] N, |r| [n] m, states).
@@ -318,16 +330,21 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
         delta, f, r, state = law.step(delta_free[0], compliance[0, 0], s[0], state, max_iter)
         return delta[None], f[None], r[None], (state,)
     if all(_pointwise(law) for law in laws):
-        frozen = jax.lax.stop_gradient(laws)
-        points = [law.point(si) for law, si in zip(laws, s, strict=True)]
+        groups = groups or tuple((i,) for i in range(len(laws)))
+        order = np.argsort(np.concatenate([np.asarray(g) for g in groups]))
+        reps = tuple(laws[g[0]] for g in groups)
+        frozen = jax.lax.stop_gradient(reps)
+        points = [jax.vmap(law.point)(s[np.asarray(g)])
+                  for law, g in zip(reps, groups, strict=True)]
         points_ng = jax.lax.stop_gradient(points)
 
         def forces(ls, ps, delta):
-            return jnp.stack([law.point_force(p, delta[i])
-                              for i, (law, p) in enumerate(zip(ls, ps, strict=True))])
+            parts = [jax.vmap(law.point_force)(p, delta[np.asarray(g)])
+                     for law, p, g in zip(ls, ps, groups, strict=True)]
+            return jnp.concatenate(parts)[order]
 
         delta, f, r = solve_contact_system(
-            lambda d: forces(laws, points, d), delta_free, compliance, max_iter,
+            lambda d: forces(reps, points, d), delta_free, compliance, max_iter,
             loop_force_fn=lambda d: forces(frozen, points_ng, d))
         return delta, f, r, states
     return _gauss_seidel(laws, delta_free, compliance, s, states, max_iter)
@@ -400,6 +417,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     """
     single = not isinstance(law, tuple)
     laws = (law,) if single else law
+    groups = law_groups(laws)  # before the precision cast, which copies every law
     n_wheels = len(laws)
     wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))
     coefficients = (discrete_step_coefficients(struct.track.poles, dt),
@@ -484,7 +502,8 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         xi_w_free = (xi_w_ref - jnp.real(jnp.sum(wheel_res * p_hat, axis=-1))
                      + c_wheel * preload)
         delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free,
-                                             jnp.diag(c_wheel) + c_rail, s, states, max_iter)
+                                             jnp.diag(c_wheel) + c_rail, s, states, max_iter,
+                                             groups)
         load = _loads(f, phi)
         q_new = q_hat + an_r * load
         p_new = p_hat + an_w * (f - preload)[:, None]
