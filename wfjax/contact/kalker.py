@@ -244,37 +244,44 @@ def _dot(a, b):
     return jnp.sum(a * b)
 
 
-def _cg(op, b, x0, mask, tol, max_iter, prec=None):
+def _cg(op, b, x0, mask, tol, max_iter, prec=None, u0=None):
     """Solve C_AA x_A = b_A (x = 0 off A) by preconditioned CG from x0.
 
     ``prec`` (default identity) approximates C^-1 on the whole grid; it is applied as
     mask * prec(mask * r), symmetric positive on the active set. The stopping test is on the
-    unpreconditioned residual |r| <= tol |b_A| either way. Returns (x, iterations, converged).
+    unpreconditioned residual |r| <= tol |b_A| either way. The displacement u = op(x) on the
+    whole grid is carried along (u += alpha op(d)), so the caller need not apply the operator
+    again; ``u0`` = op(x0) when the caller has it (saves the starting application). The
+    preconditioner is applied at the top of each iteration, so none is spent on the final
+    residual. Returns (x, iterations, converged, u).
     """
     prec = _identity if prec is None else prec
     x = mask * x0
-    r = mask * (b - op(x))
-    z = mask * prec(r)
+    u = op(x) if u0 is None else u0
+    r = mask * (b - u)
     bb = _dot(mask * b, mask * b)
     thresh = tol**2 * bb
 
     def cond(s):
-        return (s[4] > thresh) & (s[5] < max_iter)
+        return (s[5] > thresh) & (s[6] < max_iter)
 
     def body(s):
-        x, r, d, rz, _, k = s
-        ad = mask * op(d)
-        alpha = rz / _dot(d, ad)
-        x = x + alpha * d
-        r = r - alpha * ad
+        x, u, r, d, rz, _, k = s
         z = mask * prec(r)
         rz_new = _dot(r, z)
-        d = z + (rz_new / rz) * d
-        return x, r, d, rz_new, _dot(r, r), k + 1
+        d = z + (rz_new / rz) * d  # d = 0 on entry: the first direction is z
+        od = op(d)
+        ad = mask * od
+        alpha = rz_new / _dot(d, ad)
+        x = x + alpha * d
+        u = u + alpha * od
+        r = r - alpha * ad
+        return x, u, r, d, rz_new, _dot(r, r), k + 1
 
-    x, _, _, _, rr, k = jax.lax.while_loop(cond, body,
-                                           (x, r, z, _dot(r, z), _dot(r, r), jnp.int32(0)))
-    return x, k, rr <= thresh
+    one = jnp.ones((), r.dtype)
+    x, u, _, _, _, rr, k = jax.lax.while_loop(
+        cond, body, (x, u, r, jnp.zeros_like(r), one, _dot(r, r), jnp.int32(0)))
+    return x, k, rr <= thresh, u
 
 
 def _identity(v):
@@ -300,26 +307,26 @@ def _cg_fixed_sum(op, g, total, x0, mask, tol, max_iter, prec=None):
     x = x + mask * (total - jnp.sum(x)) / n
     cx = op(x)
     r = proj(-g - cx)
-    z = proj(prec(r))
     ref = _dot(mask * cx, mask * cx) + _dot(proj(g), proj(g))
     thresh = tol**2 * ref
 
     def cond(s):
         return (s[4] > thresh) & (s[5] < max_iter)
 
-    def body(s):
+    def body(s):  # as in _cg: the preconditioner at the top, none on the final residual
         x, r, d, rz, _, k = s
-        cd = op(d)
-        alpha = rz / _dot(d, cd)
-        x = x + alpha * d
-        r = r - alpha * proj(cd)
         z = proj(prec(r))
         rz_new = _dot(r, z)
         d = z + (rz_new / rz) * d
+        cd = op(d)
+        alpha = rz_new / _dot(d, cd)
+        x = x + alpha * d
+        r = r - alpha * proj(cd)
         return x, r, d, rz_new, _dot(r, r), k + 1
 
-    x, _, _, _, rr, k = jax.lax.while_loop(cond, body,
-                                           (x, r, z, _dot(r, z), _dot(r, r), jnp.int32(0)))
+    one = jnp.ones((), r.dtype)
+    x, _, _, _, rr, k = jax.lax.while_loop(
+        cond, body, (x, r, jnp.zeros_like(r), one, _dot(r, r), jnp.int32(0)))
     mu = jnp.sum(mask * (op(x) + g)) / n
     return x, mu, k, rr <= thresh
 
@@ -361,7 +368,7 @@ def _attach_approach_fwd(cfg, g, delta, q_star, maskf):
 
 def _attach_approach_bwd(cfg, res, q_bar):
     maskf, g, delta = res
-    lam, _, _ = _cg(cfg.op(), maskf * q_bar, jnp.zeros_like(q_bar), maskf, cfg.tol,
+    lam, _, _, _ = _cg(cfg.op(), maskf * q_bar, jnp.zeros_like(q_bar), maskf, cfg.tol,
                     cfg.cg_max_iter, cfg.prec())
     return (-lam, jnp.sum(lam).astype(jnp.result_type(delta)), jnp.zeros_like(q_bar),
             jnp.zeros_like(maskf))
@@ -444,28 +451,31 @@ def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_i
     """Outer active-set loop on q = p / E*. Returns (q, mask, delta, u, outer, cg, ok).
 
     Inexact-Newton flavour: while the active set still changes, CG stops at the loose
-    tolerance ``LOOSE_TOL`` (the set update only needs the sign pattern); once the set is
-    stable the CG tightens to ``cfg.tol`` and the set is checked again.
+    tolerance ``LOOSE_TOL`` (the set update only needs the sign pattern); once the set has
+    been stable once, the CG stays at ``cfg.tol`` and the set is checked again after every
+    solve. Under approach control the displacement u = C q comes out of the CG; admitting
+    elements (q = 0 there) leaves it unchanged, and only releasing elements costs an operator
+    application, so an outer iteration costs its CG iterations and little more.
     """
     op, prec = cfg.op(), cfg.prec()
     loose = max(cfg.tol, LOOSE_TOL)
     gmin = jnp.min(g)
 
-    def inner(q, mask, delta, tol):
+    def inner(q, u, mask, delta, tol):
         if force_mode:
             q, delta, k, ok = _cg_fixed_sum(op, g, target, q, mask, tol, cfg.cg_max_iter,
                                             prec)
+            u = op(q)
         else:
-            q, k, ok = _cg(op, delta - g, q, mask, tol, cfg.cg_max_iter, prec)
-        return q, delta, k, ok
+            q, k, ok, u = _cg(op, delta - g, q, mask, tol, cfg.cg_max_iter, prec, u0=u)
+        return q, u, delta, k, ok
 
     def cond(s):
         return (~s["done"]) & (s["it"] < max_iter)
 
     def body(s):
         tol = jnp.where(s["tight"], cfg.tol, loose)
-        q, delta, k, ok = inner(s["q"], s["mask"], s["delta"], tol)
-        u = op(q)
+        q, u, delta, k, ok = inner(s["q"], s["u"], s["mask"], s["delta"], tol)
         h = g - delta + u
         qmax = jnp.max(q)
         href = jnp.maximum(delta - gmin, 0.0)
@@ -477,11 +487,14 @@ def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_i
         maskf = new_active.astype(q.dtype)
         changed = jnp.any(neg | pen)
         done = ~changed & ok & s["tight"]
+        if not force_mode:  # u of the released pressures leaves with them
+            u = jax.lax.cond(jnp.any(neg), lambda: u - op(q * neg), lambda: u)
         return dict(q=q * maskf, mask=maskf, delta=delta, u=u, it=s["it"] + 1,
-                    cg=s["cg"] + k, done=done, tight=~changed)
+                    cg=s["cg"] + k, done=done, tight=s["tight"] | ~changed)
 
     delta0 = jnp.zeros((), g.dtype) if force_mode else jnp.asarray(target, g.dtype)
-    state = dict(q=q0 * mask0, mask=mask0, delta=delta0, u=jnp.zeros_like(g),
+    q0 = q0 * mask0
+    state = dict(q=q0, mask=mask0, delta=delta0, u=jnp.zeros_like(g) if force_mode else op(q0),
                  it=jnp.int32(0), cg=jnp.int32(0), done=jnp.bool_(False),
                  tight=jnp.bool_(False))
     s = jax.lax.while_loop(cond, body, state)
@@ -532,7 +545,7 @@ def _solve_impl(cfg: _Config, g, material, approach, force, p_init, max_iter, st
     force_out = area * jnp.sum(pressure)
     if stiffness:
         z0 = jnp.zeros_like(q) if z_init is None else jax.lax.stop_gradient(z_init)
-        z, k2, ok2 = _cg(cfg.op(), maskf, z0, maskf, cfg.tol, cfg.cg_max_iter, cfg.prec())
+        z, k2, ok2, _ = _cg(cfg.op(), maskf, z0, maskf, cfg.tol, cfg.cg_max_iter, cfg.prec())
         stiff = jax.lax.stop_gradient(area * estar * jnp.sum(z))
         cg_it = cg_it + k2
         conv = conv & ok2
