@@ -134,8 +134,9 @@ EDGE_BAND = 5e-3  # m; "edges" map: physical edge offset within this of the edge
 _RAMP_ROUNDING = 0.25  # "edges" map: fraction of the ramp at each end rounded (C1)
 _ON_NODE = 1e-9  # relative distance below which a requested value is "on" a node
 # Part of every node's cache key: raise it when the node builder's results change, so a cache
-# written by an older builder of the same wfjax version is never served.
-NODE_BUILDER_REVISION = 1
+# written by an older builder of the same wfjax version is never served (2: issue 20's
+# faster CG, forces within 1e-9 of revision 1's).
+NODE_BUILDER_REVISION = 2
 
 
 class FamilySpec(NamedTuple):

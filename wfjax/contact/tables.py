@@ -39,19 +39,23 @@ flat's depth and length flow through the implicit-differentiated solves.
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import math
+import threading
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._parallel import core_pool
 from ..params import Flat, Material
 from . import kalker
 
-__all__ = ["ContactTable", "Column", "TableSpec", "table_spec", "build_table_3d", "table_force",
-           "table_onset", "table_column", "column_force", "window_plan", "window_solve"]
+__all__ = ["ContactTable", "Column", "TableSpec", "table_spec", "build_table_3d",
+           "build_tables_3d", "table_force", "table_onset", "table_column", "column_force",
+           "window_plan", "window_solve", "window_solver"]
 
 _DEFAULT_MATERIAL = Material()
 
@@ -309,22 +313,29 @@ def _merge_sizes(needed: dict[tuple[int, int], int], max_sizes: int,
 
 
 @functools.partial(jax.jit, static_argnums=0)
-def _relative_gaps_jit(spec: TableSpec, flat: Flat, s_values):
+def _column_gaps_jit(spec: TableSpec, flat: Flat, s_values):
     def one(s):
-        g = kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius, spec.rail_head_radius)
-        return g - jnp.min(g)
+        return (kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius,
+                              spec.rail_head_radius), _onset(spec, flat, s))
 
     return jax.vmap(one)(s_values)
+
+
+def _column_gaps(spec: TableSpec, flat: Flat, s_values) -> tuple[np.ndarray, np.ndarray]:
+    """([n, nx, ny] gap [m] on the table grid, [n] rigid onset [m]) at concrete flat
+    positions ``s_values`` [n] [m]: one compiled program per layout and flat kind."""
+    gaps, onsets = _column_gaps_jit(spec, flat, jnp.asarray(s_values))
+    return np.asarray(gaps), np.asarray(onsets)
 
 
 def _relative_gaps(spec: TableSpec, flat: Flat, s_values) -> np.ndarray:
     """[n, nx, ny] gap minus its minimum on the grid [m] at concrete flat positions.
 
     The grid minimum is >= the continuum onset, so {gap - min < c} contains the rigid overlap
-    at compression c (a window from it is never too small). One compiled program per layout
-    (a rebuilt table of the same layout compiles nothing).
+    at compression c (a window from it is never too small).
     """
-    return np.asarray(_relative_gaps_jit(spec, flat, jnp.asarray(s_values)))
+    gaps = _column_gaps(spec, flat, s_values)[0]
+    return gaps - gaps.min(axis=(1, 2), keepdims=True)
 
 
 def window_plan(spec: TableSpec, flat: Flat, s_values, margin: int = WINDOW_MARGIN,
@@ -368,7 +379,11 @@ class OverlapBoxes(NamedTuple):
 def overlap_boxes(spec: TableSpec, flat: Flat, s_values,
                   margin: int = WINDOW_MARGIN) -> OverlapBoxes:
     """The :class:`OverlapBoxes` of ``flat`` (concrete) at columns ``s_values`` [n] [m]."""
-    rel = _relative_gaps(spec, flat, np.asarray(s_values, dtype=float))
+    return _boxes(spec, _relative_gaps(spec, flat, np.asarray(s_values, dtype=float)), margin)
+
+
+def _boxes(spec: TableSpec, rel: np.ndarray, margin: int) -> OverlapBoxes:
+    """:class:`OverlapBoxes` from the columns' relative gaps ``rel`` [n, nx, ny] [m]."""
     cs = _compressions(spec)
     boxes = []
     for axis, n in ((2, spec.nx), (1, spec.ny)):
@@ -502,17 +517,136 @@ def build_columns(spec: TableSpec, flat: Flat, material: Material, s_values, tol
                        (jnp.asarray(active), columns))
 
 
+# ----------------------------------------------------------------------------------------
+# Concrete builds: one compiled solver per window size, shared by every build of the process
+# ----------------------------------------------------------------------------------------
+
+_SOLVERS: dict[tuple, concurrent.futures.Future] = {}
+_SOLVERS_LOCK = threading.Lock()
+
+
+def _solver_inputs(material: Material, dtype) -> Material:
+    return jax.tree.map(lambda v: jnp.asarray(v, dtype), material)
+
+
+def window_solver(size: tuple[int, int], element_size: float, tol: float, dtype=np.float64):
+    """The compiled approach-controlled Kalker solve on a window of ``size`` (wx, wy).
+
+    ``solver(gap, approach, p, z, material) -> (pressure, z, force, stiffness, converged)``
+    with gap, p, z [wx, wy] (m, Pa, 1/m; p and z warm-start the solve and the stiffness
+    solve), approach [m] and a material of ``dtype`` arrays (:func:`_solver_inputs`). The
+    program depends on nothing but the window, the element size, the tolerance and the
+    dtype, so every table and family node of the process shares it: each size compiles once
+    (~0.4 s on the 2-core CPU), however many flats use it; concurrent callers of a size wait
+    for the first one's compilation.
+    """
+    key = (int(size[0]), int(size[1]), float(element_size), float(tol), np.dtype(dtype).name)
+    with _SOLVERS_LOCK:
+        future = _SOLVERS.get(key)
+        mine = future is None
+        if mine:
+            future = _SOLVERS[key] = concurrent.futures.Future()
+    if mine:
+        try:
+            future.set_result(_compile_window_solver(*key))
+        except BaseException as err:
+            with _SOLVERS_LOCK:
+                del _SOLVERS[key]
+            future.set_exception(err)
+            raise
+    return future.result()
+
+
+def _compile_window_solver(wx: int, wy: int, h: float, tol: float, dtype: str):
+    cfg = kalker._Config(wx, wy, h, h, "fft", tol, 1000)
+
+    def solve(gap, approach, p, z, material):
+        r, z = kalker._solve_impl(cfg, gap, material, approach, None, p, 50, True, False,
+                                  z_init=z)
+        return r.pressure, z, r.force, r.stiffness, r.diagnostics.converged
+
+    window = jnp.zeros((wx, wy), dtype)
+    return jax.jit(solve).lower(window, jnp.zeros((), dtype), window, window,
+                                _solver_inputs(_DEFAULT_MATERIAL, dtype)).compile()
+
+
+def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, size_index,
+                  x0, y0, material):
+    """Forces, stiffnesses [n_t - 1] and convergence of one column, each compression on its
+    window (host loop; pressures and stiffness solves warm-started along the column)."""
+    p = np.zeros_like(gap)
+    z = np.zeros_like(gap)
+    force = np.zeros(len(compressions), gap.dtype)
+    stiffness = np.zeros_like(force)
+    ok = True
+    for j, c in enumerate(compressions):
+        k = int(size_index[j])
+        wx, wy = sizes[k]
+        window = np.s_[int(x0[j]):int(x0[j]) + wx, int(y0[j]):int(y0[j]) + wy]
+        pw, zw, fj, kj, okj = solvers[k](gap[window], onset + c, p[window], z[window],
+                                         material)
+        p, z = np.zeros_like(gap), np.zeros_like(gap)
+        p[window], z[window] = pw, zw
+        force[j], stiffness[j] = fj, kj
+        ok = ok and bool(okj)
+    return force, stiffness, ok
+
+
+def _grid_sizes(spec: TableSpec, sizes) -> tuple[tuple[int, int], ...]:
+    """``sizes`` clipped to the grid of ``spec`` (a window never exceeds its grid)."""
+    return tuple(dict.fromkeys((min(wx, spec.nx), min(wy, spec.ny)) for wx, wy in sizes))
+
+
+def _build_windowed(specs, flats, material: Material, tol: float,
+                    max_sizes: int = MAX_WINDOW_SIZES) -> list[ContactTable]:
+    """:func:`build_tables_3d` of concrete flats: every solve on its window, the window sizes
+    merged over all the tables (:func:`_merge_sizes`), the solvers from :func:`window_solver`
+    and the columns of all tables as items of :func:`wfjax._parallel.core_pool`, the most
+    expensive first (so the cores stay busy whatever the tables' sizes)."""
+    columns = [(spec, _solve_positions(spec)) for spec in specs]
+    gaps = [_column_gaps(spec, flat, s) for (spec, s), flat in zip(columns, flats, strict=True)]
+    boxes = [_boxes(spec, g - g.min(axis=(1, 2), keepdims=True), WINDOW_MARGIN)
+             for spec, (g, _) in zip(specs, gaps, strict=True)]
+    merged = _merge_sizes(needed_sizes(boxes), max_sizes, COST_PER_WINDOW_SIZE)
+    plans = [assign_windows(spec, b, _grid_sizes(spec, merged))
+             for spec, b in zip(specs, boxes, strict=True)]
+    dtype = gaps[0][0].dtype
+    mat = _solver_inputs(material, dtype)
+    pool = core_pool()
+    h = {spec.element_size for spec in specs}.pop()
+    compiled = {size: pool.submit(window_solver, size, h, tol, dtype)
+                for size in dict.fromkeys(size for plan in plans for size in plan.sizes)}
+
+    def column(item):
+        t, i = item
+        plan, (g, onsets) = plans[t], gaps[t]
+        solvers = [compiled[size].result() for size in plan.sizes]
+        return _solve_column(solvers, plan.sizes, g[i], onsets[i], _compressions(specs[t]),
+                             plan.size_index[i], plan.x0[i], plan.y0[i], mat)
+
+    cost = {(t, i): c for t, plan in enumerate(plans)
+            for i, c in enumerate(_solve_cost(*np.asarray(plan.sizes)[plan.size_index].T)
+                                  .sum(axis=0))}
+    futures = {item: pool.submit(column, item) for item in sorted(cost, key=cost.get,
+                                                                 reverse=True)}
+    tables = []
+    for t, (spec, s) in enumerate(columns):
+        force, stiffness, ok = zip(*(futures[t, i].result() for i in range(len(s))),
+                                   strict=True)
+        force_t, slope_t = _column_outputs(spec, np.stack(force), np.stack(stiffness))
+        tables.append(_assemble(spec, jnp.asarray(gaps[t][1]), force_t, slope_t, all(ok)))
+    return tables
+
+
 def _solve_positions(spec: TableSpec) -> np.ndarray:
     """Flat positions [m] of the solved columns (s >= 0 only for symmetric flats)."""
     return spec.s[spec.n_s // 2:] if spec.symmetric else spec.s
 
 
-@functools.partial(jax.jit, static_argnums=(0, 3, 4, 5))
-def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_size: int,
-           sizes: tuple, plan_arrays):
-    plan = None if plan_arrays is None else WindowPlan(sizes, *plan_arrays)
+@functools.partial(jax.jit, static_argnums=(0, 3, 4))
+def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_size: int):
     onset, force, slope, ok = build_columns(spec, flat, material, _solve_positions(spec), tol,
-                                            batch_size, plan)
+                                            batch_size)
     return _assemble(spec, onset, force, slope, jnp.all(ok))
 
 
@@ -548,8 +682,8 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
         batch_size: columns solved together by ``vmap`` (> 1 for wide devices; then every
             solve runs on the whole grid).
         windows: solve each compression on a window around its rigid overlap
-            (:func:`window_plan`; same forces, several times faster) when the flat is
-            concrete and ``batch_size`` is 1; False: always the whole grid.
+            (:func:`window_plan`; same forces, several times faster) when the flat and the
+            material are concrete and ``batch_size`` is 1; False: always the whole grid.
 
     Returns:
         :class:`ContactTable` with n_s columns of n_t nodes.
@@ -557,11 +691,29 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
     if spec is None:
         spec = table_spec(flat, wheel_radius, rail_head_radius, material, element_size,
                           max_force, ds, n_t)
-    if windows and int(batch_size) == 1 and kalker._is_concrete_tree(flat):
-        plan = window_plan(spec, flat, _solve_positions(spec))
-        return _build(spec, flat, material, float(tol), 1, plan.sizes,
-                      (plan.size_index, plan.x0, plan.y0))
-    return _build(spec, flat, material, float(tol), int(batch_size), (), None)
+    if windows and int(batch_size) == 1 and kalker._is_concrete_tree((flat, material)):
+        return _build_windowed([spec], [flat], material, float(tol))[0]
+    return _build(spec, flat, material, float(tol), int(batch_size))
+
+
+def build_tables_3d(flats, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
+                    material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
+                    max_force: float = 600e3, tol: float = 1e-8) -> list[ContactTable]:
+    """:func:`build_table_3d` of several concrete flats, built together: one set of window
+    sizes for all (each size compiles once), their columns spread over the CPU cores.
+
+    A table's values depend on its windows only within the solver's tolerance (about 1e-9
+    of its largest force), so a table built with others equals the one built alone to that.
+    """
+    flats = list(flats)
+    if not kalker._is_concrete_tree((flats, material)):
+        raise ValueError("build_tables_3d needs concrete flats and material; build a traced "
+                         "flat's table with build_table_3d(spec=...)")
+    specs = [table_spec(f, wheel_radius, rail_head_radius, material, element_size, max_force)
+             for f in flats]
+    if not flats:
+        return []
+    return _build_windowed(specs, flats, material, float(tol))
 
 
 def catmull_rom_weights(w):
