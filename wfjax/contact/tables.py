@@ -259,6 +259,10 @@ class WindowPlan(NamedTuple):
 
 
 WINDOW_MARGIN = 2  # elements between the rigid overlap's bounding box and the window edge
+# A table's solve at approach onset + c has its contact inside {gap < onset + c} (u >= 0, so
+# h = gap - delta + u > 0 elsewhere), a subset of {gap - min(gap) < c}: its windows need no
+# margin (the direct mode's solves, between the columns, keep WINDOW_MARGIN).
+TABLE_WINDOW_MARGIN = 0
 MAX_WINDOW_SIZES = 4  # static window sizes per build, at most
 # One more window size (one more compiled solver, about 1 s on the 2-core CPU) must save at
 # least this much modelled solve cost (FFT size m times log m, summed over the solves):
@@ -605,7 +609,7 @@ def _build_windowed(specs, flats, material: Material, tol: float,
     expensive first (so the cores stay busy whatever the tables' sizes)."""
     columns = [(spec, _solve_positions(spec)) for spec in specs]
     gaps = [_column_gaps(spec, flat, s) for (spec, s), flat in zip(columns, flats, strict=True)]
-    boxes = [_boxes(spec, g - g.min(axis=(1, 2), keepdims=True), WINDOW_MARGIN)
+    boxes = [_boxes(spec, g - g.min(axis=(1, 2), keepdims=True), TABLE_WINDOW_MARGIN)
              for spec, (g, _) in zip(specs, gaps, strict=True)]
     merged = _merge_sizes(needed_sizes(boxes), max_sizes, COST_PER_WINDOW_SIZE)
     plans = [assign_windows(spec, b, _grid_sizes(spec, merged))
