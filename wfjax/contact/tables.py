@@ -24,14 +24,16 @@ Parametrisation (chosen so that every column is smooth and Hertz-like):
   end columns apply; the range is wide enough that they are the smooth wheel exactly (on the
   same grid).
 
-Build: one :func:`wfjax.contact.kalker.solve` per node, ``lax.map`` over s (sequential by
-default: on this 2-core CPU a ``vmap`` over all columns was 4.5x slower, because every batched
-while-loop runs until its slowest lane; ``batch_size`` > 1 vmaps chunks, for GPUs) and a
-warm-started ``lax.scan`` over c (pressures and the stiffness solve both warm-started). Each
-solve runs on a window of the table grid around its own rigid overlap (:func:`window_plan`:
-the same problem, since the contact lies inside the overlap; a few static window sizes chosen
-per solve by ``lax.switch``), 2-3.5x faster than solving on the whole grid; traced flats and
-batched columns use the whole grid.
+Build: one :func:`wfjax.contact.kalker.solve` per node, warm-started along c (pressures and the
+stiffness solve), sequential along each column. A concrete flat's solves each run on a window of
+the table grid around its own rigid overlap (:func:`window_plan`: the same problem, since the
+contact lies inside the overlap; 2-3.5x faster than the whole grid), with a few window sizes,
+each one compiled solver (:func:`window_solver`) shared by every table and family node of the
+process; a host loop drives each column, and the columns of all tables built together
+(:func:`build_tables_3d`) are spread over the CPU cores. Traced flats or materials
+(gradients) and batched columns (``batch_size`` > 1, for GPUs: ``lax.map`` over s with ``vmap``
+chunks; on this 2-core CPU a ``vmap`` over all columns was 4.5x slower, because every batched
+while-loop runs until its slowest lane) solve on the whole grid in one program.
 Symmetric flats (new, rounded) are solved for s >= 0 only and mirrored
 (the grid is symmetric, so this is exact). Gradients of the table values with respect to the
 flat's depth and length flow through the implicit-differentiated solves.
@@ -459,66 +461,18 @@ def window_solve(spec: TableSpec, flat: Flat, material: Material, s, approach, s
     return r, gap, embed(r.pressure, p_full), None if z_full is None else embed(z, z_full)
 
 
-def _windowed_column(spec: TableSpec, sizes, flat: Flat, material: Material, s, tol: float,
-                     size_index, x0, y0):
-    """:func:`_column` with every solve on its window (see :class:`WindowPlan`)."""
-    onset = _onset(spec, flat, s)
-    dtype = jnp.result_type(onset.dtype, float)
-
-    def branch(size):
-        def solve(p_full, z_full, c, i0, j0):
-            r, _, p_new, z_new = window_solve(spec, flat, material, s, onset + c, size,
-                                              (i0, j0), p_full, tol, z_full)
-            return (p_new, z_new, r.force.astype(dtype), r.stiffness.astype(dtype),
-                    r.diagnostics.converged)
-
-        return solve
-
-    branches = [branch(size) for size in sizes]
-
-    def step(carry, inputs):
-        c, k, i0, j0 = inputs
-        p_full, z_full, force, stiff, ok = jax.lax.switch(k, branches, *carry, c, i0, j0)
-        return (p_full, z_full), (force, stiff, ok)
-
-    p0 = jnp.zeros((spec.nx, spec.ny), dtype)
-    _, (f, k, ok) = jax.lax.scan(step, (p0, p0), (jnp.asarray(_compressions(spec)), size_index,
-                                                   x0, y0))
-    return (onset,) + _column_outputs(spec, f, k) + (jnp.all(ok),)
-
-
 def build_columns(spec: TableSpec, flat: Flat, material: Material, s_values, tol: float,
-                  batch_size: int = 1, plan: WindowPlan | None = None, active=None):
-    """Solve the columns of a table at flat positions ``s_values`` [n] [m] (traceable).
-
-    With a ``plan`` every solve runs on its window (sequential over the columns; several
-    times faster); without one on the whole grid (``batch_size`` > 1 then vmaps chunks of
-    columns, for wide devices). ``active`` [n] bool (with a plan): columns left False are
-    skipped and return zeros (padding, so builds of different lengths share one program).
+                  batch_size: int = 1):
+    """Solve the columns of a table at flat positions ``s_values`` [n] [m] on the whole grid
+    (traceable: traced flats and materials, gradients; ``batch_size`` > 1 vmaps chunks of
+    columns, for wide devices). Concrete builds use windows (:func:`build_tables_3d`).
 
     Returns:
         (onset [n] [m], force [n, n_t] [N], slope [n, n_t] [N], converged [n]) as in
         :class:`ContactTable`.
     """
-    s_values = jnp.asarray(s_values)
-    if plan is None:
-        return jax.lax.map(lambda s: _column(spec, flat, material, s, tol), s_values,
-                           batch_size=batch_size)
-
-    def one(args):
-        return _windowed_column(spec, plan.sizes, flat, material, args[0], tol, *args[1:])
-
-    columns = (s_values, jnp.asarray(plan.size_index), jnp.asarray(plan.x0),
-               jnp.asarray(plan.y0))
-    if active is None:
-        return jax.lax.map(one, columns)
-    shapes = jax.eval_shape(one, jax.tree.map(lambda a: a[0], columns))
-
-    def skip(_):
-        return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
-
-    return jax.lax.map(lambda args: jax.lax.cond(args[0], one, skip, args[1]),
-                       (jnp.asarray(active), columns))
+    return jax.lax.map(lambda s: _column(spec, flat, material, s, tol), jnp.asarray(s_values),
+                       batch_size=batch_size)
 
 
 # ----------------------------------------------------------------------------------------
