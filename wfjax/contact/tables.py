@@ -225,13 +225,19 @@ def _compressions(spec: TableSpec) -> np.ndarray:
     return spec.c_max * np.linspace(0.0, 1.0, spec.n_t)[1:] ** 2
 
 
+def _xp(a):
+    """numpy for host arrays (the concrete builds: no op-by-op compilations), else jnp."""
+    return np if isinstance(a, np.ndarray) else jnp
+
+
 def _column_outputs(spec: TableSpec, f, k):
     """Node forces and slopes dF/du [..., n_t] from the solved forces f and stiffnesses k
     [..., n_t - 1]."""
+    xp = _xp(f)
     t = np.linspace(0.0, 1.0, spec.n_t)[1:]
-    zero = jnp.zeros(f.shape[:-1] + (1,), f.dtype)
-    return (jnp.concatenate([zero, f], axis=-1),
-            jnp.concatenate([zero, k * 2 * spec.c_max * t / (spec.n_t - 1)], axis=-1))
+    zero = xp.zeros(f.shape[:-1] + (1,), f.dtype)
+    return (xp.concatenate([zero, f], axis=-1),
+            xp.concatenate([zero, k * 2 * spec.c_max * t / (spec.n_t - 1)], axis=-1))
 
 
 # ----------------------------------------------------------------------------------------
@@ -592,7 +598,8 @@ def _build_windowed(specs, flats, material: Material, tol: float,
         force, stiffness, ok = zip(*(futures[t, i].result() for i in range(len(s))),
                                    strict=True)
         force_t, slope_t = _column_outputs(spec, np.stack(force), np.stack(stiffness))
-        tables.append(_assemble(spec, jnp.asarray(gaps[t][1]), force_t, slope_t, all(ok)))
+        table = _assemble(spec, gaps[t][1], force_t, slope_t, all(ok))
+        tables.append(jax.tree.map(jnp.asarray, table))  # host arrays to the device: no compiling
     return tables
 
 
@@ -610,15 +617,16 @@ def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_si
 
 def _assemble(spec: TableSpec, onset, force, slope, ok) -> ContactTable:
     """The table from its solved columns (mirrored for symmetric flats)."""
+    xp = _xp(force)
     if spec.symmetric:
         def mirror(a):
-            return jnp.concatenate([a[:0:-1], a], axis=0)
+            return xp.concatenate([a[:0:-1], a], axis=0)
 
         onset, force, slope = mirror(onset), mirror(force), mirror(slope)
     return ContactTable(
-        s_min=jnp.asarray(-spec.s_max), ds=jnp.asarray(2 * spec.s_max / (spec.n_s - 1)),
-        c_max=jnp.asarray(spec.c_max), onset=onset, force=force, slope=slope,
-        converged=jnp.asarray(ok).astype(force.dtype))
+        s_min=xp.asarray(-spec.s_max), ds=xp.asarray(2 * spec.s_max / (spec.n_s - 1)),
+        c_max=xp.asarray(spec.c_max), onset=onset, force=force, slope=slope,
+        converged=xp.asarray(ok).astype(force.dtype))
 
 
 def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
