@@ -496,9 +496,11 @@ def _solver_inputs(material: Material, dtype) -> Material:
 def window_solver(size: tuple[int, int], element_size: float, tol: float, dtype=np.float64):
     """The compiled approach-controlled Kalker solve on a window of ``size`` (wx, wy).
 
-    ``solver(gap, approach, p, z, material) -> (pressure, z, force, stiffness, converged)``
-    with gap, p, z [wx, wy] (m, Pa, 1/m; p and z warm-start the solve and the stiffness
-    solve), approach [m] and a material of ``dtype`` arrays (:func:`_solver_inputs`). The
+    ``solver(gpz, approach, material) -> (pz, out)`` with gpz [3, wx, wy] the gap [m] and
+    the warm starts of the pressure [Pa] and of the stiffness solve z [1/m], approach [m], a
+    material of ``dtype`` arrays (:func:`_solver_inputs`); pz [2, wx, wy] the pressure and z,
+    out [3] the force [N], the stiffness [N/m] and 1.0 if converged (few arrays in and out:
+    each costs the host loop a conversion). The
     program depends on nothing but the window, the element size, the tolerance and the
     dtype, so every table and family node of the process shares it: each size compiles once
     (~0.4 s on the 2-core CPU), however many flats use it; concurrent callers of a size wait
@@ -524,13 +526,13 @@ def window_solver(size: tuple[int, int], element_size: float, tol: float, dtype=
 def _compile_window_solver(wx: int, wy: int, h: float, tol: float, dtype: str):
     cfg = kalker._Config(wx, wy, h, h, "fft", tol, 1000)
 
-    def solve(gap, approach, p, z, material):
-        r, z = kalker._solve_impl(cfg, gap, material, approach, None, p, 50, True, False,
-                                  z_init=z)
-        return r.pressure, z, r.force, r.stiffness, r.diagnostics.converged
+    def solve(gpz, approach, material):
+        r, z = kalker._solve_impl(cfg, gpz[0], material, approach, None, gpz[1], 50, True,
+                                  False, z_init=gpz[2])
+        return (jnp.stack([r.pressure, z]),
+                jnp.stack([r.force, r.stiffness, r.diagnostics.converged.astype(dtype)]))
 
-    window = jnp.zeros((wx, wy), dtype)
-    return jax.jit(solve).lower(window, jnp.zeros((), dtype), window, window,
+    return jax.jit(solve).lower(jnp.zeros((3, wx, wy), dtype), jnp.zeros((), dtype),
                                 _solver_inputs(_DEFAULT_MATERIAL, dtype)).compile()
 
 
@@ -538,22 +540,17 @@ def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, s
                   x0, y0, material):
     """Forces, stiffnesses [n_t - 1] and convergence of one column, each compression on its
     window (host loop; pressures and stiffness solves warm-started along the column)."""
-    p = np.zeros_like(gap)
-    z = np.zeros_like(gap)
-    force = np.zeros(len(compressions), gap.dtype)
-    stiffness = np.zeros_like(force)
-    ok = True
+    gpz = np.zeros((3,) + gap.shape, gap.dtype)  # gap, then the warm starts p and z
+    gpz[0] = gap
+    out = np.zeros((len(compressions), 3), gap.dtype)
     for j, c in enumerate(compressions):
         k = int(size_index[j])
         wx, wy = sizes[k]
-        window = np.s_[int(x0[j]):int(x0[j]) + wx, int(y0[j]):int(y0[j]) + wy]
-        pw, zw, fj, kj, okj = solvers[k](gap[window], onset + c, p[window], z[window],
-                                         material)
-        p, z = np.zeros_like(gap), np.zeros_like(gap)
-        p[window], z[window] = pw, zw
-        force[j], stiffness[j] = fj, kj
-        ok = ok and bool(okj)
-    return force, stiffness, ok
+        window = np.s_[:, int(x0[j]):int(x0[j]) + wx, int(y0[j]):int(y0[j]) + wy]
+        pz, out[j] = solvers[k](gpz[window], onset + c, material)
+        gpz[1:] = 0.0
+        gpz[(np.s_[1:],) + window[1:]] = pz
+    return out[:, 0], out[:, 1], bool(np.all(out[:, 2] == 1.0))
 
 
 def _grid_sizes(spec: TableSpec, sizes) -> tuple[tuple[int, int], ...]:
