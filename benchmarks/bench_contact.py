@@ -15,6 +15,10 @@ Run: python benchmarks/bench_contact.py [--quick]
    positions, each on the grid cropped to its overlap; plain vs preconditioned CG and Tamaas.
 4. Table build time for the flats in use, each solve on the window around its rigid overlap
    (the default) and on the table's whole grid, in the same run (times include compilation).
+5. The default sweep's two tables (rounded 0.9 mm x 100 mm and new 0.9 mm, R_R = 0.30 m, 1 mm)
+   from an empty cache in a fresh process, as ``wfjax sweep`` builds them
+   (``laws.cached_tables_3d``): wall and CPU time, compilation included (``--cold-only``
+   runs just this, ``--repeat N`` N fresh processes).
 
 Compile time is excluded (reported separately); times are medians of repeats, after
 ``block_until_ready``.
@@ -25,6 +29,8 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import subprocess
+import sys
 import time
 
 import jax
@@ -208,7 +214,8 @@ def table_builds(quick):
                 tables.build_table_3d(flat, R, rr, MAT, spec=spec, windows=windows))
             times[windows] = time.perf_counter() - t0
         tab = built[True]
-        plan = tables.window_plan(spec, flat, tables._solve_positions(spec))
+        plan = tables.window_plan(spec, flat, tables._solve_positions(spec),
+                                  margin=tables.TABLE_WINDOW_MARGIN)
         out.append(dict(flat=name, seconds=times[True], whole_grid_seconds=times[False],
                         speedup=times[False] / times[True], grid=f"{spec.nx}x{spec.ny}",
                         window_sizes=plan.sizes, n_s=spec.n_s, n_t=spec.n_t,
@@ -220,11 +227,44 @@ def table_builds(quick):
     return out
 
 
+_COLD_TABLES = """
+import json, resource, sys, tempfile, time
+import jax
+jax.config.update("jax_enable_x64", True)
+import wfjax as wf
+from wfjax.contact import laws
+flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
+t0, r0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
+tabs = laws.cached_tables_3d(flats, 0.45, 0.30, wf.Material(), 1e-3, tempfile.mkdtemp())
+r1 = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps(dict(seconds=time.perf_counter() - t0,
+                      cpu_seconds=r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime,
+                      converged=[float(t.converged) for t in tabs])))
+"""
+
+
+def default_sweep_tables(repeat):
+    """The default sweep's two tables from an empty cache, each run in a fresh process."""
+    out = []
+    for _ in range(repeat):
+        load = open("/proc/loadavg").read().split()[0]
+        run = subprocess.run([sys.executable, "-c", _COLD_TABLES], capture_output=True,
+                             text=True, check=True)
+        out.append(dict(json.loads(run.stdout.strip().splitlines()[-1]), load_before=load))
+        print(out[-1], flush=True)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--cold-only", action="store_true")
+    ap.add_argument("--repeat", type=int, default=1)
     args = ap.parse_args()
+    if args.cold_only:
+        default_sweep_tables(args.repeat)
+        return
     sizes = [32, 64, 128] if args.quick else [32, 64, 128, 256]
     cold = []
     for n in sizes:
@@ -243,7 +283,8 @@ def main():
         print(seq[-1], flush=True)
     contact = contact_case(args.quick)
     builds = table_builds(args.quick)
-    result = dict(cold=cold, sequence=seq, contact_case=contact, tables=builds)
+    result = dict(cold=cold, sequence=seq, contact_case=contact, tables=builds,
+                  default_sweep_tables=default_sweep_tables(args.repeat))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(result, fh, indent=1)

@@ -174,29 +174,43 @@ def test_table_cache_key_holds_the_builder_revision(tmp_path, monkeypatch):
     assert len(list(tmp_path.glob("table3d-*"))) == 2
 
 
-def test_sweep_prefetches_one_table_per_single_flat_group_concurrently(monkeypatch):
-    """The exact 3D tables of one-flat groups are built before the groups run, in threads."""
+def test_sweep_prefetches_the_single_flat_groups_tables_together(monkeypatch):
+    """The exact 3D tables of one-flat groups are built before the groups run, in one call
+    that builds them together (shared window sizes, columns spread over the cores)."""
     import importlib
-    import threading
 
     sweeps = importlib.import_module("wfjax.sweeps")
     calls = []
 
-    def fake(flat, wheel_radius, rail_head_radius, material, element_size, cache_dir=None):
-        calls.append((flat.kind, threading.get_ident()))
+    def fake(flats, wheel_radius, rail_head_radius, material, element_size, cache_dir=None):
+        calls.append([f.kind for f in flats])
 
-    monkeypatch.setattr(sweeps, "cached_table_3d", fake)
+    monkeypatch.setattr(sweeps, "cached_tables_3d", fake)
     flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
     args = (wf.Wheel(), wf.Track(), wf.Material())
     assert sweeps.prefetch_tables(flats, "3d", *args, wf.SimConfig()) == 2
-    assert sorted(k for k, _ in calls) == ["new", "rounded"]
-    assert all(t != threading.get_ident() for _, t in calls)  # worker threads
+    assert calls == [["rounded", "new"]]
     calls.clear()
     assert sweeps.prefetch_tables(flats, "hertz-trajectory", *args, wf.SimConfig()) == 0
     direct = dataclasses.replace(wf.SimConfig(), contact_mode_3d="direct")
     assert sweeps.prefetch_tables(flats, "3d", *args, direct) == 0
     assert sweeps.prefetch_tables(flats[:1], "3d", *args, wf.SimConfig()) == 0
     assert calls == []
+
+
+def test_tables_built_together_equal_tables_built_alone(tmp_path):
+    """cached_tables_3d builds the missing tables together (one set of window sizes): each
+    equals its table built alone within the solver's tolerance, and lands in the cache."""
+    flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
+    together = laws.cached_tables_3d(flats, 0.45, 0.3, wf.Material(), 2e-3, tmp_path)
+    assert len(list(tmp_path.glob("table3d-*"))) == 2
+    for flat, table in zip(flats, together, strict=True):
+        alone = laws.tables.build_table_3d(flat, 0.45, 0.3, wf.Material(), element_size=2e-3)
+        assert float(table.converged) == 1.0
+        np.testing.assert_allclose(table.force, alone.force, rtol=0,
+                                   atol=1e-8 * float(np.max(alone.force)))
+        loaded = laws.cached_table_3d(flat, 0.45, 0.3, wf.Material(), 2e-3, tmp_path)
+        np.testing.assert_array_equal(loaded.force, table.force)
 
 
 def test_direct_mode_windows_equal_the_whole_grid(tmp_path):

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import concurrent.futures
 import os
+import threading
 from collections.abc import Callable, Sequence
+
+_POOL: list[concurrent.futures.ThreadPoolExecutor] = []
+_POOL_LOCK = threading.Lock()
 
 
 def map_per_core(fn: Callable, items: Sequence) -> list:
@@ -17,3 +21,17 @@ def map_per_core(fn: Callable, items: Sequence) -> list:
     workers = max(1, min(len(items), os.cpu_count() or 1))
     with concurrent.futures.ThreadPoolExecutor(workers) as pool:
         return list(pool.map(fn, items))
+
+
+def core_pool() -> concurrent.futures.ThreadPoolExecutor:
+    """The process's pool of one thread per CPU core for small XLA work items.
+
+    Builds that run side by side in their own threads (the sweep's table prefetch) submit
+    their items here, so together they keep every core busy whatever their sizes: first in,
+    first out. An item may wait only on items submitted before it (those have started).
+    """
+    with _POOL_LOCK:
+        if not _POOL:
+            _POOL.append(concurrent.futures.ThreadPoolExecutor(
+                max(1, os.cpu_count() or 1), thread_name_prefix="wfjax-core"))
+        return _POOL[0]

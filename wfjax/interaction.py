@@ -307,8 +307,17 @@ def _pointwise(law: ContactLaw) -> bool:
     return type(law).step is ContactLaw.step
 
 
+def law_groups(laws: tuple) -> tuple:
+    """Indices of the wheels that share one law object (e.g. every smooth wheel of a vehicle):
+    each group's law is evaluated once, ``vmap``-ed over its wheels."""
+    groups: dict[int, list[int]] = {}
+    for i, law in enumerate(laws):
+        groups.setdefault(id(law), []).append(i)
+    return tuple(tuple(g) for g in groups.values())
+
+
 def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int,
-                   roughness=None):
+                   groups: tuple | None = None, roughness=None):
     """The step's n-contact equation delta = delta_free - C F(delta) for every contact law.
 
     One wheel: the law's own :meth:`ContactLaw.step`. Several wheels with point laws (every
@@ -322,6 +331,8 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
         laws: [n] prepared contact laws. delta_free: [n] approaches if F were 0 [m].
         compliance: C [n, n] [m/N]. s: [n] flat positions [m]. states: [n] law states.
         max_iter: Newton iteration cap (static).
+        groups: :func:`law_groups` of ``laws`` (wheels that share a law; default: each
+            wheel its own).
         roughness: None, or [n] per wheel: None (a point law: its roughness is already in
             ``delta_free``) or the pair (roughness at the law's :meth:`rough_nodes` [m], its
             contact-filtered value [m]).
@@ -340,17 +351,27 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
                                       **kw(0))
         return delta[None], f[None], r[None], (state,)
     if all(_pointwise(law) for law in laws):
-        frozen = jax.lax.stop_gradient(laws)
-        points = [law.point(si) if ri is None else law.rough_point(si, ri[0])
-                  for law, si, ri in zip(laws, s, rough, strict=True)]
+        groups = groups or tuple((i,) for i in range(len(laws)))
+        order = np.argsort(np.concatenate([np.asarray(g) for g in groups]))
+        reps = tuple(laws[g[0]] for g in groups)
+        frozen = jax.lax.stop_gradient(reps)
+
+        def group_points(law, g):
+            if rough[g[0]] is None:
+                return jax.vmap(law.point)(s[np.asarray(g)])
+            values = jnp.stack([rough[i][0] for i in g])
+            return jax.vmap(law.rough_point)(s[np.asarray(g)], values)
+
+        points = [group_points(law, g) for law, g in zip(reps, groups, strict=True)]
         points_ng = jax.lax.stop_gradient(points)
 
         def forces(ls, ps, delta):
-            return jnp.stack([law.point_force(p, delta[i])
-                              for i, (law, p) in enumerate(zip(ls, ps, strict=True))])
+            parts = [jax.vmap(law.point_force)(p, delta[np.asarray(g)])
+                     for law, p, g in zip(ls, ps, groups, strict=True)]
+            return jnp.concatenate(parts)[order]
 
         delta, f, r = solve_contact_system(
-            lambda d: forces(laws, points, d), delta_free, compliance, max_iter,
+            lambda d: forces(reps, points, d), delta_free, compliance, max_iter,
             loop_force_fn=lambda d: forces(frozen, points_ng, d))
         return delta, f, r, states
     return _gauss_seidel(laws, delta_free, compliance, s, states, max_iter, kw)
@@ -460,6 +481,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     """
     single = not isinstance(law, tuple)
     laws = (law,) if single else law
+    groups = law_groups(laws)  # before the precision cast, which copies every law
     n_wheels = len(laws)
     wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))
     coefficients = (discrete_step_coefficients(struct.track.poles, dt),
@@ -549,12 +571,12 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         if roughness is None:
             delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free,
                                                  jnp.diag(c_wheel) + c_rail, s, states,
-                                                 max_iter)
+                                                 max_iter, groups)
         else:
             shift, rough = _roughness_inputs(laws, roughness, x, s)
             delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free + shift,
                                                  jnp.diag(c_wheel) + c_rail, s, states,
-                                                 max_iter, rough)
+                                                 max_iter, groups, rough)
             delta = delta - shift
         load = _loads(f, phi)
         q_new = q_hat + an_r * load

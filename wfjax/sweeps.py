@@ -40,8 +40,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from ._parallel import map_per_core
-from .contact.laws import CONTACT_MODELS, cached_table_3d, prepare, prepare_family, resolve_mode_3d
+from .contact.laws import CONTACT_MODELS, cached_tables_3d, prepare, prepare_family, resolve_mode_3d
 from .interaction import (
     batch_windows,
     check_rail_span,
@@ -614,21 +613,22 @@ class _Fleet:
 def prefetch_tables(flats: Sequence[Flat], contact: str, wheel: Wheel, track: Track,
                     material: Material, config: SimConfig, cache_dir=None,
                     progress: bool = False) -> int:
-    """Build the exact 3D tables of ``flats`` (one-flat groups) into the disk cache
-    concurrently, one per core, before the groups run one after another.
+    """Build the exact 3D tables of ``flats`` (one-flat groups) into the disk cache together,
+    before the groups run one after another.
 
-    One XLA CPU computation keeps about one core busy, so on this 2-core machine the default
-    sweep's two tables take the time of one. Does nothing unless ``contact`` is ``"3d"`` in
-    table mode and two or more tables are to be built. Returns the number prefetched.
+    :func:`wfjax.contact.laws.cached_tables_3d` builds the missing tables with one set of
+    window sizes (each compiles once) and spreads their columns over the CPU cores, so on
+    this 2-core machine the default sweep's two tables take about half their summed time.
+    Does nothing unless ``contact`` is ``"3d"`` in table mode and two or more tables are to
+    be built. Returns the number prefetched.
     """
     if contact != "3d" or resolve_mode_3d(config, batched=False) != "table" or len(flats) < 2:
         return 0
     if progress:
         print(f"  building {len(flats)} 3D contact tables (cached after the first run) ...",
               end="\r", file=sys.stderr, flush=True)
-    map_per_core(lambda flat: cached_table_3d(flat, float(wheel.radius),
-                                              float(track.rail_head_radius), material,
-                                              config.contact_element, cache_dir), flats)
+    cached_tables_3d(flats, float(wheel.radius), float(track.rail_head_radius), material,
+                     config.contact_element, cache_dir)
     return len(flats)
 
 

@@ -110,7 +110,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._parallel import map_per_core
+from .._parallel import core_pool, map_per_core
 from ..params import MAX_FLAT_DEPTH, Flat, Material
 from . import kalker, tables
 
@@ -134,8 +134,9 @@ EDGE_BAND = 5e-3  # m; "edges" map: physical edge offset within this of the edge
 _RAMP_ROUNDING = 0.25  # "edges" map: fraction of the ramp at each end rounded (C1)
 _ON_NODE = 1e-9  # relative distance below which a requested value is "on" a node
 # Part of every node's cache key: raise it when the node builder's results change, so a cache
-# written by an older builder of the same wfjax version is never served.
-NODE_BUILDER_REVISION = 1
+# written by an older builder of the same wfjax version is never served (2: issue 20's
+# faster CG, forces within 1e-9 of revision 1's).
+NODE_BUILDER_REVISION = 2
 
 
 class FamilySpec(NamedTuple):
@@ -451,7 +452,7 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                       onset=onset, s_map=s_map, centre_band=float(b0), edge_band=float(b1))
 
 
-FAMILY_WINDOW_SIZES = 6  # window sizes of a family build: one compilation serves every node
+FAMILY_WINDOW_SIZES = 6  # window sizes of a family build (one compiled solver each, shared)
 
 
 def _node_geometry(spec: FamilySpec, idx: int):
@@ -478,22 +479,14 @@ def _node_key(spec: FamilySpec, idx: int, material: Material, tol: float) -> dic
             "builder_revision": NODE_BUILDER_REVISION}
 
 
-@functools.partial(jax.jit, static_argnums=(0, 3, 4))
-def _node_build_jit(tspec: tables.TableSpec, flat: Flat, material: Material, tol: float,
-                    sizes: tuple, s, plan_arrays, active):
-    onset, force, slope, ok = tables.build_columns(
-        tspec, flat, material, s, tol, plan=tables.WindowPlan(sizes, *plan_arrays),
-        active=active)
-    return onset, force, slope, jnp.all(ok | ~active)
-
-
 class _SharedBuilder:
-    """One compiled program for every node of a family that is built (not loaded).
+    """The window sizes and solvers shared by every node of a family that is built.
 
     The nodes share a grid (the largest node grid: it holds every node's overlaps, and with
-    windows its size costs nothing), a column count (shorter nodes pad with skipped columns)
-    and the window sizes (merged over all their solves), so the program compiles once
-    instead of once per node (each compilation ~1 s per window size on the 2-core CPU).
+    windows its size costs nothing) and one set of window sizes (merged over all their
+    solves); each size's solver (:func:`wfjax.contact.tables.window_solver`) compiles once,
+    in parallel on the process's core pool, and serves every node (and every table of the
+    process with that window).
     """
 
     def __init__(self, spec: FamilySpec, indices, material: Material, tol: float):
@@ -504,32 +497,36 @@ class _SharedBuilder:
             element_size=spec.element_size, s_max=(self.n - 1) * spec.element_size,
             n_s=self.n, c_max=spec.c_max, n_t=spec.n_t, symmetric=True,
             wheel_radius=spec.wheel_radius, rail_head_radius=spec.rail_head_radius)
-        self.boxes = {i: tables.overlap_boxes(self.tspec, g[2], g[3])
-                      for i, g in self.geometry.items()}
-        self.sizes = tuple(tables._merge_sizes(tables.needed_sizes(list(self.boxes.values())),
+        self.gaps, boxes = {}, {}
+        for i, (_, _, flat, s) in self.geometry.items():
+            # padded to the longest node, so one compiled gap program serves every node
+            padded = np.concatenate([s, np.repeat(s[-1:], self.n - len(s))])
+            gaps, onsets = (a[:len(s)] for a in tables._column_gaps(self.tspec, flat, padded))
+            self.gaps[i] = gaps, onsets
+            boxes[i] = tables._boxes(self.tspec, gaps - gaps.min(axis=(1, 2), keepdims=True),
+                                     tables.WINDOW_MARGIN)
+        self.sizes = tuple(tables._merge_sizes(tables.needed_sizes(list(boxes.values())),
                                                FAMILY_WINDOW_SIZES,
                                                tables.COST_PER_WINDOW_SIZE))
-        self.material, self.tol = material, tol
-        first = self._inputs(indices[0])
-        self.compiled = _node_build_jit.lower(self.tspec, first[0], material, tol, self.sizes,
-                                              *first[1:]).compile()
-
-    def _inputs(self, idx: int):
-        _, _, flat, s = self.geometry[idx]
-        plan = tables.assign_windows(self.tspec, self.boxes[idx], self.sizes)
-        pad = self.n - len(s)
-
-        def padded(a):
-            return np.concatenate([a, np.repeat(a[-1:], pad, axis=0)], axis=0)
-
-        return (flat, padded(s), (padded(plan.size_index), padded(plan.x0), padded(plan.y0)),
-                np.arange(self.n) < len(s))
+        self.plans = {i: tables.assign_windows(self.tspec, b, self.sizes)
+                      for i, b in boxes.items()}
+        dtype = next(iter(self.gaps.values()))[0].dtype
+        self.material = tables._solver_inputs(material, dtype)
+        pool = core_pool()
+        self.solvers = [pool.submit(tables.window_solver, size, spec.element_size, tol, dtype)
+                        for size in self.sizes]
 
     def __call__(self, idx: int):
-        flat, s, plan_arrays, active = self._inputs(idx)
-        onset, force, slope, ok = self.compiled(flat, self.material, s, plan_arrays, active)
-        m = len(self.geometry[idx][3])
-        return np.asarray(onset)[:m], np.asarray(force)[:m], np.asarray(slope)[:m], bool(ok)
+        gaps, onsets = self.gaps[idx]
+        plan = self.plans[idx]
+        solvers = [c.result() for c in self.solvers]
+        cs = tables._compressions(self.tspec)
+        force, stiffness, ok = zip(*(
+            tables._solve_column(solvers, self.sizes, gaps[i], onsets[i], cs,
+                                 plan.size_index[i], plan.x0[i], plan.y0[i], self.material)
+            for i in range(len(onsets))), strict=True)
+        force, slope = tables._column_outputs(self.tspec, np.stack(force), np.stack(stiffness))
+        return onsets, np.asarray(force), np.asarray(slope), all(ok)
 
 
 def _node_build(builder: _SharedBuilder, idx: int) -> dict[str, np.ndarray]:
@@ -582,8 +579,9 @@ def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache
         builder = _SharedBuilder(spec, missing, material, float(tol))
         if progress:
             print(f"contact family ({spec.kind}): {len(missing)} of {n_d * n_l} nodes to "
-                  f"build, window sizes {builder.sizes}, compiled in "
-                  f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+                  f"build, window sizes {builder.sizes}, planned in "
+                  f"{time.perf_counter() - t0:.1f} s (their solvers compile on the core pool)",
+                  file=sys.stderr, flush=True)
 
         def build(idx):
             t1 = time.perf_counter()

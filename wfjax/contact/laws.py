@@ -64,6 +64,7 @@ __all__ = [
     "prepare_family_range",
     "resolve_mode_3d",
     "cached_table_3d",
+    "cached_tables_3d",
     "table_batch_size",
 ]
 
@@ -71,8 +72,9 @@ CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
 FLAT_MARGIN = 0.02  # m added to the flat's half extent on either side of its window
 TRAJECTORY_SPACING = 2e-5  # m between the samples of the tabulated wheel-centre trajectory
 # Part of every 3D table's cache key, so a change of the builder's results within one wfjax
-# version is never served from an old cache: 2 = new-flat onsets include the chord ends.
-TABLE_BUILDER_REVISION = 2
+# version is never served from an old cache: 2 = new-flat onsets include the chord ends;
+# 3 = issue 20's faster CG and shared window sizes (forces within 1e-9 of revision 2's).
+TABLE_BUILDER_REVISION = 3
 # Columns of a 3D table solved together (``tables.build_table_3d(batch_size=...)``), by JAX
 # platform: one at a time on CPUs (a vmap over the columns was 4.5x slower on 2 cores: every
 # batched Kalker while-loop runs until its slowest column); GPUs/TPUs fill their lanes.
@@ -391,20 +393,41 @@ def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
     size, and the builder's defaults through the wfjax version). Flats with traced geometry
     (``grad``, ``vmap``) are built directly, so gradients flow through the solves.
     """
-    from .._cache import load_or_build
-
-    def build():
-        return tables.build_table_3d(flat, wheel_radius, rail_head_radius, material,
-                                     element_size=element_size, batch_size=table_batch_size())
-
     leaves = jax.tree_util.tree_leaves((flat, material))
     if not all(_is_concrete(leaf) for leaf in leaves):
-        return build()
+        return tables.build_table_3d(flat, wheel_radius, rail_head_radius, material,
+                                     element_size=element_size, batch_size=table_batch_size())
+    return cached_tables_3d([flat], wheel_radius, rail_head_radius, material, element_size,
+                            cache_dir)[0]
+
+
+def cached_tables_3d(flats, wheel_radius: float, rail_head_radius: float,
+                     material: Material, element_size: float, cache_dir=None) -> list:
+    """:func:`cached_table_3d` of several concrete flats: the tables missing from the cache
+    are built together (:func:`wfjax.contact.tables.build_tables_3d`: one set of window
+    sizes, compiled once, and every column spread over the CPU cores)."""
+    from .. import _cache
+
     # A concrete flat's table spans its own extent: a window bound (extent_bound, which sizes
     # simulation windows of batches) must neither change the table nor alias its cache key.
-    flat = dataclasses.replace(flat, extent_bound=None)
-    key = {"flat_kind": flat.kind, "flat": [np.asarray(v) for v in leaves],
-           "wheel_radius": wheel_radius, "rail_head_radius": rail_head_radius,
-           "element_size": element_size, "builder_revision": TABLE_BUILDER_REVISION}
-    arrays = load_or_build("table3d", key, lambda: build()._asdict(), cache_dir)
-    return tables.ContactTable(**{k: jnp.asarray(v) for k, v in arrays.items()})
+    flats = [dataclasses.replace(f, extent_bound=None) for f in flats]
+    paths = [_cache.cache_path("table3d", {
+        "flat_kind": f.kind, "flat": [np.asarray(v) for v in jax.tree_util.tree_leaves(
+            (f, material))],
+        "wheel_radius": wheel_radius, "rail_head_radius": rail_head_radius,
+        "element_size": element_size, "builder_revision": TABLE_BUILDER_REVISION},
+        cache_dir) for f in flats]
+    arrays = [_cache._read(path) for path in paths]
+    missing = [i for i, a in enumerate(arrays) if a is None]
+    if missing:
+        if table_batch_size() == 1:
+            built = tables.build_tables_3d([flats[i] for i in missing], wheel_radius,
+                                           rail_head_radius, material, element_size)
+        else:
+            built = [tables.build_table_3d(flats[i], wheel_radius, rail_head_radius, material,
+                                           element_size=element_size,
+                                           batch_size=table_batch_size()) for i in missing]
+        for i, table in zip(missing, built, strict=True):
+            arrays[i] = {k: np.asarray(v) for k, v in table._asdict().items()}
+            _cache.store(paths[i], arrays[i])
+    return [tables.ContactTable(**{k: jnp.asarray(v) for k, v in a.items()}) for a in arrays]

@@ -24,14 +24,16 @@ Parametrisation (chosen so that every column is smooth and Hertz-like):
   end columns apply; the range is wide enough that they are the smooth wheel exactly (on the
   same grid).
 
-Build: one :func:`wfjax.contact.kalker.solve` per node, ``lax.map`` over s (sequential by
-default: on this 2-core CPU a ``vmap`` over all columns was 4.5x slower, because every batched
-while-loop runs until its slowest lane; ``batch_size`` > 1 vmaps chunks, for GPUs) and a
-warm-started ``lax.scan`` over c (pressures and the stiffness solve both warm-started). Each
-solve runs on a window of the table grid around its own rigid overlap (:func:`window_plan`:
-the same problem, since the contact lies inside the overlap; a few static window sizes chosen
-per solve by ``lax.switch``), 2-3.5x faster than solving on the whole grid; traced flats and
-batched columns use the whole grid.
+Build: one :func:`wfjax.contact.kalker.solve` per node, warm-started along c (pressures and the
+stiffness solve), sequential along each column. A concrete flat's solves each run on a window of
+the table grid around its own rigid overlap (:func:`window_plan`: the same problem, since the
+contact lies inside the overlap; 2-3.5x faster than the whole grid), with a few window sizes,
+each one compiled solver (:func:`window_solver`) shared by every table and family node of the
+process; a host loop drives each column, and the columns of all tables built together
+(:func:`build_tables_3d`) are spread over the CPU cores. Traced flats or materials
+(gradients) and batched columns (``batch_size`` > 1, for GPUs: ``lax.map`` over s with ``vmap``
+chunks; on this 2-core CPU a ``vmap`` over all columns was 4.5x slower, because every batched
+while-loop runs until its slowest lane) solve on the whole grid in one program.
 Symmetric flats (new, rounded) are solved for s >= 0 only and mirrored
 (the grid is symmetric, so this is exact). Gradients of the table values with respect to the
 flat's depth and length flow through the implicit-differentiated solves.
@@ -39,19 +41,23 @@ flat's depth and length flow through the implicit-differentiated solves.
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import math
+import threading
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._parallel import core_pool
 from ..params import Flat, Material
 from . import kalker
 
-__all__ = ["ContactTable", "Column", "TableSpec", "table_spec", "build_table_3d", "table_force",
-           "table_onset", "table_column", "column_force", "window_plan", "window_solve"]
+__all__ = ["ContactTable", "Column", "TableSpec", "table_spec", "build_table_3d",
+           "build_tables_3d", "table_force", "table_onset", "table_column", "column_force",
+           "window_plan", "window_solve", "window_solver"]
 
 _DEFAULT_MATERIAL = Material()
 
@@ -219,13 +225,19 @@ def _compressions(spec: TableSpec) -> np.ndarray:
     return spec.c_max * np.linspace(0.0, 1.0, spec.n_t)[1:] ** 2
 
 
+def _xp(a):
+    """numpy for host arrays (the concrete builds: no op-by-op compilations), else jnp."""
+    return np if isinstance(a, np.ndarray) else jnp
+
+
 def _column_outputs(spec: TableSpec, f, k):
     """Node forces and slopes dF/du [..., n_t] from the solved forces f and stiffnesses k
     [..., n_t - 1]."""
+    xp = _xp(f)
     t = np.linspace(0.0, 1.0, spec.n_t)[1:]
-    zero = jnp.zeros(f.shape[:-1] + (1,), f.dtype)
-    return (jnp.concatenate([zero, f], axis=-1),
-            jnp.concatenate([zero, k * 2 * spec.c_max * t / (spec.n_t - 1)], axis=-1))
+    zero = xp.zeros(f.shape[:-1] + (1,), f.dtype)
+    return (xp.concatenate([zero, f], axis=-1),
+            xp.concatenate([zero, k * 2 * spec.c_max * t / (spec.n_t - 1)], axis=-1))
 
 
 # ----------------------------------------------------------------------------------------
@@ -255,6 +267,10 @@ class WindowPlan(NamedTuple):
 
 
 WINDOW_MARGIN = 2  # elements between the rigid overlap's bounding box and the window edge
+# A table's solve at approach onset + c has its contact inside {gap < onset + c} (u >= 0, so
+# h = gap - delta + u > 0 elsewhere), a subset of {gap - min(gap) < c}: its windows need no
+# margin (the direct mode's solves, between the columns, keep WINDOW_MARGIN).
+TABLE_WINDOW_MARGIN = 0
 MAX_WINDOW_SIZES = 4  # static window sizes per build, at most
 # One more window size (one more compiled solver, about 1 s on the 2-core CPU) must save at
 # least this much modelled solve cost (FFT size m times log m, summed over the solves):
@@ -309,22 +325,29 @@ def _merge_sizes(needed: dict[tuple[int, int], int], max_sizes: int,
 
 
 @functools.partial(jax.jit, static_argnums=0)
-def _relative_gaps_jit(spec: TableSpec, flat: Flat, s_values):
+def _column_gaps_jit(spec: TableSpec, flat: Flat, s_values):
     def one(s):
-        g = kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius, spec.rail_head_radius)
-        return g - jnp.min(g)
+        return (kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius,
+                              spec.rail_head_radius), _onset(spec, flat, s))
 
     return jax.vmap(one)(s_values)
+
+
+def _column_gaps(spec: TableSpec, flat: Flat, s_values) -> tuple[np.ndarray, np.ndarray]:
+    """([n, nx, ny] gap [m] on the table grid, [n] rigid onset [m]) at concrete flat
+    positions ``s_values`` [n] [m]: one compiled program per layout and flat kind."""
+    gaps, onsets = _column_gaps_jit(spec, flat, jnp.asarray(s_values))
+    return np.asarray(gaps), np.asarray(onsets)
 
 
 def _relative_gaps(spec: TableSpec, flat: Flat, s_values) -> np.ndarray:
     """[n, nx, ny] gap minus its minimum on the grid [m] at concrete flat positions.
 
     The grid minimum is >= the continuum onset, so {gap - min < c} contains the rigid overlap
-    at compression c (a window from it is never too small). One compiled program per layout
-    (a rebuilt table of the same layout compiles nothing).
+    at compression c (a window from it is never too small).
     """
-    return np.asarray(_relative_gaps_jit(spec, flat, jnp.asarray(s_values)))
+    gaps = _column_gaps(spec, flat, s_values)[0]
+    return gaps - gaps.min(axis=(1, 2), keepdims=True)
 
 
 def window_plan(spec: TableSpec, flat: Flat, s_values, margin: int = WINDOW_MARGIN,
@@ -368,7 +391,11 @@ class OverlapBoxes(NamedTuple):
 def overlap_boxes(spec: TableSpec, flat: Flat, s_values,
                   margin: int = WINDOW_MARGIN) -> OverlapBoxes:
     """The :class:`OverlapBoxes` of ``flat`` (concrete) at columns ``s_values`` [n] [m]."""
-    rel = _relative_gaps(spec, flat, np.asarray(s_values, dtype=float))
+    return _boxes(spec, _relative_gaps(spec, flat, np.asarray(s_values, dtype=float)), margin)
+
+
+def _boxes(spec: TableSpec, rel: np.ndarray, margin: int) -> OverlapBoxes:
+    """:class:`OverlapBoxes` from the columns' relative gaps ``rel`` [n, nx, ny] [m]."""
     cs = _compressions(spec)
     boxes = []
     for axis, n in ((2, spec.nx), (1, spec.ny)):
@@ -443,66 +470,137 @@ def window_solve(spec: TableSpec, flat: Flat, material: Material, s, approach, s
     return r, gap, embed(r.pressure, p_full), None if z_full is None else embed(z, z_full)
 
 
-def _windowed_column(spec: TableSpec, sizes, flat: Flat, material: Material, s, tol: float,
-                     size_index, x0, y0):
-    """:func:`_column` with every solve on its window (see :class:`WindowPlan`)."""
-    onset = _onset(spec, flat, s)
-    dtype = jnp.result_type(onset.dtype, float)
-
-    def branch(size):
-        def solve(p_full, z_full, c, i0, j0):
-            r, _, p_new, z_new = window_solve(spec, flat, material, s, onset + c, size,
-                                              (i0, j0), p_full, tol, z_full)
-            return (p_new, z_new, r.force.astype(dtype), r.stiffness.astype(dtype),
-                    r.diagnostics.converged)
-
-        return solve
-
-    branches = [branch(size) for size in sizes]
-
-    def step(carry, inputs):
-        c, k, i0, j0 = inputs
-        p_full, z_full, force, stiff, ok = jax.lax.switch(k, branches, *carry, c, i0, j0)
-        return (p_full, z_full), (force, stiff, ok)
-
-    p0 = jnp.zeros((spec.nx, spec.ny), dtype)
-    _, (f, k, ok) = jax.lax.scan(step, (p0, p0), (jnp.asarray(_compressions(spec)), size_index,
-                                                   x0, y0))
-    return (onset,) + _column_outputs(spec, f, k) + (jnp.all(ok),)
-
-
 def build_columns(spec: TableSpec, flat: Flat, material: Material, s_values, tol: float,
-                  batch_size: int = 1, plan: WindowPlan | None = None, active=None):
-    """Solve the columns of a table at flat positions ``s_values`` [n] [m] (traceable).
-
-    With a ``plan`` every solve runs on its window (sequential over the columns; several
-    times faster); without one on the whole grid (``batch_size`` > 1 then vmaps chunks of
-    columns, for wide devices). ``active`` [n] bool (with a plan): columns left False are
-    skipped and return zeros (padding, so builds of different lengths share one program).
+                  batch_size: int = 1):
+    """Solve the columns of a table at flat positions ``s_values`` [n] [m] on the whole grid
+    (traceable: traced flats and materials, gradients; ``batch_size`` > 1 vmaps chunks of
+    columns, for wide devices). Concrete builds use windows (:func:`build_tables_3d`).
 
     Returns:
         (onset [n] [m], force [n, n_t] [N], slope [n, n_t] [N], converged [n]) as in
         :class:`ContactTable`.
     """
-    s_values = jnp.asarray(s_values)
-    if plan is None:
-        return jax.lax.map(lambda s: _column(spec, flat, material, s, tol), s_values,
-                           batch_size=batch_size)
+    return jax.lax.map(lambda s: _column(spec, flat, material, s, tol), jnp.asarray(s_values),
+                       batch_size=batch_size)
 
-    def one(args):
-        return _windowed_column(spec, plan.sizes, flat, material, args[0], tol, *args[1:])
 
-    columns = (s_values, jnp.asarray(plan.size_index), jnp.asarray(plan.x0),
-               jnp.asarray(plan.y0))
-    if active is None:
-        return jax.lax.map(one, columns)
-    shapes = jax.eval_shape(one, jax.tree.map(lambda a: a[0], columns))
+# ----------------------------------------------------------------------------------------
+# Concrete builds: one compiled solver per window size, shared by every build of the process
+# ----------------------------------------------------------------------------------------
 
-    def skip(_):
-        return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+_SOLVERS: dict[tuple, concurrent.futures.Future] = {}
+_SOLVERS_LOCK = threading.Lock()
 
-    return jax.lax.map(lambda args: jax.lax.cond(args[0], one, skip, args[1]),
-                       (jnp.asarray(active), columns))
+
+def _solver_inputs(material: Material, dtype) -> Material:
+    return jax.tree.map(lambda v: jnp.asarray(v, dtype), material)
+
+
+def window_solver(size: tuple[int, int], element_size: float, tol: float, dtype=np.float64):
+    """The compiled approach-controlled Kalker solve on a window of ``size`` (wx, wy).
+
+    ``solver(gpz, approach, material) -> (pz, out)`` with gpz [3, wx, wy] the gap [m] and
+    the warm starts of the pressure [Pa] and of the stiffness solve z [1/m], approach [m], a
+    material of ``dtype`` arrays (:func:`_solver_inputs`); pz [2, wx, wy] the pressure and z,
+    out [3] the force [N], the stiffness [N/m] and 1.0 if converged (few arrays in and out:
+    each costs the host loop a conversion). The
+    program depends on nothing but the window, the element size, the tolerance and the
+    dtype, so every table and family node of the process shares it: each size compiles once
+    (~0.4 s on the 2-core CPU), however many flats use it; concurrent callers of a size wait
+    for the first one's compilation.
+    """
+    key = (int(size[0]), int(size[1]), float(element_size), float(tol), np.dtype(dtype).name)
+    with _SOLVERS_LOCK:
+        future = _SOLVERS.get(key)
+        mine = future is None
+        if mine:
+            future = _SOLVERS[key] = concurrent.futures.Future()
+    if mine:
+        try:
+            future.set_result(_compile_window_solver(*key))
+        except BaseException as err:
+            with _SOLVERS_LOCK:
+                del _SOLVERS[key]
+            future.set_exception(err)
+            raise
+    return future.result()
+
+
+def _compile_window_solver(wx: int, wy: int, h: float, tol: float, dtype: str):
+    cfg = kalker._Config(wx, wy, h, h, "fft", tol, 1000)
+
+    def solve(gpz, approach, material):
+        r, z = kalker._solve_impl(cfg, gpz[0], material, approach, None, gpz[1], 50, True,
+                                  False, z_init=gpz[2])
+        return (jnp.stack([r.pressure, z]),
+                jnp.stack([r.force, r.stiffness, r.diagnostics.converged.astype(dtype)]))
+
+    return jax.jit(solve).lower(jnp.zeros((3, wx, wy), dtype), jnp.zeros((), dtype),
+                                _solver_inputs(_DEFAULT_MATERIAL, dtype)).compile()
+
+
+def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, size_index,
+                  x0, y0, material):
+    """Forces, stiffnesses [n_t - 1] and convergence of one column, each compression on its
+    window (host loop; pressures and stiffness solves warm-started along the column)."""
+    gpz = np.zeros((3,) + gap.shape, gap.dtype)  # gap, then the warm starts p and z
+    gpz[0] = gap
+    out = np.zeros((len(compressions), 3), gap.dtype)
+    for j, c in enumerate(compressions):
+        k = int(size_index[j])
+        wx, wy = sizes[k]
+        window = np.s_[:, int(x0[j]):int(x0[j]) + wx, int(y0[j]):int(y0[j]) + wy]
+        pz, out[j] = solvers[k](gpz[window], onset + c, material)
+        gpz[1:] = 0.0
+        gpz[(np.s_[1:],) + window[1:]] = pz
+    return out[:, 0], out[:, 1], bool(np.all(out[:, 2] == 1.0))
+
+
+def _grid_sizes(spec: TableSpec, sizes) -> tuple[tuple[int, int], ...]:
+    """``sizes`` clipped to the grid of ``spec`` (a window never exceeds its grid)."""
+    return tuple(dict.fromkeys((min(wx, spec.nx), min(wy, spec.ny)) for wx, wy in sizes))
+
+
+def _build_windowed(specs, flats, material: Material, tol: float,
+                    max_sizes: int = MAX_WINDOW_SIZES) -> list[ContactTable]:
+    """:func:`build_tables_3d` of concrete flats: every solve on its window, the window sizes
+    merged over all the tables (:func:`_merge_sizes`), the solvers from :func:`window_solver`
+    and the columns of all tables as items of :func:`wfjax._parallel.core_pool`, the most
+    expensive first (so the cores stay busy whatever the tables' sizes)."""
+    columns = [(spec, _solve_positions(spec)) for spec in specs]
+    gaps = [_column_gaps(spec, flat, s) for (spec, s), flat in zip(columns, flats, strict=True)]
+    boxes = [_boxes(spec, g - g.min(axis=(1, 2), keepdims=True), TABLE_WINDOW_MARGIN)
+             for spec, (g, _) in zip(specs, gaps, strict=True)]
+    merged = _merge_sizes(needed_sizes(boxes), max_sizes, COST_PER_WINDOW_SIZE)
+    plans = [assign_windows(spec, b, _grid_sizes(spec, merged))
+             for spec, b in zip(specs, boxes, strict=True)]
+    dtype = gaps[0][0].dtype
+    mat = _solver_inputs(material, dtype)
+    pool = core_pool()
+    h = {spec.element_size for spec in specs}.pop()
+    compiled = {size: pool.submit(window_solver, size, h, tol, dtype)
+                for size in dict.fromkeys(size for plan in plans for size in plan.sizes)}
+
+    def column(item):
+        t, i = item
+        plan, (g, onsets) = plans[t], gaps[t]
+        solvers = [compiled[size].result() for size in plan.sizes]
+        return _solve_column(solvers, plan.sizes, g[i], onsets[i], _compressions(specs[t]),
+                             plan.size_index[i], plan.x0[i], plan.y0[i], mat)
+
+    cost = {(t, i): c for t, plan in enumerate(plans)
+            for i, c in enumerate(_solve_cost(*np.asarray(plan.sizes)[plan.size_index].T)
+                                  .sum(axis=0))}
+    futures = {item: pool.submit(column, item) for item in sorted(cost, key=cost.get,
+                                                                 reverse=True)}
+    tables = []
+    for t, (spec, s) in enumerate(columns):
+        force, stiffness, ok = zip(*(futures[t, i].result() for i in range(len(s))),
+                                   strict=True)
+        force_t, slope_t = _column_outputs(spec, np.stack(force), np.stack(stiffness))
+        table = _assemble(spec, gaps[t][1], force_t, slope_t, all(ok))
+        tables.append(jax.tree.map(jnp.asarray, table))  # host arrays to the device: no compiling
+    return tables
 
 
 def _solve_positions(spec: TableSpec) -> np.ndarray:
@@ -510,26 +608,25 @@ def _solve_positions(spec: TableSpec) -> np.ndarray:
     return spec.s[spec.n_s // 2:] if spec.symmetric else spec.s
 
 
-@functools.partial(jax.jit, static_argnums=(0, 3, 4, 5))
-def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_size: int,
-           sizes: tuple, plan_arrays):
-    plan = None if plan_arrays is None else WindowPlan(sizes, *plan_arrays)
+@functools.partial(jax.jit, static_argnums=(0, 3, 4))
+def _build(spec: TableSpec, flat: Flat, material: Material, tol: float, batch_size: int):
     onset, force, slope, ok = build_columns(spec, flat, material, _solve_positions(spec), tol,
-                                            batch_size, plan)
+                                            batch_size)
     return _assemble(spec, onset, force, slope, jnp.all(ok))
 
 
 def _assemble(spec: TableSpec, onset, force, slope, ok) -> ContactTable:
     """The table from its solved columns (mirrored for symmetric flats)."""
+    xp = _xp(force)
     if spec.symmetric:
         def mirror(a):
-            return jnp.concatenate([a[:0:-1], a], axis=0)
+            return xp.concatenate([a[:0:-1], a], axis=0)
 
         onset, force, slope = mirror(onset), mirror(force), mirror(slope)
     return ContactTable(
-        s_min=jnp.asarray(-spec.s_max), ds=jnp.asarray(2 * spec.s_max / (spec.n_s - 1)),
-        c_max=jnp.asarray(spec.c_max), onset=onset, force=force, slope=slope,
-        converged=jnp.asarray(ok).astype(force.dtype))
+        s_min=xp.asarray(-spec.s_max), ds=xp.asarray(2 * spec.s_max / (spec.n_s - 1)),
+        c_max=xp.asarray(spec.c_max), onset=onset, force=force, slope=slope,
+        converged=xp.asarray(ok).astype(force.dtype))
 
 
 def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
@@ -551,8 +648,8 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
         batch_size: columns solved together by ``vmap`` (> 1 for wide devices; then every
             solve runs on the whole grid).
         windows: solve each compression on a window around its rigid overlap
-            (:func:`window_plan`; same forces, several times faster) when the flat is
-            concrete and ``batch_size`` is 1; False: always the whole grid.
+            (:func:`window_plan`; same forces, several times faster) when the flat and the
+            material are concrete and ``batch_size`` is 1; False: always the whole grid.
 
     Returns:
         :class:`ContactTable` with n_s columns of n_t nodes.
@@ -560,11 +657,29 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
     if spec is None:
         spec = table_spec(flat, wheel_radius, rail_head_radius, material, element_size,
                           max_force, ds, n_t)
-    if windows and int(batch_size) == 1 and kalker._is_concrete_tree(flat):
-        plan = window_plan(spec, flat, _solve_positions(spec))
-        return _build(spec, flat, material, float(tol), 1, plan.sizes,
-                      (plan.size_index, plan.x0, plan.y0))
-    return _build(spec, flat, material, float(tol), int(batch_size), (), None)
+    if windows and int(batch_size) == 1 and kalker._is_concrete_tree((flat, material)):
+        return _build_windowed([spec], [flat], material, float(tol))[0]
+    return _build(spec, flat, material, float(tol), int(batch_size))
+
+
+def build_tables_3d(flats, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
+                    material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
+                    max_force: float = 600e3, tol: float = 1e-8) -> list[ContactTable]:
+    """:func:`build_table_3d` of several concrete flats, built together: one set of window
+    sizes for all (each size compiles once), their columns spread over the CPU cores.
+
+    A table's values depend on its windows only within the solver's tolerance (about 1e-9
+    of its largest force), so a table built with others equals the one built alone to that.
+    """
+    flats = list(flats)
+    if not kalker._is_concrete_tree((flats, material)):
+        raise ValueError("build_tables_3d needs concrete flats and material; build a traced "
+                         "flat's table with build_table_3d(spec=...)")
+    specs = [table_spec(f, wheel_radius, rail_head_radius, material, element_size, max_force)
+             for f in flats]
+    if not flats:
+        return []
+    return _build_windowed(specs, flats, material, float(tol))
 
 
 def catmull_rom_weights(w):
