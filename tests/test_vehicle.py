@@ -210,3 +210,43 @@ def test_two_wheels_agree_with_a_direct_fe_time_integration():
         fm, fn = np.asarray(res.wheel_force)[after, i], forces[after, i]
         assert fn.max() == pytest.approx(fm.max(), rel=0.02), i
         assert fn.min() == pytest.approx(fm.min(), abs=0.02 * fm.max()), i
+
+
+def test_sensors_and_detector_see_every_wheel():
+    # static start: the readings under a bogie are the superposition of each wheel's alone
+    from wfjax import sensors as sensor_mod
+    from wfjax.sensors import Detector
+
+    track, config, wheel = wf.Track(), wf.SimConfig(), wf.Wheel()
+    vehicle = Vehicle.bogie()
+    struct = it.vehicle_structure(vehicle, [wheel, wheel], track, config)
+    smooth = it.prepare("hertz-profile", wf.Flat.none(), wheel, track, wf.Material(), config)
+    spec = sensor_mod.sensor_spec([-1.3, 0.0, 0.2], track, struct.track,
+                                  ("rail_disp", "shear", "seat_force"))
+    x0 = placement(vehicle, 0.65) + 0.1
+    both = it.run_scan((smooth, smooth), struct, V, 2e-5, x0, x0 + 1.0, 2, sensors=spec)
+    alone = [it.run_scan(smooth, it.structure(wheel, track, config), V, 2e-5, x, x + 1.0, 2,
+                         sensors=spec)["sensors"][0] for x in x0 + vehicle.offsets()]
+    np.testing.assert_allclose(np.asarray(both["sensors"][0]), np.asarray(sum(alone)),
+                               rtol=1e-6, atol=1e-9 * 118e3)
+    res = wf.simulate(ROUNDED, V, contact="hertz-trajectory", vehicle=vehicle,
+                      detector=Detector(n_bays=3))
+    peak = np.asarray(res.detector_peak)
+    assert peak.shape == (2, 3)  # each wheel's peak in each bay it crosses
+    assert np.all(np.abs(peak[1] / 118e3 - 1) < 0.2)  # the smooth wheel reads about P
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--wheel-positions-m", "0,0.5"], "wheel diameter"),
+    (["--vehicle", "bogie", "--flat-wheel", "2"], "flat_wheel"),
+    (["--vehicle", "tram"], "allowed: single | bogie | wagon"),
+    (["--vehicle", "bogie", "--axle-spacing-m", "40"], "allowed: [0.3, 10] m"),
+])
+def test_cli_refuses_bad_vehicles_with_one_line(tmp_path, capsys, argv, words):
+    from wfjax.cli import main
+
+    out = tmp_path / "out"
+    assert main(["simulate", "--contact", "hertz-profile", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and words in err, err
+    assert not out.exists()

@@ -676,7 +676,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
             )
     spacing = float(track.sleeper_spacing)
     if detector is not None:
-        config = detector_config(detector, track, config)
+        config = detector_config(detector, track, config, _wheel_positions(vehicle, spacing))
     window_flat = flat
     if vehicle is not None:
         window_flat = vehicle_window_flat(vehicle, flats)
@@ -772,6 +772,14 @@ def check_rail_span(rail, x_lo: float, x_hi: float) -> None:
                          f"span (x_start, length)")
 
 
+def _wheel_positions(vehicle, sleeper_spacing: float) -> tuple:
+    """Every wheel's rail coordinate at the reference impact, less the impact position [m]."""
+    if vehicle is None:
+        return (0.0,)
+    shift = vehicle_mod.placement(vehicle, sleeper_spacing)
+    return tuple(float(shift + o) for o in vehicle.offsets())
+
+
 def vehicle_window_flat(vehicle, flats: list[Flat]) -> Flat:
     """The flat whose simulation window covers every flat of the vehicle.
 
@@ -801,11 +809,16 @@ def vehicle_laws(contact: str, flats: list[Flat], wheels: list[Wheel], track: Tr
     return tuple(laws)
 
 
-def detector_config(detector, track: Track, config: SimConfig) -> SimConfig:
-    """``config`` with ``run_in``/``run_out`` [m] long enough for the wheel to cross every bay
-    of ``detector`` (for any impact position in [0, L_S) and any flat; 5 cm margin)."""
+def detector_config(detector, track: Track, config: SimConfig,
+                    wheel_positions=(0.0,)) -> SimConfig:
+    """``config`` with ``run_in``/``run_out`` [m] long enough for every wheel to cross every
+    bay of ``detector`` (for any impact position in [0, L_S) and any flat; 5 cm margin).
+
+    ``wheel_positions``: [n] every wheel's rail coordinate at the reference impact, less the
+    impact position [m] (a vehicle: its placement plus the wheels' offsets; one wheel: 0).
+    """
     a, b = detector.gauges(float(track.sleeper_spacing))
-    run_in = float(track.sleeper_spacing) - float(a[0]) + 0.05
-    run_out = float(b[-1]) + 0.05
+    run_in = max(wheel_positions) + float(track.sleeper_spacing) - float(a[0]) + 0.05
+    run_out = float(b[-1]) - min(wheel_positions) + 0.05
     return dataclasses.replace(config, run_in=max(config.run_in, run_in),
                                run_out=max(config.run_out, run_out))

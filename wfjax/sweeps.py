@@ -42,6 +42,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .contact.laws import CONTACT_MODELS, cached_tables_3d, prepare, prepare_family, resolve_mode_3d
 from .interaction import (
+    _wheel_positions,
     batch_windows,
     check_rail_span,
     detector_config,
@@ -65,6 +66,7 @@ __all__ = ["SweepResult", "sweep", "impact_positions_grid", "chunk_width"]
 # wider vmap only costs memory); accelerators: thousands of lanes keep a GPU busy.
 CHUNK_CAP = {"cpu": 64}
 ACCELERATOR_CHUNK_CAP = 8192
+CPU_WHEEL_RUNS = 128  # wheels x runs per CPU device and chunk at most (see chunk_width)
 MEMORY_FRACTION = 0.5  # of a device's free memory one chunk may take
 PERCENTILES = (50.0, 95.0, 99.0)  # % of the Monte Carlo summaries
 
@@ -472,7 +474,8 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     if contact not in CONTACT_MODELS:
         raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
     if detector is not None:
-        config = detector_config(detector, track, config)
+        config = detector_config(detector, track, config,
+                                 _wheel_positions(vehicle, float(track.sleeper_spacing)))
     models = None
     if tracks is not None:
         tracks = list(tracks)
@@ -705,13 +708,14 @@ def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
                config: SimConfig, mesh: Mesh, chunk_size: int | None,
                bar: _Progress, n_real: int = 1) -> list[np.ndarray]:
     """Summaries [n_flats, n_speeds, n_positions, n_real] of one batch of laws, chunked and
-    sharded (the realisation axis: roughness realisations, 1 without).
+    sharded (the realisation axis: roughness or support realisations, 1 without).
 
     Every chunk is dispatched before the previous one is collected (one chunk in flight)."""
     n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
     if chunk_size is None:
         n_modes = int(struct.track.poles.shape[0])
-        per_device = chunk_width(n_steps, n_modes, config.precision)
+        n_wheels = 1 if struct.offsets is None else int(struct.offsets.shape[0])
+        per_device = chunk_width(n_steps, n_modes, config.precision, n_wheels=n_wheels)
         if jax.process_count() > 1:  # every process must compile and run the same chunks
             per_device = int(np.min(multihost_utils.process_allgather(np.int32(per_device))))
         chunk_size = mesh.devices.size * per_device
@@ -847,7 +851,8 @@ def check_impact_positions(positions, track: Track) -> np.ndarray:
     return pos
 
 
-def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64") -> int:
+def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64",
+                  n_wheels: int = 1) -> int:
     """Device memory [bytes] one run of the batched time loop needs (an upper estimate).
 
     24 complex vectors of ``n_modes`` (carry, propagated state, shapes at the contact and
@@ -855,17 +860,22 @@ def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64") -> int
     ``memory_analysis()`` on CPU (temporaries at 16 and 64 runs, 599 modes): float64
     215 / 262 KB per run at 1000 / 4000 steps (estimate 246 / 294 KB), float32 74 / 77 KB
     (estimate 123 / 147 KB); the width-independent rest (~11 MB: the structure's modes) is
-    left to ``MEMORY_FRACTION``.
+    left to ``MEMORY_FRACTION``. Every further wheel of a vehicle adds its shapes, their
+    products and the gathered nodal rows (8 complex vectors) and its outputs per step.
     """
     real = 8 if precision == "float64" else 4
-    return real * (2 * n_steps + 24 * 2 * n_modes)
+    return real * (2 * n_steps * n_wheels + (24 + 8 * (n_wheels - 1)) * 2 * n_modes)
 
 
 def chunk_width(n_steps: int, n_modes: int, precision: str = "float64",
-                device: jax.Device | None = None) -> int:
+                device: jax.Device | None = None, n_wheels: int = 1) -> int:
     """Runs per device and chunk: as many as ``MEMORY_FRACTION`` of the device's free memory
     holds (:func:`bytes_per_run`), at most the platform's throughput cap (``CHUNK_CAP``: 64
-    on CPU; ``ACCELERATOR_CHUNK_CAP`` on GPUs/TPUs) and at least 1.
+    on CPU; ``ACCELERATOR_CHUNK_CAP`` on GPUs/TPUs) and at least 1. On a CPU the cap counts
+    wheel-runs (``CPU_WHEEL_RUNS`` = 128 per device): a step's working set (every wheel's
+    nodal mode-shape rows) grows with the wheels, and beyond the caches a wider batch is
+    slower per run (measured: 8 wheels 5.98x the one-wheel time per run at 16 runs, 6.4x at 8,
+    10.7x at 64).
 
     ``device``: default the first local device. Free memory: ``device.memory_stats()``
     (``bytes_limit - bytes_in_use``) where the backend
@@ -880,7 +890,9 @@ def chunk_width(n_steps: int, n_modes: int, precision: str = "float64",
         free = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES") / max(
             1, jax.local_device_count())
     cap = CHUNK_CAP.get(device.platform, ACCELERATOR_CHUNK_CAP)
-    fits = int(MEMORY_FRACTION * free // bytes_per_run(n_steps, n_modes, precision))
+    if device.platform == "cpu":
+        cap = min(cap, max(1, CPU_WHEEL_RUNS // n_wheels))
+    fits = int(MEMORY_FRACTION * free // bytes_per_run(n_steps, n_modes, precision, n_wheels))
     return max(1, min(cap, fits))
 
 
