@@ -41,6 +41,16 @@ initial angular position of the wheel, ``angle0`` [rad]: with the wheel starting
 coordinate X_0 with the flat centre at angle ``angle0`` ahead of the contact point (rolling
 direction), the flat reaches the contact after rolling R * angle0, so
 impact_position = (X_0 + R * angle0) mod L_S. :func:`impact_position_from_angle` does that.
+On a track whose supports vary (:func:`wfjax.supports.is_uniform` false) every bay differs and
+``impact_position`` is an absolute rail coordinate (x = 0 above the middle sleeper;
+``docs/real_track.md``).
+
+Roughness
+---------
+``simulate(roughness=, wheel_roughness=)`` and ``time_loop(roughness=)`` (a
+:class:`wfjax.roughness.LoopRoughness`): point-contact laws add the contact-filtered
+roughness to the approach, the 2D bedding and the direct 3D solve take it off the gap element
+by element (:meth:`wfjax.contact.laws.ContactLaw.rough_nodes`); see ``docs/real_track.md``.
 """
 
 from __future__ import annotations
@@ -732,7 +742,7 @@ def loop_roughness(rail=None, wheel=None, wheels=None, track: Track | None = Non
 
     The contact filter's length (point-contact laws) is each wheel's static Hertz contact
     length (:func:`wfjax.roughness.static_contact_length` at its preload, on the Hertz radius
-    sqrt(R_W R_R)), ~12 mm for the paper's wheel: the patch the wheel rolls on between
+    sqrt(R_W R_R)), 13.1 mm for the default wheel and track: the patch the wheel rolls on between
     impacts, where roughness excites it.
 
     Args:
