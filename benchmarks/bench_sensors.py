@@ -13,17 +13,12 @@ Prints Markdown.
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 
-import numpy as np
+from _timing import interleaved_sweeps, print_ratios
 
-import wfjax as wf
 from wfjax.sensors import Detector
 
 SENSORS = [-0.65, -0.325, 0.0, 0.1, 0.325, 0.55, 0.65, 0.975]  # m: 8 sensors
-FLATS = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
-SPEEDS = np.arange(20.0, 300.1, 10.0) / 3.6
 
 
 def main() -> None:
@@ -38,20 +33,7 @@ def main() -> None:
                 "8 sensors x shear": {"sensors": SENSORS, "sensor_quantities": ("shear",)}}
     if args.detector:
         variants["detector (3 bays)"] = {"detector": Detector()}
-    times = {k: [] for k in variants}
-    for kw in variants.values():  # compile
-        wf.sweep(FLATS, SPEEDS, 10, progress=False, **kw)
-    for _ in range(args.repeats):
-        for name, kw in variants.items():
-            t0 = time.perf_counter()
-            wf.sweep(FLATS, SPEEDS, 10, progress=False, **kw)
-            times[name].append(time.perf_counter() - t0)
-    base = statistics.median(times["no sensors"])
-    print("| variant | warm times [s] | median [s] | / no sensors |")
-    print("| --- | --- | --- | --- |")
-    for name, t in times.items():
-        med = statistics.median(t)
-        print(f"| {name} | {', '.join(f'{x:.2f}' for x in t)} | {med:.2f} | {med / base:.2f} |")
+    print_ratios(interleaved_sweeps(variants, args.repeats), "no sensors")
 
 
 if __name__ == "__main__":

@@ -20,37 +20,22 @@ from __future__ import annotations
 
 import argparse
 import resource
-import statistics
 import subprocess
 import sys
-import time
 
 import numpy as np
+from _timing import interleaved_sweeps, print_ratios
 
 import wfjax as wf
 from wfjax.vehicle import Vehicle
 
-FLATS = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
-SPEEDS = np.arange(20.0, 300.1, 10.0) / 3.6
 VEHICLES = {"1 wheel": None, "bogie (2 wheels, 2.5 m)": Vehicle.bogie(),
             "8 wheels, 2.5 m apart": Vehicle(tuple(2.5 * np.arange(8)))}
 
 
 def speed(repeats: int) -> None:
-    times = {k: [] for k in VEHICLES}
-    for vehicle in VEHICLES.values():  # compile (and build the tables)
-        wf.sweep(FLATS, SPEEDS, 10, progress=False, vehicle=vehicle)
-    for _ in range(repeats):
-        for name, vehicle in VEHICLES.items():
-            t0 = time.perf_counter()
-            wf.sweep(FLATS, SPEEDS, 10, progress=False, vehicle=vehicle)
-            times[name].append(time.perf_counter() - t0)
-    base = statistics.median(times["1 wheel"])
-    print("| vehicle | warm times [s] | median [s] | / 1 wheel |")
-    print("| --- | --- | --- | --- |")
-    for name, t in times.items():
-        med = statistics.median(t)
-        print(f"| {name} | {', '.join(f'{x:.2f}' for x in t)} | {med:.2f} | {med / base:.2f} |")
+    variants = {name: {"vehicle": vehicle} for name, vehicle in VEHICLES.items()}
+    print_ratios(interleaved_sweeps(variants, repeats), "1 wheel", "vehicle")
 
 
 def memory() -> None:
