@@ -61,6 +61,7 @@ def test_sweep_rejects_a_bad_chunk_size():
                  chunk_size=0, progress=False)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_bench_device_smoke(tmp_path, monkeypatch, capsys):
     """benchmarks/bench_device.py at its tiny size (the sections without 3D sweeps, which
     build tables or a family: tests/test_interaction.py and test_family.py cover those)."""

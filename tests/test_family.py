@@ -155,6 +155,7 @@ def test_gradient_matches_finite_difference(rounded, arg):
     assert float(g_s) == pytest.approx(float(fd_s), rel=1e-3, abs=1e3)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_vmap_over_geometry_equals_loop(rounded):
     depths = jnp.array([0.57e-3, 0.66e-3, 0.8e-3, 1.07e-3])
     lengths = jnp.array([1.67, 1.73, 1.8, 1.85]) * jnp.sqrt(8 * R * depths)

@@ -275,6 +275,7 @@ def _detector_truth(contact, speeds, truth, par, position, config, track=None):
     return clean * (1 + 0.03 * np.random.default_rng(7).standard_normal(clean.shape))
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_fit_to_detector_readings_hertz():
     """Detector readings per bay (full model, 3 % noise), start 50 % off: depth and length
     within 5 %; the prediction is the detector's, not the contact force."""

@@ -120,6 +120,7 @@ def test_sweep_name_is_unambiguous():
     assert callable(sweep) and sweep is wfjax.sweeps.sweep
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_parametric_law_reads_the_family_and_batches():
     """ParametricLaw's table is the family at s_j = j h (exactly, onsets included), batched over
     depths, and close to it between the s_j."""
@@ -213,6 +214,7 @@ def test_tables_built_together_equal_tables_built_alone(tmp_path):
         np.testing.assert_array_equal(loaded.force, table.force)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
     """The direct 3D mode solves each iterate on a window of its overlap: the same forces as
     on the whole grid, through an impact, and beyond the table's compression range (where the

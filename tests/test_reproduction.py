@@ -24,6 +24,7 @@ def _kmh(*values):
 
 
 # -- fast: command line ---------------------------------------------------------------------
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_compare_cli_writes_files_and_orders_models(tmp_path, capsys):
     """Tiny ``wfjax compare``: files written; new 0.9 mm flat at 100 km/h: 2D < 3D < HT."""
     status = main(["compare", "--depths-mm", "0.9", "--speeds-kmh", "100", "--positions", "1",

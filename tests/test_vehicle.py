@@ -21,7 +21,9 @@ ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 V = 100 / 3.6
 
 
-@pytest.mark.parametrize("contact", ["hertz-profile", "hertz-trajectory", "2d", "3d"])
+@pytest.mark.parametrize("contact", [
+    "hertz-profile", "hertz-trajectory", pytest.param("2d", marks=pytest.mark.slow),
+    pytest.param("3d", marks=pytest.mark.slow)])
 def test_one_wheel_vehicle_reproduces_the_single_wheel_loop(contact):
     # tests/data holds the histories of the one-wheel loop before the several-wheels rewrite
     ref = np.load(REFERENCE)
@@ -51,6 +53,7 @@ def _single_run(flat, x_start, impact, n, dt, config, contact="hertz-trajectory"
     return it.run_scan(law, it.structure(wheel, track, config), V, dt, x_start, impact, n)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_two_wheels_far_apart_each_match_their_single_wheel_run():
     # 20 m apart; modes to 20 kHz (the truncated modal sum's non-causal precursor between
     # wheels this far apart is 0.6 % of P at 10 kHz, 0.08 % at 20 kHz)
