@@ -565,12 +565,12 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     first_readings, acc0 = readings(q0, preload, x0, 0, acc0)
 
     def step(carry, n):
-        q, p, f_prev, load_prev, states, acc = carry
+        q, p, f_prev, phi_prev, states, acc = carry
         x_ref = x_start + speed * dt * n
         x = x_ref + offsets
         s = x_ref - impact_position - delays
         phi = shapes_at(x)
-        q_hat = e_r * q + ap_r * load_prev
+        q_hat = e_r * q + ap_r * _loads(f_prev, phi_prev)
         xi_r_free, c_own = _rail_reads(phi, w_r, an_r, q_hat)
         c_rail = jnp.diag(c_own) + _residual_matrix(struct, model, x_ref)
         if n_wheels > 1:
@@ -588,16 +588,15 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
                                                  jnp.diag(c_wheel) + c_rail, s, states,
                                                  max_iter, groups, rough)
             delta = delta - shift
-        load = _loads(f, phi)
-        q_new = q_hat + an_r * load
+        q_new = q_hat + an_r * _loads(f, phi)
         p_new = p_hat + an_w * (f - preload)[:, None]
         axle_acc = jnp.real(jnp.sum(axle_acc_res * p_new, axis=-1))
         extra, acc = readings(q_new, f, x, n, acc)
         out = (x, s, f, delta, xi_w_free - c_wheel * f, xi_r_free + c_rail @ f, r, axle_acc,
                extra)
-        return (q_new, p_new, f, load, states, acc), out
+        return (q_new, p_new, f, phi, states, acc), out
 
-    carry0 = (q0, p0, preload, _loads(preload, phi0), tuple(law.init_state() for law in laws),
+    carry0 = (q0, p0, preload, phi0, tuple(law.init_state() for law in laws),
               acc0)
     (*_, acc), outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
                                    jnp.arange(1, n_steps))
