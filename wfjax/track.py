@@ -56,6 +56,7 @@ __all__ = [
     "interpolate_nodal",
     "residual_compliance_at",
     "modal_receptance",
+    "modal_sum",
     "moving_greens",
     "moving_greens_newmark",
     "discrete_step_coefficients",
@@ -386,15 +387,23 @@ def modal_receptance(model: ModalModel, freqs, x: float = 0.0) -> np.ndarray:
 
     Includes the static residual of the truncated modes.
     """
+    return (modal_sum(model, freqs, float(x), float(x))
+            + float(residual_compliance_at(model, float(x))))
+
+
+def modal_sum(model: ModalModel, freqs, x_force: float, x_response: float) -> np.ndarray:
+    """The kept modes' receptance [m/N] from a force at ``x_force`` [m] to the displacement
+    at ``x_response`` [m], complex [n_f] (freqs [Hz]); without the truncated modes' static
+    part (the caller adds it)."""
     f = _check_freqs(freqs)
     s = 2j * np.pi * f[:, None]
-    phi = np.asarray(mode_shapes_at(model, float(x)))
-    a = np.asarray(model.weights) * phi**2
+    a = np.asarray(model.weights) * np.asarray(mode_shapes_at(model, x_force)) * np.asarray(
+        mode_shapes_at(model, x_response))
     lam = np.asarray(model.poles)
     # pairs: (w/2) [a/(s - lam) + conj(a)/(s - conj(lam))]; real poles: a/(s - lam), w = 1
     pair = np.asarray(model.weights) > 1.5
     h = np.where(pair, 0.5 * (a / (s - lam) + np.conj(a) / (s - np.conj(lam))), a / (s - lam))
-    return h.sum(axis=1) + float(residual_compliance_at(model, float(x)))
+    return h.sum(axis=1)
 
 
 def _mirror_bases(fe: FEModel, n_bays: int) -> list[scipy.sparse.csc_matrix]:

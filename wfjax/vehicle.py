@@ -285,16 +285,12 @@ def transfer_receptance(track: Track, model: track_mod.ModalModel, freqs, x_forc
     frequency-domain solve (:func:`wfjax.track.receptance` with ``x_response``) is the
     independent reference of both the values and the reciprocity.
     """
-    f = np.atleast_1d(np.asarray(freqs, dtype=float))
-    s = 2j * np.pi * f[:, None]
+    h = track_mod.modal_sum(model, freqs, float(x_force), float(x_response))
     pa = np.asarray(track_mod.mode_shapes_at(model, float(x_force)))
     pb = np.asarray(track_mod.mode_shapes_at(model, float(x_response)))
-    a = np.asarray(model.weights) * pa * pb
     lam = np.asarray(model.poles)
-    pair = np.asarray(model.weights) > 1.5
-    h = np.where(pair, 0.5 * (a / (s - lam) + np.conj(a) / (s - np.conj(lam))), a / (s - lam))
     fe = track_mod.assemble(track)
     b = track_mod._load_vector(fe, [float(x_force), float(x_response)]).toarray()
     full = b[:, 1] @ scipy.sparse.linalg.splu(fe.stiffness).solve(b[:, 0])
     kept = np.real(np.sum(np.asarray(model.weights) * pa * pb / (-lam)))
-    return h.sum(axis=1) + (full - kept)
+    return h + (full - kept)
