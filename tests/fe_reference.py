@@ -12,15 +12,17 @@ from wfjax import track as track_mod
 from wfjax import wheel as wheel_mod
 
 
-def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_roughness=None):
+def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_roughness=None,
+                   track=None):
     """Contact forces [n_steps, n] of n wheels (Hertz, profile input; the flat on the first)
     at ``x_lead + offsets`` [m] on the full FE track, average-acceleration Newmark for the
     track and every 2-DOF wheel, Newton on the n forces every step.
 
     ``rail_roughness``: None or a function r(x) [m] of the rail coordinate (vectorised; positive
-    = rail raised), added to every wheel's compression at its contact point.
+    = rail raised), added to every wheel's compression at its contact point. ``track``: the
+    :class:`wfjax.Track` (default ``Track()``; per-sleeper supports allowed).
     """
-    track, wheel = wf.Track(), wf.Wheel()
+    track, wheel = track or wf.Track(), wf.Wheel()
     fe = track_mod.assemble(track)
     k, m, c = fe.stiffness.tocsc(), fe.mass.tocsc(), fe.damping.tocsc()
     c_h = float(it.prepare("hertz-profile", flat, wheel, track, wf.Material(),

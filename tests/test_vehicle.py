@@ -12,6 +12,7 @@ from fe_reference import newmark_wheels
 
 import wfjax as wf
 from wfjax import interaction as it
+from wfjax import supports
 from wfjax import track as track_mod
 from wfjax import wheel as wheel_mod
 from wfjax.vehicle import Vehicle, placement, residual_pairs, transfer_receptance
@@ -100,6 +101,43 @@ def test_static_deflections_under_several_wheels_superpose_the_direct_solves():
     singles = sum(_direct_static(track, x, np.eye(3)[i] * w.preload)
                   for i, w in enumerate(wheels))
     np.testing.assert_allclose(want, singles, rtol=1e-12)
+
+
+VARYING_TRACKS = {"void right of x = 0": lambda: supports.void_sleeper(wf.Track(), 36),
+                  "scattered": lambda: supports.scatter(wf.Track(), 3, cv=0.3)}
+
+
+@pytest.mark.parametrize("name", list(VARYING_TRACKS))
+def test_static_deflections_under_several_wheels_on_varying_supports(name):
+    # the pairs' table runs along the whole rail: read at the absolute position, not per bay
+    track, config = VARYING_TRACKS[name](), wf.SimConfig()
+    wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3)]
+    vehicle = Vehicle.bogie()
+    struct = it.vehicle_structure(vehicle, wheels, track, config)
+    laws = it.vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
+                           wheels, track, wf.Material(), config)
+    for x0 in (placement(vehicle, 0.65) + 1.95 + 7 * 0.65 / 32, 2.6 + 0.65 / 32):
+        hist = it.run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
+        want = _direct_static(track, x0 + vehicle.offsets(), np.array([118e3, 90e3]))
+        np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], want, rtol=1e-9)
+
+
+def test_cross_table_along_a_varying_track_equals_the_direct_mode_sum():
+    track = VARYING_TRACKS["void right of x = 0"]()
+    model = track_mod.modal_model(track, max_frequency=wf.SimConfig().track_max_frequency)
+    offsets = jnp.asarray(Vehicle.bogie().offsets())
+    weight = model.weights * jnp.exp(model.poles * 2e-5)  # any per-mode weight
+
+    def shapes_at(x):
+        return track_mod.mode_shapes_at(model, x)
+
+    table = it._cross_table(model, shapes_at, offsets, weight, 0.0)
+    for x in (1.3, 2.6 + 5 * 0.65 / 32, -4.0625):  # points of the whole-rail grid
+        phi = np.asarray(shapes_at(x + offsets))
+        direct = np.real(np.sum(np.asarray(weight) * phi[0] * phi[1]))
+        got = np.asarray(it._interp_bay(model, table, x))
+        np.testing.assert_allclose(got[0, 1], direct, rtol=1e-9)
+        assert got[0, 0] == 0.0
 
 
 def test_residual_pairs_are_symmetric_and_their_diagonal_is_the_tracks_residual():
@@ -208,6 +246,23 @@ def test_two_wheels_agree_with_a_direct_fe_time_integration():
     x = np.asarray(res.wheel_x)
     forces = _newmark_two_wheels(ROUNDED, V, x[0, 0], x[0, 0] - float(res.s[0]), -2.5,
                                  float(res.time_step), x.shape[0])
+    after = np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME
+    for i in range(2):
+        fm, fn = np.asarray(res.wheel_force)[after, i], forces[after, i]
+        assert fn.max() == pytest.approx(fm.max(), rel=0.02), i
+        assert fn.min() == pytest.approx(fm.min(), abs=0.02 * fm.max()), i
+
+
+@pytest.mark.slow
+def test_two_wheels_on_a_hanging_sleeper_agree_with_a_direct_fe_time_integration():
+    # the impact bay's sleeper hangs (asymmetric track): the vehicle's coupling tables run
+    # along the whole rail
+    track = supports.void_sleeper(wf.Track(), 35)
+    res = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.1,
+                      vehicle=Vehicle.bogie(), track=track)
+    x = np.asarray(res.wheel_x)
+    forces = newmark_wheels(ROUNDED, V, x[0, 0], x[0, 0] - float(res.s[0]), [0.0, -2.5],
+                            float(res.time_step), x.shape[0], track=track)
     after = np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME
     for i in range(2):
         fm, fn = np.asarray(res.wheel_force)[after, i], forces[after, i]

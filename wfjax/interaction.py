@@ -208,7 +208,8 @@ class Structure(NamedTuple):
     ``offsets`` [n_wheels] (rail coordinate of every wheel relative to the reference wheel
     [m]), ``delays`` [n_wheels] (the flats' delays [m], :class:`wfjax.vehicle.Vehicle`) and
     ``residual_pairs`` [n_res, n_wheels, n_wheels] (static compliance of the truncated track
-    modes between the wheels across one bay, :func:`wfjax.vehicle.residual_pairs`).
+    modes between the wheels across one bay, or along the whole rail when the supports vary:
+    :func:`wfjax.vehicle.residual_pairs`).
     """
 
     track: Any  # track.ModalModel
@@ -283,12 +284,14 @@ def _rail_reads(phi, w_r, an_r, q_hat):
 def _cross_table(model, shapes_at, offsets, weight, x_bay):
     """[n_res, n, n] the rail's compliance within a step between different wheels,
     Re sum_r weight_r phi_r(x + o_i) phi_r(x + o_j) (zero diagonal), for the reference wheel
-    at x = x_bay + model.residual_x across one bay.
+    at x = x_bay + model.residual_x: across one bay on a uniform track, along the whole rail
+    (``x_bay`` = 0) when the supports vary (read by :func:`_interp_bay`).
 
     These cross terms are about 1e-3 of a wheel's own step compliance (the rail's response
     within one step hardly reaches the next wheel), but summing them over the modes at every
     step would cost n (n - 1) / 2 passes over the modes: tabulated once per run across the
-    bay, like the residual compliance, and interpolated, they cost what 33 steps cost.
+    bay, like the residual compliance, and interpolated, they cost what 33 steps cost (along
+    a non-uniform track's whole rail, 70 x 32 points: about 2 / (n + 1) of a 3000-step run).
     """
     n = offsets.shape[0]
     upper = np.triu_indices(n, 1)
@@ -303,13 +306,10 @@ def _cross_table(model, shapes_at, offsets, weight, x_bay):
 
 
 def _interp_bay(model, table, x):
-    """``table`` [n_res, ...] over the bay (model.residual_x) read at rail position ``x`` [m],
-    periodically, linear between the points."""
-    grid = model.residual_x
-    u = jnp.mod(x, model.sleeper_spacing) / (grid[1] - grid[0])
-    k = jnp.clip(jnp.floor(u).astype(jnp.int32), 0, grid.shape[0] - 2)
-    w = u - k
-    return (1 - w) * table[k] + w * table[k + 1]
+    """``table`` [n_res, ...] on the residual grid read at rail position ``x`` [m]: across the
+    bay periodically (uniform track), else at the absolute position
+    (:func:`wfjax.track.read_residual_table`)."""
+    return track_mod.read_residual_table(model, table, x)
 
 
 def _pointwise(law: ContactLaw) -> bool:
@@ -552,7 +552,9 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         return (out if sensor_history else {}), acc
 
     if n_wheels > 1:
-        bay = impact_position - jnp.mod(impact_position, model.sleeper_spacing)
+        # the bay of the impact (uniform track, read periodically), else the whole rail
+        bay = jnp.where(track_mod.residual_table_is_periodic(model),
+                        impact_position - jnp.mod(impact_position, model.sleeper_spacing), 0.0)
         cross = _cross_table(model, shapes_at, offsets, w_r * an_r, bay)
 
     acc0 = {}

@@ -368,16 +368,37 @@ def interpolate_nodal(model: ModalModel, nodal, x) -> jax.Array:
     return n1 * a[0] + n2 * a[1] + n3 * b[0] + n4 * b[1]
 
 
+def residual_table_is_periodic(model: ModalModel) -> jax.Array:
+    """Whether the model's residual tables span one bay (a uniform track: read ``x mod L_S``)
+    rather than the whole rail (supports that vary: read at the absolute ``x``). Told by the
+    table's span, so it also works under ``jit`` (a traced bool)."""
+    return model.residual_x[-1] - model.residual_x[0] < 1.5 * model.sleeper_spacing
+
+
+def read_residual_table(model: ModalModel, table, x) -> jax.Array:
+    """``table`` [n_res, ...] on the model's residual grid (``model.residual_x``) read at rail
+    position ``x`` [m] (scalar), linear between the points: periodically across the bay for a
+    uniform track, at the absolute position (clamped to the rail ends) otherwise. Returns
+    [...]. Pure ``jax.numpy``."""
+    grid = model.residual_x
+    s = jnp.where(residual_table_is_periodic(model), jnp.mod(x, model.sleeper_spacing),
+                  x - grid[0])
+    u = s / (grid[1] - grid[0])
+    k = jnp.clip(jnp.floor(u).astype(jnp.int32), 0, grid.shape[0] - 2)
+    w = jnp.clip(u - k, 0.0, 1.0)
+    return (1 - w) * table[k] + w * table[k + 1]
+
+
 def residual_compliance_at(model: ModalModel, x) -> jax.Array:
     """Static compliance [m/N] of the truncated modes at (x, x).
 
     A table across one bay (uniform track) is read periodically, ``x mod L_S``; a table along
     the whole rail (supports that vary) is read at the absolute position ``x`` (clamped to
-    the rail ends). Which one is told by the table's span, so the test also runs under ``jit``.
+    the rail ends): :func:`residual_table_is_periodic`.
     ``x`` [m] any shape; returns float [...]. Pure ``jax.numpy``.
     """
     x = jnp.asarray(x, dtype=jnp.result_type(x, float))  # float32 stays float32
-    periodic = model.residual_x[-1] - model.residual_x[0] < 1.5 * model.sleeper_spacing
+    periodic = residual_table_is_periodic(model)
     s = jnp.where(periodic, jnp.mod(x, model.sleeper_spacing), x)
     return jnp.interp(s, model.residual_x, model.residual)
 

@@ -255,23 +255,30 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
     """Static compliance [m/N] of the truncated modes between every pair of wheels.
 
     R_ij(x) = K^-1(x + o_i, x + o_j) - sum_kept Re(w phi_r(x + o_i) phi_r(x + o_j) / -lambda_r)
-    for the reference wheel at x = x_bay + model.residual_x (one bay), the wheels at offsets
-    o [n] [m]; the diagonal is each wheel's own residual compliance, the off-diagonal the
-    truncated modes' static coupling (exact static deflections under several wheels).
+    for the reference wheel at x on the model's residual grid, the wheels at offsets o [n]
+    [m]: across one bay from ``x_bay`` (x = x_bay + model.residual_x, read periodically) on a
+    uniform track; along the whole rail (x = model.residual_x, absolute; ``x_bay`` unused) on
+    a track whose supports vary, with wheel positions beyond the rail ends clamped to them
+    (never read: the wheels stay ``END_MARGIN`` inside). The diagonal is each wheel's own
+    residual compliance, the off-diagonal the truncated modes' static coupling (exact static
+    deflections under several wheels).
 
     Returns:
-        float [n_res, n, n] (symmetric in the last two axes), read periodically in the bay.
+        float [n_res, n, n] (symmetric in the last two axes), read by
+        :func:`wfjax.track.read_residual_table`.
     """
     fe = track_mod.assemble(track)
-    lu = scipy.sparse.linalg.splu(fe.stiffness)
-    x = x_bay + np.asarray(model.residual_x)[:, None] + np.asarray(offsets)[None, :]
+    grid = np.asarray(model.residual_x)
+    periodic = bool(track_mod.residual_table_is_periodic(model))
+    x = (x_bay if periodic else 0.0) + grid[:, None] + np.asarray(offsets)[None, :]
+    x = np.clip(x, fe.node_x[0], fe.node_x[-1])
+    n_res, n = x.shape
     b = track_mod._load_vector(fe, x.ravel()).toarray()  # [n_dof, n_res * n]
-    full = b.T @ lu.solve(b)
+    u = scipy.sparse.linalg.splu(fe.stiffness).solve(b)
+    full = np.einsum("dri,drj->rij", b.reshape(-1, n_res, n), u.reshape(-1, n_res, n))
     phi = np.asarray(track_mod.mode_shapes_at(model, x))  # [n_res, n, m]
     w = np.asarray(model.weights) / (-np.asarray(model.poles))
     kept = np.real(np.einsum("rim,rjm,m->rij", phi, phi, w))
-    n_res, n = x.shape
-    full = full.reshape(n_res, n, n_res, n)[np.arange(n_res), :, np.arange(n_res), :]
     return full - kept
 
 
