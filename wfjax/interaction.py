@@ -65,12 +65,13 @@ import numpy as np
 
 from . import roughness as rough_mod
 from . import sensors as sensor_mod
+from . import supports as supports_mod
 from . import track as track_mod
 from . import vehicle as vehicle_mod
 from . import wheel as wheel_mod
 from ._modal import discrete_step_coefficients
 from .contact.laws import CONTACT_MODELS, FLAT_MARGIN, ContactLaw, prepare
-from .contact.newton import solve_contact_system, static_approach
+from .contact.newton import solve_contact_system, solve_small, static_approach
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import SimResult, summarise, summarise_vehicle
 
@@ -209,7 +210,8 @@ class Structure(NamedTuple):
     [m]), ``delays`` [n_wheels] (the flats' delays [m], :class:`wfjax.vehicle.Vehicle`) and
     ``residual_pairs`` [n_res, n_wheels, n_wheels] (static compliance of the truncated track
     modes between the wheels across one bay, or along the whole rail when the supports vary:
-    :func:`wfjax.vehicle.residual_pairs`).
+    :func:`wfjax.vehicle.residual_pairs`). ``supports``: the track's one-sided (hanging)
+    sleepers, :func:`wfjax.supports.one_sided_spec`, or None.
     """
 
     track: Any  # track.ModalModel
@@ -220,6 +222,7 @@ class Structure(NamedTuple):
     offsets: Any = None
     delays: Any = None
     residual_pairs: Any = None
+    supports: Any = None  # supports.OneSidedSupports of hanging sleepers, or None
 
 
 def structure(wheel: Wheel, track: Track, config: SimConfig, cache_dir=None) -> Structure:
@@ -228,7 +231,8 @@ def structure(wheel: Wheel, track: Track, config: SimConfig, cache_dir=None) -> 
                                   cache_dir=cache_dir)
     wheel_modes = wheel_mod.modal_model(wheel)
     return Structure(model, wheel_modes.poles, wheel_modes.residues,
-                     jnp.asarray(wheel.preload, dtype=float), wheel_modes.axle_residues)
+                     jnp.asarray(wheel.preload, dtype=float), wheel_modes.axle_residues,
+                     supports=_one_sided(track, model))
 
 
 def vehicle_structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
@@ -242,7 +246,13 @@ def vehicle_structure(vehicle, wheels: list[Wheel], track: Track, config: SimCon
     pairs = vehicle_mod.residual_pairs(
         track, model, offsets, vehicle_mod.placement(vehicle, float(track.sleeper_spacing)))
     return Structure(model, ws.poles, ws.residues, ws.preload, ws.axle_residues,
-                     jnp.asarray(offsets), jnp.asarray(vehicle.delays()), jnp.asarray(pairs))
+                     jnp.asarray(offsets), jnp.asarray(vehicle.delays()), jnp.asarray(pairs),
+                     _one_sided(track, model, offsets))
+
+
+def _one_sided(track: Track, model, offsets=(0.0,)):
+    spec = supports_mod.one_sided_spec(track, model, offsets)
+    return None if spec is None else jax.tree_util.tree_map(jnp.asarray, spec)
 
 
 def _node_major_shapes(model):
@@ -327,7 +337,7 @@ def law_groups(laws: tuple) -> tuple:
 
 
 def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int,
-                   groups: tuple | None = None, roughness=None):
+                   groups: tuple | None = None, roughness=None, extra=None):
     """The step's n-contact equation delta = delta_free - C F(delta) for every contact law.
 
     One wheel: the law's own :meth:`ContactLaw.step`. Several wheels with point laws (every
@@ -346,16 +356,21 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
         roughness: None, or [n] per wheel: None (a point law: its roughness is already in
             ``delta_free``) or the pair (roughness at the law's :meth:`rough_nodes` [m], its
             contact-filtered value [m]).
+        extra: None, or ``(force_fn, params)`` of n_e more contacts after the wheels (the
+            hanging sleepers' ballast): ``force_fn(params, delta_e [n_e]) -> F [n_e]``; then
+            ``delta_free`` and ``compliance`` cover n + n_e contacts, every law must be a
+            point law, and the Newton directions are exact (the supports couple strongly).
 
     Returns:
-        (delta [n] m, F [n] N, |r| [n] m, states).
+        (delta [n] m, F [n] N, |r| [n] m, states); [n + n_e] with ``extra``.
     """
     rough = (None,) * len(laws) if roughness is None else roughness
 
     def kw(i):
         return {} if rough[i] is None else {"roughness": rough[i]}
 
-    if len(laws) == 1:
+    n = len(laws)
+    if len(laws) == 1 and extra is None:
         (law,), (state,) = laws, states
         delta, f, r, state = law.step(delta_free[0], compliance[0, 0], s[0], state, max_iter,
                                       **kw(0))
@@ -375,15 +390,25 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
         points = [group_points(law, g) for law, g in zip(reps, groups, strict=True)]
         points_ng = jax.lax.stop_gradient(points)
 
-        def forces(ls, ps, delta):
+        fn, params = extra if extra is not None else (None, None)
+        params_ng = jax.lax.stop_gradient(params)
+
+        def forces(ls, ps, delta, extra_params):
             parts = [jax.vmap(law.point_force)(p, delta[np.asarray(g)])
                      for law, p, g in zip(ls, ps, groups, strict=True)]
-            return jnp.concatenate(parts)[order]
+            wheels = jnp.concatenate(parts)[order]
+            if fn is None:
+                return wheels
+            return jnp.concatenate([wheels, fn(extra_params, delta[n:])])
 
         delta, f, r = solve_contact_system(
-            lambda d: forces(reps, points, d), delta_free, compliance, max_iter,
-            loop_force_fn=lambda d: forces(frozen, points_ng, d))
+            lambda d: forces(reps, points, d, params), delta_free, compliance, max_iter,
+            loop_force_fn=lambda d: forces(frozen, points_ng, d, params_ng),
+            exact=extra is not None)
         return delta, f, r, states
+    if extra is not None:
+        raise ValueError("hanging sleepers (one-sided supports) need point contact laws, not "
+                         "the direct 3D mode (a Kalker solve every step)")
     return _gauss_seidel(laws, delta_free, compliance, s, states, max_iter, kw)
 
 
@@ -442,6 +467,34 @@ def _static_force(law, s, shift, rough):
     return lambda d: law.point_force(point, d)
 
 
+def support_force(params, closure):
+    """Force [N] (upwards on the sleeper) of hanging sleepers' one-sided ballast, [n_s].
+
+    F = max(0, k_B e+ + c_B (e+ - e_prev+) / dt) with e+ = max(closure, 0) [m]: no force while
+    the gap is open, compression only, the damping on the step's change of e+ (continuous at
+    closure, non-decreasing in ``closure``). ``params`` = (e_prev [n_s] m, k_B [n_s] N/m,
+    c_B [n_s] N s/m, dt s)."""
+    e_prev, stiffness, damping, dt = params
+    e = jnp.maximum(closure, 0.0)
+    return jnp.maximum(0.0, stiffness * e + damping * (e - jnp.maximum(e_prev, 0.0)) / dt)
+
+
+def static_support_forces(closure_free, compliance, stiffness, iterations: int = 30):
+    """Static one-sided ballast forces [N] [n_s]: e = e_free - C k e+ solved by Newton with
+    exact directions (piecewise linear and monotone: the active set settles in a few
+    iterations; a fixed count keeps reverse mode possible). ``closure_free`` [n_s] m: the
+    sleepers' closure with no support force; ``compliance`` [n_s, n_s] m/N static."""
+    eye = jnp.eye(closure_free.shape[0], dtype=closure_free.dtype)
+
+    def body(_, e):
+        active = (e > 0).astype(e.dtype)
+        r = e - closure_free + compliance @ (stiffness * active * e)
+        return e - solve_small(eye + compliance * (stiffness * active)[None, :], r)
+
+    e = jax.lax.fori_loop(0, iterations, body, closure_free)
+    return stiffness * jnp.maximum(e, 0.0)
+
+
 def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
               n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
               detector=None, run_in_steps=0, sensor_history: bool = True,
@@ -488,6 +541,9 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         (``sensor_history``) ``sensors`` [n_steps, n_quantities, n_s]; with ``detector``:
         ``detector_peak`` [n_bays] N ([n_wheels, n_bays] for a vehicle: each wheel's peak)
         and (``sensor_history``) ``detector_load`` [n_steps, n_bays] N (ungated estimate).
+        With hanging sleepers (``struct.supports``): ``support_force`` [n_steps, n_s] N (the
+        one-sided ballast's force, upwards on each sleeper) and ``sleeper_disp`` [n_steps,
+        n_s] m (downwards).
     """
     single = not isinstance(law, tuple)
     laws = (law,) if single else law
@@ -525,6 +581,24 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     q0 = -_loads(preload, phi0) / model.poles
     xi_r0 = (jnp.real(jnp.sum(phi0 * (w_r * q0), axis=-1))
              + _residual_matrix(struct, model, x_start) @ preload)
+    sup = struct.supports
+    if sup is not None and (sensors is not None or detector is not None):
+        raise ValueError("hanging sleepers (Track.ballast_gap > 0) are not supported with "
+                         "sensors or a detector: their readings lack the support forces")
+    if sup is not None:  # hanging sleepers: the static start is a non-linear solve too
+        psi = sup.shapes  # [n_s, n_modes]
+        within_ss = (jnp.real(jnp.sum(w_r * an_r * psi[:, None] * psi[None], axis=-1))
+                     + sup.residual)
+        static_ss = (jnp.real(jnp.sum(w_r / -model.poles * psi[:, None] * psi[None], axis=-1))
+                     + sup.residual)
+        r_ws0 = track_mod.read_residual_table(model, sup.residual_wheels, x_start)  # [n, n_s]
+        closure0 = (jnp.real(jnp.sum(psi * (w_r * q0), axis=-1)) + r_ws0.T @ preload
+                    - sup.gap)
+        f_s0 = static_support_forces(closure0, static_ss, sup.stiffness)
+        q_s0 = (f_s0 @ psi) / model.poles
+        q0 = q0 + q_s0
+        xi_r0 = xi_r0 + jnp.real(jnp.sum(phi0 * (w_r * q_s0), axis=-1)) - r_ws0 @ f_s0
+        e0 = closure0 - static_ss @ f_s0
     shift0, rough0 = _roughness_inputs(laws, roughness, x0, s0)
     delta0 = jnp.stack([static_approach(_static_force(lw, si, sh, ri), p)
                         for lw, si, p, sh, ri in zip(laws, s0, preload, shift0, rough0,
@@ -567,12 +641,16 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     first_readings, acc0 = readings(q0, preload, x0, 0, acc0)
 
     def step(carry, n):
-        q, p, f_prev, phi_prev, states, acc = carry
+        q, p, f_prev, phi_prev, states, acc, support_state = carry
         x_ref = x_start + speed * dt * n
         x = x_ref + offsets
         s = x_ref - impact_position - delays
         phi = shapes_at(x)
-        q_hat = e_r * q + ap_r * _loads(f_prev, phi_prev)
+        loads_prev = _loads(f_prev, phi_prev)
+        if sup is not None:
+            f_s_prev, e_prev = support_state
+            loads_prev = loads_prev - f_s_prev @ psi
+        q_hat = e_r * q + ap_r * loads_prev
         xi_r_free, c_own = _rail_reads(phi, w_r, an_r, q_hat)
         c_rail = jnp.diag(c_own) + _residual_matrix(struct, model, x_ref)
         if n_wheels > 1:
@@ -580,28 +658,42 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         p_hat = e_w * p + ap_w * (f_prev - preload)[:, None]
         xi_w_free = (xi_w_ref - jnp.real(jnp.sum(wheel_res * p_hat, axis=-1))
                      + c_wheel * preload)
-        if roughness is None:
-            delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free,
-                                                 jnp.diag(c_wheel) + c_rail, s, states,
-                                                 max_iter, groups)
-        else:
-            shift, rough = _roughness_inputs(laws, roughness, x, s)
-            delta, f, r, states = solve_contacts(laws, xi_w_free - xi_r_free + shift,
-                                                 jnp.diag(c_wheel) + c_rail, s, states,
+        shift, rough = (0.0, None) if roughness is None else _roughness_inputs(
+            laws, roughness, x, s)
+        delta_free, compliance = xi_w_free - xi_r_free + shift, jnp.diag(c_wheel) + c_rail
+        if sup is None:
+            delta, f, r, states = solve_contacts(laws, delta_free, compliance, s, states,
                                                  max_iter, groups, rough)
-            delta = delta - shift
+        else:  # the wheels and the hanging sleepers' ballast in one system
+            g_ws = (jnp.real(jnp.sum(w_r * an_r * phi[:, None] * psi[None], axis=-1))
+                    + track_mod.read_residual_table(model, sup.residual_wheels, x_ref))
+            closure_free = jnp.real(jnp.sum(psi * (w_r * q_hat), axis=-1)) - sup.gap
+            system = jnp.block([[compliance, -g_ws], [-g_ws.T, within_ss]])
+            params = (e_prev, sup.stiffness, sup.damping, dt)
+            d_all, f_all, r_all, states = solve_contacts(
+                laws, jnp.concatenate([delta_free, closure_free]), system, s, states,
+                max_iter, groups, rough, extra=(support_force, params))
+            delta, f, r = d_all[:n_wheels], f_all[:n_wheels], r_all[:n_wheels]
+            support_state = (f_all[n_wheels:], d_all[n_wheels:])
+            xi_r_free = xi_r_free - g_ws @ support_state[0]
+        delta = delta - shift
         q_new = q_hat + an_r * _loads(f, phi)
+        if sup is not None:
+            q_new = q_new - an_r * (support_state[0] @ psi)
         p_new = p_hat + an_w * (f - preload)[:, None]
         axle_acc = jnp.real(jnp.sum(axle_acc_res * p_new, axis=-1))
         extra, acc = readings(q_new, f, x, n, acc)
+        if sup is not None:
+            extra = {**extra, "support_force": support_state[0],
+                     "sleeper_disp": support_state[1] + sup.gap}
         out = (x, s, f, delta, xi_w_free - c_wheel * f, xi_r_free + c_rail @ f, r, axle_acc,
                extra)
-        return (q_new, p_new, f, phi, states, acc), out
+        return (q_new, p_new, f, phi, states, acc, support_state), out
 
     carry0 = (q0, p0, preload, phi0, tuple(law.init_state() for law in laws),
-              acc0)
-    (*_, acc), outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
-                                   jnp.arange(1, n_steps))
+              acc0, () if sup is None else (f_s0, e0))
+    (*_, acc, _), outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
+                                      jnp.arange(1, n_steps))
     first = (x0, s0, preload, delta0, xi_w_ref, xi_r0, jnp.zeros_like(preload),
              jnp.zeros_like(preload))
     keys = ("x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual", "axle_acc")
@@ -610,6 +702,8 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     if single:
         result = {k: a[:, 0] for k, a in result.items()}
         acc = {k: (a[0] if k == "detector_peak" else a) for k, a in acc.items()}
+    if sup is not None:
+        first_readings = {**first_readings, "support_force": f_s0, "sleeper_disp": e0 + sup.gap}
     result |= {k: jnp.concatenate([first_readings[k][None], a]) for k, a in outs[-1].items()}
     result |= acc
     result["t"] = dt * jnp.arange(n_steps)
@@ -732,6 +826,10 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
     else:
         res = summarise_vehicle(hist, vehicle.flat_wheel, v, x_imp, dt, run_in_steps,
                                 quantities, struct.preload)
+    if struct.supports is not None:
+        res = res._replace(support_force=hist["support_force"],
+                           sleeper_disp=hist["sleeper_disp"],
+                           hanging_sleepers=supports_mod.hanging_sleepers(track))
     if sensor_spec is None:
         return res
     return res._replace(sensor_positions=np.asarray(sensor_spec.positions))

@@ -195,9 +195,10 @@ class Wheel(_Validated):
 
 
 SUPPORT_FIELDS = ("pad_stiffness", "pad_damping", "sleeper_mass", "ballast_stiffness",
-                  "ballast_damping")
+                  "ballast_damping", "ballast_gap")
 """Track fields that may vary from sleeper to sleeper (scalar or ``[n_bays - 1]`` array)."""
-_ZERO_ALLOWED = ("pad_damping", "ballast_stiffness", "ballast_damping")
+_ZERO_ALLOWED = ("pad_damping", "ballast_stiffness", "ballast_damping", "ballast_gap")
+MAX_BALLAST_GAP = 0.05  # m: a void deeper than 50 mm under a sleeper is a data error
 
 
 def _check_per_sleeper(name: str, value: Any, unit: str, n_sleepers: int) -> None:
@@ -210,6 +211,9 @@ def _check_per_sleeper(name: str, value: Any, unit: str, n_sleepers: int) -> Non
         )
     zero_ok = name in _ZERO_ALLOWED
     bad = ~np.isfinite(arr) | ((arr < 0) if zero_ok else (arr <= 0))
+    if name == "ballast_gap":
+        bad |= arr > MAX_BALLAST_GAP
+        unit = f"m, at most {MAX_BALLAST_GAP}"
     if np.any(bad):
         i = int(np.flatnonzero(bad)[0])
         rng = f"[0, inf) {unit}" if zero_ok else f"(0, inf) {unit}"
@@ -233,7 +237,11 @@ class Track(_Validated):
         comparison uses 0.45 m, see :meth:`comparison`);
         sleeper_spacing: L_S [m]; pad_stiffness: k_P [N/m]; pad_damping: c_P [N s/m];
         sleeper_mass: half sleeper m_SL [kg]; ballast_stiffness: k_B [N/m];
-        ballast_damping: c_B [N s/m].
+        ballast_damping: c_B [N s/m];
+        ballast_gap: g [m] between a sleeper and its ballast at rest (default 0: every
+        sleeper bonded to a linear ballast). A sleeper with g > 0 hangs: its ballast is a
+        one-sided support that carries load only once the sleeper has moved down by g
+        (:func:`wfjax.supports.hanging_sleeper`), solved in every time step with the contacts.
         n_bays (static): number of sleeper bays of the finite model.
         elements_per_bay (static): rail beam elements per sleeper bay.
 
@@ -242,7 +250,8 @@ class Track(_Validated):
     ``[n_bays - 1]``, one value per interior sleeper, left to right (sleeper ``i`` at
     ``x = (i + 1 - n_bays // 2) L_S``). In an array, the pad damping and the ballast stiffness
     and damping may be 0 (a hanging sleeper, :func:`wfjax.supports.void_sleeper`); pad
-    stiffness and sleeper mass stay > 0 (a sleeper must hang from the rail and have mass).
+    stiffness and sleeper mass stay > 0 (a sleeper must hang from the rail and have mass);
+    ``ballast_gap`` is in [0, 0.05] m.
     Presets and random scatter: :mod:`wfjax.supports`.
     """
 
@@ -257,6 +266,7 @@ class Track(_Validated):
     sleeper_mass: Any = 125.0
     ballast_stiffness: Any = 140e6
     ballast_damping: Any = 165e3
+    ballast_gap: Any = 0.0
     n_bays: int = 70
     elements_per_bay: int = 8
 
@@ -289,6 +299,10 @@ class Track(_Validated):
                 _check_per_sleeper(name, value, unit, int(self.n_bays) - 1)
             else:
                 _check_positive("Track", name, value, unit)
+        if _is_concrete(self.ballast_gap):
+            _check_per_sleeper("ballast_gap", np.broadcast_to(
+                np.asarray(self.ballast_gap, dtype=float), (int(self.n_bays) - 1,)), "m",
+                int(self.n_bays) - 1)
 
     @classmethod
     def comparison(cls, **overrides) -> Track:

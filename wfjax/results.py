@@ -54,6 +54,10 @@ class SimResult(NamedTuple):
         wheel_axle_acc: [n_steps, n_wheels] every wheel's axle-box acceleration [m/s^2].
         wheel_axle_acc_peak: [n_wheels] max |wheel_axle_acc| after the run-in [m/s^2].
         wheel_x: [n_steps, n_wheels] every wheel's rail coordinate [m].
+        support_force: on a track with hanging sleepers (``Track.ballast_gap > 0``), the
+            one-sided ballast's force on each of them, upwards [n_steps, n_s] [N], else None.
+        sleeper_disp: their displacement, downwards [n_steps, n_s] [m], or None.
+        hanging_sleepers: their indices [n_s] (:func:`wfjax.supports.sleeper_positions`).
     """
 
     t: Any
@@ -87,6 +91,9 @@ class SimResult(NamedTuple):
     wheel_axle_acc: Any = None
     wheel_axle_acc_peak: Any = None
     wheel_x: Any = None
+    support_force: Any = None
+    sleeper_disp: Any = None
+    hanging_sleepers: Any = None
 
     def summary(self) -> dict:
         """JSON-ready summary with practical units (kN, km/h, mm, ms)."""

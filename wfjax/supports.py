@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -39,9 +40,19 @@ __all__ = [
     "is_mirror_symmetric",
     "with_supports",
     "void_sleeper",
+    "hanging_sleeper",
+    "hanging_sleepers",
+    "OneSidedSupports",
+    "one_sided_spec",
+    "MAX_ONE_SIDED",
     "scatter",
 ]
 
+MAX_ONE_SIDED = 8
+"""Most hanging (one-sided) sleepers per track: each adds an unknown to every time step."""
+
+SCATTERABLE = SUPPORT_FIELDS[:5]
+"""Fields :func:`scatter` may vary (not the ballast gap); their order fixes the draws."""
 SCATTER_FIELDS = ("pad_stiffness", "ballast_stiffness")
 """Fields :func:`scatter` varies by default: the two stiffnesses that age and settle."""
 
@@ -173,6 +184,100 @@ def void_sleeper(track: Track, index: int | Sequence[int], remaining: float = 0.
     return with_supports(track, ballast_stiffness=kb, ballast_damping=cb)
 
 
+def hanging_sleeper(track: Track, index: int | Sequence[int], gap: float) -> Track:
+    """A track whose sleeper(s) ``index`` hang ``gap`` [m] above their ballast: one-sided.
+
+    The ballast (its ``k_B`` and ``c_B`` at that sleeper) carries no load until the sleeper
+    has moved down by ``gap``, then pushes back, in compression only: the support force
+    F = max(0, k_B e + c_B de/dt) for the closure e = u_sleeper - gap > 0, else 0 (no
+    tension; e/dt from the step's change of max(e, 0), so the force rises continuously
+    from 0 when the gap closes). The linear track model is the open one (no ballast
+    there, as :func:`void_sleeper`); the support is solved in every time step together with
+    the wheel contacts (``docs/real_track.md``). A deep gap that never closes gives
+    :func:`void_sleeper`'s results; ``gap`` = 0 a sleeper that rests on its ballast but
+    can lift off it.
+
+    Args:
+        track: the track to start from. index: sleeper index or indices in
+            ``[0, n_bays - 2]`` (:func:`sleeper_positions`). gap: g [m] in [0, 0.05] (one value
+            for all, or one per index).
+
+    Returns:
+        a new :class:`wfjax.Track` with a per-sleeper ``ballast_gap`` array.
+    """
+    idx = _check_indices(track, index)
+    gaps = np.broadcast_to(np.asarray(gap, dtype=float), idx.shape) if np.ndim(gap) == 0 \
+        else np.asarray(gap, dtype=float)
+    if gaps.shape != idx.shape:
+        raise ValueError(f"gap must be one value or one per sleeper index ({idx.size}), got "
+                         f"shape {gaps.shape}")
+    arr = support_arrays(track)["ballast_gap"]
+    arr[idx] = gaps
+    out = with_supports(track, ballast_gap=arr)
+    hanging_sleepers(out)  # refuses too many
+    return out
+
+
+def hanging_sleepers(track: Track) -> np.ndarray:
+    """Indices (int [n_s]) of the sleepers with a one-sided ballast (``ballast_gap > 0``).
+
+    Raises ValueError for more than :data:`MAX_ONE_SIDED` of them or a scalar gap > 0."""
+    if np.ndim(track.ballast_gap) == 0 and float(track.ballast_gap) > 0:
+        raise ValueError("Track.ballast_gap > 0 must be given per sleeper (hanging_sleeper), "
+                         f"not as one value for every sleeper: got {track.ballast_gap!r}")
+    idx = np.flatnonzero(support_arrays(track)["ballast_gap"] > 0)
+    if idx.size > MAX_ONE_SIDED:
+        raise ValueError(f"at most {MAX_ONE_SIDED} hanging sleepers (ballast_gap > 0) per "
+                         f"track, got {idx.size}: each is an unknown of every time step")
+    return idx
+
+
+class OneSidedSupports(NamedTuple):
+    """The one-sided ballast supports of a track, as the time loop reads them (arrays).
+
+    ``shapes`` complex [n_s, n_modes]: the modes at the sleepers' DOFs
+    (``ModalModel.sleeper_shapes``); ``gap`` [n_s] m; ``stiffness`` [n_s] N/m; ``damping``
+    [n_s] N s/m; ``residual`` [n_s, n_s] m/N: static compliance of the truncated modes between
+    the sleepers; ``residual_wheels`` [n_res, n_w, n_s] m/N: the same between the wheels (the
+    reference wheel on the residual grid, read by :func:`wfjax.track.read_residual_table`) and
+    the sleepers. Displacements are downwards, the support forces upwards on the sleepers.
+    """
+
+    shapes: Any
+    gap: Any
+    stiffness: Any
+    damping: Any
+    residual: Any
+    residual_wheels: Any
+
+
+def one_sided_spec(track: Track, model, offsets=(0.0,)) -> OneSidedSupports | None:
+    """:class:`OneSidedSupports` of ``track`` for wheels at ``offsets`` [n_w] [m] behind the
+    reference wheel, from its modal model ``model`` (None when no sleeper hangs)."""
+    from . import track as track_mod
+
+    idx = hanging_sleepers(track)
+    if idx.size == 0:
+        return None
+    arrays = support_arrays(track)
+    fe = track_mod.assemble(track)
+    dof = fe.n_rail_dof + idx
+    k_inv = track_mod.static_inverse(fe)
+    psi = np.asarray(model.sleeper_shapes)[:, idx].T  # [n_s, m]
+    w = np.asarray(model.weights) / (-np.asarray(model.poles))
+    kept_ss = np.real(np.einsum("am,bm,m->ab", psi, psi, w))
+    offsets = np.atleast_1d(np.asarray(offsets, dtype=float))
+    x = np.asarray(model.residual_x)[:, None] + offsets[None, :]  # the whole-rail grid
+    x = np.clip(x, fe.node_x[0], fe.node_x[-1])
+    b = track_mod._load_vector(fe, x.ravel())  # [n_dof, n_res * n_w]
+    full_ws = np.asarray(b.T @ k_inv[:, dof]).reshape(*x.shape, idx.size)
+    phi = np.asarray(track_mod.mode_shapes_at(model, x))  # [n_res, n_w, m]
+    kept_ws = np.real(np.einsum("rim,am,m->ria", phi, psi, w))
+    return OneSidedSupports(psi, arrays["ballast_gap"][idx], arrays["ballast_stiffness"][idx],
+                            arrays["ballast_damping"][idx], k_inv[np.ix_(dof, dof)] - kept_ss,
+                            full_ws - kept_ws)
+
+
 def as_key(key) -> jax.Array:
     """A ``jax.random`` key from a key (returned as is) or an integer seed (``PRNGKey``)."""
     if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
@@ -189,7 +294,7 @@ def scatter(track: Track, key, cv: float | Mapping[str, float] = 0.3,
     Each value ``v_i`` of a scattered field becomes ``v_i * exp(sigma z_i - sigma^2 / 2)`` with
     ``z_i`` standard normal and ``sigma^2 = ln(1 + cv^2)``: lognormal with the mean ``v_i`` and
     coefficient of variation ``cv`` (standard deviation / mean). Fields are drawn from
-    independent subkeys of ``key``, in :data:`SUPPORT_FIELDS` order, so a field's draw does
+    independent subkeys of ``key``, in :data:`SCATTERABLE` order, so a field's draw does
     not depend on which other fields are scattered.
 
     Args:
@@ -204,9 +309,9 @@ def scatter(track: Track, key, cv: float | Mapping[str, float] = 0.3,
     """
     _check_track(track)
     cvs = dict(cv) if isinstance(cv, Mapping) else {f: cv for f in fields}
-    bad = [k for k in cvs if k not in SUPPORT_FIELDS]
+    bad = [k for k in cvs if k not in SCATTERABLE]
     if bad or not cvs:
-        raise ValueError(f"scattered fields must be among {SUPPORT_FIELDS}, got {list(cvs)!r}")
+        raise ValueError(f"scattered fields must be among {SCATTERABLE}, got {list(cvs)!r}")
     for name, c in cvs.items():
         try:
             c = float(c)
@@ -217,11 +322,11 @@ def scatter(track: Track, key, cv: float | Mapping[str, float] = 0.3,
                              f"got {c!r}")
         cvs[name] = c
     key = as_key(key)
-    subkeys = jax.random.split(key, len(SUPPORT_FIELDS))
+    subkeys = jax.random.split(key, len(SCATTERABLE))
     arrays = support_arrays(track)
     n = n_sleepers(track)
     out = {}
-    for i, name in enumerate(SUPPORT_FIELDS):
+    for i, name in enumerate(SCATTERABLE):
         if name not in cvs:
             continue
         sigma = math.sqrt(math.log1p(cvs[name] ** 2))

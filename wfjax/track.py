@@ -81,6 +81,8 @@ def _track_numbers(track: Track) -> dict[str, float | np.ndarray]:
     arrays = _supports.support_arrays(track)
     uniform = _supports.is_uniform(track)
     for name in SUPPORT_FIELDS:
+        if name == "ballast_gap" and not np.any(arrays[name]):
+            continue  # no hanging sleeper: the numbers and cache keys of before
         out[name] = float(arrays[name][0]) if uniform else arrays[name]
     for name, low in (("n_bays", 4), ("elements_per_bay", 1)):
         value = getattr(track, name)
@@ -182,6 +184,8 @@ def assemble(track: Track) -> FEModel:
 
     Per-sleeper supports (arrays ``[n_bays - 1]`` in the track's support fields, see
     :mod:`wfjax.supports`) enter sleeper by sleeper; scalars are the same at every sleeper.
+    A hanging sleeper (``ballast_gap > 0``) has no ballast here: its one-sided ballast is a
+    non-linear force solved in the time loop (:func:`wfjax.supports.one_sided_spec`).
     """
     p = _track_numbers(track)
     nb, ne = int(track.n_bays), int(track.elements_per_bay)
@@ -213,6 +217,8 @@ def assemble(track: Track) -> FEModel:
     kp, kb, cp, cb, msl = (p[n] * ones for n in ("pad_stiffness", "ballast_stiffness",
                                                   "pad_damping", "ballast_damping",
                                                   "sleeper_mass"))
+    hanging = p.get("ballast_gap", 0.0) * ones > 0  # one-sided: the linear model is open there
+    kb, cb = np.where(hanging, 0.0, kb), np.where(hanging, 0.0, cb)
     ks_v = np.concatenate([kp, kp + kb, -kp, -kp])
     cs_v = np.concatenate([cp, cp + cb, -cp, -cp])
 
@@ -248,6 +254,14 @@ def _load_vector(fe: FEModel, x) -> scipy.sparse.csc_matrix:
 # --------------------------------------------------------------------------------------------
 # direct solves
 # --------------------------------------------------------------------------------------------
+def static_inverse(fe: FEModel) -> np.ndarray:
+    """K^-1 [m/N] dense [n_dof, n_dof] of the FE model (Cholesky; a 70-bay track: 0.1 s):
+    static compliances between many points, where sparse solves with thousands of
+    right-hand sides take seconds."""
+    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(fe.stiffness.toarray()),
+                                  np.eye(fe.stiffness.shape[0]))
+
+
 def receptance(track: Track, freqs, x: float = 0.0, x_response=None) -> np.ndarray:
     """Rail receptance [m/N] by a direct sparse frequency-domain solve of the FE model.
 

@@ -34,7 +34,6 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
-import scipy.linalg
 import scipy.sparse.linalg
 
 from . import track as track_mod
@@ -283,14 +282,12 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
 def _static_pair_compliance(fe, x: np.ndarray) -> np.ndarray:
     """K^-1(x_ri, x_rj) [m/N], [n_res, n, n], for rail positions ``x`` [n_res, n] [m].
 
-    From the dense inverse of K (a 1200-DOF track: 0.1 s) and the four-entry load vectors:
-    a sparse LU solve with the 2241 x n right-hand sides of a whole-rail table took 7 s.
+    From the dense inverse of K (:func:`wfjax.track.static_inverse`) and the four-entry load
+    vectors: a sparse LU solve with the 2241 x n right-hand sides of a whole-rail table took 7 s.
     """
     n_res, n = x.shape
     b = track_mod._load_vector(fe, x.ravel())  # [n_dof, n_res * n], columns r * n + i
-    k_inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(fe.stiffness.toarray()),
-                                   np.eye(fe.stiffness.shape[0]))
-    z = np.asarray(b.T @ k_inv).reshape(n_res, n, -1)  # row r, i: K^-1 b_ri
+    z = np.asarray(b.T @ track_mod.static_inverse(fe)).reshape(n_res, n, -1)  # row r, i: K^-1 b_ri
     rows = b.T.tocsr()
     full = np.empty((n_res, n, n))
     for j in range(n):

@@ -99,7 +99,8 @@ def solve_contact_step(force_fn, delta_free, compliance, max_iter: int = 30, tol
     return delta, force_fn(delta), jax.lax.stop_gradient(r_abs)
 
 
-def newton_system(evaluate, delta_free, compliance, max_iter: int = 30, tol: float = 1e-15):
+def newton_system(evaluate, delta_free, compliance, max_iter: int = 30, tol: float = 1e-15,
+                  exact: bool = False):
     """Root of r(delta) = delta - delta_free + C F(delta) for n contacts, no gradients.
 
     F_i depends on delta_i only and is non-decreasing, C [n, n] is the structure's symmetric
@@ -113,6 +114,9 @@ def newton_system(evaluate, delta_free, compliance, max_iter: int = 30, tol: flo
         evaluate: delta [n] -> (F [n] N, dF/d delta [n] N/m).
         delta_free: [n] approaches if every F were zero [m]. compliance: C [n, n] [m/N].
         max_iter: iteration cap (static). tol: tolerance on max |r_i| [m].
+        exact: Newton directions by elimination (:func:`solve_small`) instead of Jacobi
+            sweeps (static): for strongly coupled contacts such as a hanging sleeper's
+            ballast under a wheel.
 
     Returns:
         (delta [n] m, |r| [n] m).
@@ -130,7 +134,12 @@ def newton_system(evaluate, delta_free, compliance, max_iter: int = 30, tol: flo
 
     def body(state):
         delta, r, df, t, it = state
-        trial = delta - t * _jacobi_direction(compliance, df, r)
+        if exact:
+            eye = jnp.eye(r.shape[0], dtype=r.dtype)
+            direction = solve_small(eye + compliance * df[None, :], r)
+        else:
+            direction = _jacobi_direction(compliance, df, r)
+        trial = delta - t * direction
         r_trial, df_trial = residual(trial)
         take = (size(r_trial) < size(r)) | (t < 1.0 / 32)
         return (jnp.where(take, trial, delta), jnp.where(take, r_trial, r),
@@ -180,7 +189,7 @@ def _jacobi_direction(compliance, df, r, sweeps: int = 2):
 
 
 def solve_contact_system(force_fn, delta_free, compliance, max_iter: int = 30,
-                         tol: float = 1e-15, loop_force_fn=None):
+                         tol: float = 1e-15, loop_force_fn=None, exact: bool = False):
     """Solve delta = delta_free - C F(delta) for n contacts (delta [n] m, C [n, n] m/N).
 
     :func:`newton_system` made differentiable by the implicit function theorem, as
@@ -191,7 +200,7 @@ def solve_contact_system(force_fn, delta_free, compliance, max_iter: int = 30,
         force_fn: delta [n] -> F [n] [N], F_i a function of delta_i only, differentiable.
         loop_force_fn: ``force_fn`` with its parameters under ``stop_gradient`` (used inside
             the loop; default ``force_fn``).
-        Others as :func:`newton_system`.
+        Others (``exact``) as :func:`newton_system`.
 
     Returns:
         (delta [n] m, F [n] N, |r| [n] m).
@@ -204,7 +213,7 @@ def solve_contact_system(force_fn, delta_free, compliance, max_iter: int = 30,
 
     d_free = jax.lax.stop_gradient(delta_free)
     c = jax.lax.stop_gradient(compliance)
-    delta_star, r_abs = newton_system(evaluate, d_free, c, max_iter, tol)
+    delta_star, r_abs = newton_system(evaluate, d_free, c, max_iter, tol, exact)
     delta_star = jax.lax.stop_gradient(delta_star)
     f_star, df_star = jax.jvp(force_fn, (delta_star,), (ones,))
     r_star = delta_star - delta_free + compliance @ f_star

@@ -1,0 +1,135 @@
+"""Hanging sleepers over a gap that closes under load (issue 18): the one-sided ballast
+against a direct non-linear static FE solve and a direct FE time integration."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.sparse.linalg
+from fe_reference import newmark_wheels
+
+import wfjax as wf
+from wfjax import interaction as it
+from wfjax import supports
+from wfjax import track as track_mod
+
+ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
+V = 100 / 3.6
+SLEEPER = 35  # at x = 0.65 m
+
+
+def _direct_static(track, x_wheel, load):
+    """(rail deflection under the wheel [m], sleeper displacement [m], support force [N])
+    of the open FE track with the one-sided ballast: active-set Newton, exact."""
+    fe = track_mod.assemble(track)
+    k = scipy.sparse.linalg.splu(fe.stiffness.tocsc())
+    idx = supports.hanging_sleepers(track)
+    arrays = supports.support_arrays(track)
+    gap, k_b = arrays["ballast_gap"][idx], arrays["ballast_stiffness"][idx]
+    b = track_mod._load_vector(fe, [x_wheel]).toarray()[:, 0]
+    e = np.zeros((b.size, idx.size))
+    e[fe.n_rail_dof + idx, np.arange(idx.size)] = 1.0
+    u_p, g = k.solve(b * load), k.solve(e)
+    f = np.zeros(idx.size)
+    for _ in range(20):
+        active = (e.T @ (u_p - g @ f) - gap) > 0
+        f = np.linalg.solve(np.eye(idx.size) + (k_b * active)[:, None] * (e.T @ g),
+                            k_b * active * (e.T @ u_p - gap))
+    u = u_p - g @ f
+    return b @ u, e.T @ u, f
+
+
+def _static_start(track, x_wheel):
+    config = wf.SimConfig()
+    struct = it.structure(wf.Wheel(), track, config)
+    law = it.prepare("hertz-profile", wf.Flat.none(), wf.Wheel(), track, wf.Material(), config)
+    return it.run_scan(law, struct, V, 2e-5, x_wheel, x_wheel + 1.0, 2)
+
+
+@pytest.mark.parametrize("gap_mm, closed", [(0.2, True), (0.6, True), (5.0, False)])
+def test_static_start_equals_a_direct_non_linear_static_fe_solve(gap_mm, closed):
+    # two sleepers hang; the wheel on residual-grid points over and beside them
+    track = supports.hanging_sleeper(wf.Track(), [SLEEPER, SLEEPER + 1], gap_mm * 1e-3)
+    for x_wheel in (0.65, 0.65 + 9 * 0.65 / 32, 1.3):
+        hist = _static_start(track, x_wheel)
+        rail, sleeper, force = _direct_static(track, x_wheel, wf.Wheel().preload)
+        assert (force[0] > 0) == closed or x_wheel > 1.0
+        np.testing.assert_allclose(float(hist["rail_disp"][0]), rail, rtol=1e-9)
+        np.testing.assert_allclose(np.asarray(hist["sleeper_disp"][0]), sleeper, rtol=1e-9)
+        np.testing.assert_allclose(np.asarray(hist["support_force"][0]), force, rtol=1e-8,
+                                   atol=1e-6)
+
+
+def test_a_gap_that_never_closes_is_the_void_sleeper():
+    void = supports.void_sleeper(wf.Track(), SLEEPER)
+    deep = supports.hanging_sleeper(wf.Track(), SLEEPER, 0.05)
+    a = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.1, track=void)
+    b = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.1, track=deep)
+    np.testing.assert_allclose(np.asarray(b.force), np.asarray(a.force), rtol=1e-12,
+                               atol=1e-9 * float(a.max_force))
+    assert np.all(np.asarray(b.support_force) == 0.0)
+
+
+def test_a_closing_gap_carries_load_only_while_closed():
+    # 0.3 mm closes under the wheel over the sleeper (its void deflection: ~1.7 mm)
+    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
+    hang = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.62, track=track)
+    force, disp = np.asarray(hang.support_force)[:, 0], np.asarray(hang.sleeper_disp)[:, 0]
+    assert force.max() > 0.3 * wf.Wheel().preload
+    open_ = disp <= 3e-4
+    assert open_.any() and np.all(force[open_] == 0.0)  # open gap: no force, no tension
+    assert np.all(force >= 0.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("gap_mm", [0.05, 0.3])
+def test_hanging_sleeper_agrees_with_a_direct_fe_time_integration(gap_mm):
+    track = supports.hanging_sleeper(wf.Track(), SLEEPER, gap_mm * 1e-3)
+    res = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.62, track=track)
+    x = np.asarray(res.x)
+    out = []
+    forces = newmark_wheels(ROUNDED, V, x[0], x[0] - float(res.s[0]), [0.0],
+                            float(res.time_step), x.size, track=track, supports_out=out)
+    after = np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME
+    fm, fn = np.asarray(res.force)[after], forces[after, 0]
+    assert fn.max() == pytest.approx(fm.max(), rel=0.02)
+    assert fn.min() == pytest.approx(fm.min(), abs=0.02 * fm.max())
+    sm, sn = np.asarray(res.support_force)[after, 0], out[0][after, 0]
+    assert sn.max() == pytest.approx(sm.max(), rel=0.03)
+
+
+def test_hanging_sleeper_gradient_matches_finite_differences():
+    import jax
+
+    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
+    config = wf.SimConfig()
+    struct = it.structure(wf.Wheel(), track, config)
+
+    def peak(depth):
+        flat = dataclasses.replace(ROUNDED, depth=depth, extent_bound=0.06)
+        law = it.prepare("hertz-profile", flat, wf.Wheel(), track, wf.Material(), config)
+        hist = it.run_scan(law, struct, V, 2.5e-5, 0.62 - 0.1, 0.62, 1200)
+        return jax.numpy.max(hist["force"])
+
+    d0, h = 0.9e-3, 2e-6
+    grad = float(jax.grad(peak)(d0))
+    fd = (float(peak(d0 + h)) - float(peak(d0 - h))) / (2 * h)
+    assert grad == pytest.approx(fd, rel=0.01)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: supports.hanging_sleeper(wf.Track(), SLEEPER, -1e-3), r"ballast_gap\[35\]"),
+    (lambda: supports.hanging_sleeper(wf.Track(), SLEEPER, 0.2), "at most 0.05"),
+    (lambda: supports.hanging_sleeper(wf.Track(), 99, 1e-3), r"\[0, 68\]"),
+    (lambda: supports.hanging_sleeper(wf.Track(), list(range(30, 40)), 1e-3), "at most 8"),
+    (lambda: supports.hanging_sleepers(wf.Track(ballast_gap=1e-3)), "per sleeper"),
+])
+def test_bad_hanging_sleepers_are_refused(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+def test_hanging_sleepers_refuse_sensors_and_the_direct_3d_mode():
+    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
+    with pytest.raises(ValueError, match="sensors"):
+        wf.simulate(ROUNDED, V, contact="hertz-profile", track=track, sensors=[0.3])
