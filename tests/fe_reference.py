@@ -6,8 +6,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 import wfjax as wf
-from wfjax import supports
-from wfjax import geometry
+from wfjax import geometry, supports
 from wfjax import interaction as it
 from wfjax import track as track_mod
 from wfjax import wheel as wheel_mod

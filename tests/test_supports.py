@@ -61,13 +61,15 @@ def test_uniform_track_unchanged():
     residual = [3.4428300781240376e-12, 2.3029322062982184e-12, 3.695321426282441e-12,
                 2.303577296646482e-12, 3.4393489012497266e-12, 2.3022806484828257e-12,
                 3.6439355694977765e-12, 2.304008898468144e-12, 3.5415405033187283e-12]
-    np.testing.assert_allclose(np.asarray(m.residual), residual, rtol=1e-12)
+    # the residual is K^-1 minus the kept modes' part, ~300x larger each: the eigensolver's
+    # rounding differs between LAPACK builds/CPUs by ~1e-9 of it (seen 7.7e-10 on AMD EPYC)
+    np.testing.assert_allclose(np.asarray(m.residual), residual, rtol=1e-8)
     np.testing.assert_allclose(np.asarray(m.residual_x), np.linspace(0, LS, 9), rtol=1e-15)
     h = [(7.42532591421608e-09 + 0j), (7.622790570685852e-09 - 1.2001349139328722e-09j),
          (-2.525965652381724e-10 - 1.6411188495659782e-09j),
          (-1.1893597710718377e-10 - 1.097097998042173e-10j)]
     np.testing.assert_allclose(T.modal_receptance(m, [0.0, 50.0, 500.0, 2000.0], 0.1), h,
-                               rtol=1e-12)
+                               rtol=1e-10)  # 2 kHz: 4.4e-12 off on an AMD EPYC
 
 
 def test_constant_arrays_are_the_uniform_track(tmp_path):

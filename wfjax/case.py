@@ -132,6 +132,8 @@ _RANGES: dict[tuple[str, str], tuple[float | None, float | None, str]] = {
     ("track", "sleeper_mass"): (10.0, 1e3, "half sleeper mass m_SL"),
     ("track", "ballast_stiffness"): (1e6, 1e10, "ballast stiffness k_B"),
     ("track", "ballast_damping"): (1e1, 1e8, "ballast damping c_B"),
+    ("track", "ballast_gap"): (0.0, P.MAX_BALLAST_GAP, "gap between sleeper and ballast at "
+                               "rest (0: bonded; one per sleeper: supports.void_gap)"),
     ("track", "n_bays"): (4, 1000, "sleeper bays of the finite track model"),
     ("track", "elements_per_bay"): (1, 64, "rail beam elements per sleeper bay"),
     ("material", "youngs_modulus"): (1e9, 1e12, "Young's modulus E of wheel and rail"),
@@ -158,7 +160,7 @@ _UNITS = {("material", "poisson_ratio"): "", ("config", "time_step"): "s",
           ("config", "run_in"): "m", ("config", "run_out"): "m",
           ("config", "contact_element"): "m", ("config", "track_max_frequency"): "Hz",
           ("config", "newton_iterations"): "", ("config", "contact_mode_3d"): "",
-          ("config", "precision"): "",
+          ("config", "precision"): "", ("track", "ballast_gap"): "m",
           ("track", "n_bays"): "", ("track", "elements_per_bay"): ""}
 _CHOICES = {("config", "contact_mode_3d"): tuple(getattr(P, "CONTACT_MODES_3D",
                                                          ("table", "direct"))),
@@ -277,6 +279,10 @@ _OTHER_KEYS = [
         commands=_MODEL_CMDS_EARLY),
     Key("supports", "void_remaining", "float", "", 0.0, 1.0,
         doc="fraction of the ballast stiffness and damping left under a void sleeper",
+        commands=_MODEL_CMDS_EARLY),
+    Key("supports", "void_gap", "float", "m", 0.0, P.MAX_BALLAST_GAP,
+        doc="gap under the void sleepers: > 0 makes their ballast one-sided (it carries load "
+            "once the gap has closed; void_remaining unused), 0 = no ballast at all",
         commands=_MODEL_CMDS_EARLY),
     Key("supports", "scatter_cv", "float", "", 0.0, 2.0,
         doc="lognormal scatter of pad and ballast stiffness, coefficient of variation "
@@ -528,7 +534,8 @@ def default_layer(command: str) -> dict:
         layer.update({"roughness.preset": "none", "roughness.realisations": 1,
                       "roughness.seed": 0, "roughness.length": 6.0})
     if command in _MODEL_CMDS_EARLY:
-        layer.update({"supports.void_remaining": 0.0, "supports.scatter_cv": 0.0,
+        layer.update({"supports.void_remaining": 0.0, "supports.void_gap": 0.0,
+                      "supports.scatter_cv": 0.0,
                       "supports.scatter_seed": 0})
     if command == "sweep":
         layer["supports.realisations"] = 1
@@ -707,7 +714,8 @@ class Case:
 
     def supports(self, track: P.Track, seed: int | None = None) -> P.Track:
         """``track`` with the case's void sleepers and support scatter
-        (:func:`wfjax.supports.void_sleeper`, :func:`wfjax.supports.scatter`; ``seed``
+        (:func:`wfjax.supports.void_sleeper`, with ``void_gap`` > 0
+        :func:`wfjax.supports.hanging_sleeper`, :func:`wfjax.supports.scatter`; ``seed``
         replaces ``supports.scatter_seed``)."""
         from . import supports as S
 
@@ -717,8 +725,12 @@ class Case:
                 idx = [int(v) for v in np.atleast_1d(voids)]
                 if any(i != v for i, v in zip(idx, np.atleast_1d(voids), strict=True)):
                     raise ValueError(f"supports.void_sleepers must be integers, got {voids!r}")
-                track = S.void_sleeper(track, idx,
-                                       remaining=self.values.get("supports.void_remaining", 0.0))
+                gap = float(self.values.get("supports.void_gap", 0.0))
+                if gap > 0:
+                    track = S.hanging_sleeper(track, idx, gap)
+                else:
+                    track = S.void_sleeper(
+                        track, idx, remaining=self.values.get("supports.void_remaining", 0.0))
             cv = float(self.values.get("supports.scatter_cv", 0.0))
             if cv > 0:
                 key = int(self.values.get("supports.scatter_seed", 0)) if seed is None else seed

@@ -143,6 +143,10 @@ def force_history_figure(result, flat: Flat | None = None, preload: float = 118e
                  f"max {float(result.max_force) / 1e3:.1f} kN, min "
                  f"{float(result.min_force) / 1e3:.1f} kN")
     ax.grid(alpha=0.3)
+    if getattr(result, "support_force", None) is not None:  # hanging sleepers' ballast
+        for k, i in enumerate(np.asarray(result.hanging_sleepers)):
+            ax.plot(s, np.asarray(result.support_force)[:, k] / 1e3, lw=1, ls="--",
+                    color=f"C{2 + k % 6}", label=f"ballast force, hanging sleeper {int(i)}")
     ax.legend(loc="upper right", fontsize=8)
     if flat is not None and flat.kind != "none":
         inset = ax.inset_axes([0.03, 0.58, 0.28, 0.36])

@@ -110,7 +110,20 @@ class SimResult(NamedTuple):
             "axle_box_acceleration_peak_m_s2": float(self.axle_acc_peak),
             **self._wheel_summary(),
             **self._detector_summary(),
+            **self._support_summary(),
         }
+
+    def _support_summary(self) -> dict:
+        if self.support_force is None:
+            return {}
+        force = np.asarray(self.support_force)
+        dt = float(self.time_step)
+        return {"hanging_sleepers": [
+            {"sleeper": int(i), "max_support_force_kN": float(f.max()) / 1e3,
+             "open_ms": float(np.sum(f <= 0.0)) * dt * 1e3,
+             "max_sleeper_disp_mm": float(np.max(np.asarray(self.sleeper_disp)[:, k])) * 1e3}
+            for k, (i, f) in enumerate(zip(np.asarray(self.hanging_sleepers), force.T,
+                                           strict=True))]}
 
     def _wheel_summary(self) -> dict:
         if self.wheel_force is None:
@@ -136,7 +149,8 @@ class SimResult(NamedTuple):
     def to_csv(self) -> str:
         """The time histories as CSV text (SI units, one row per step; a vehicle's every
         wheel's force and axle-box acceleration as ``force_N@wheel<i>``,
-        ``axle_acc_m_s2@wheel<i>``)."""
+        ``axle_acc_m_s2@wheel<i>``; hanging sleepers' ``support_force_N@sleeper<i>`` and
+        ``sleeper_disp_m@sleeper<i>``)."""
         buf = io.StringIO()
         w = csv.writer(buf)
         head = ["t_s", "x_m", "s_m", "force_N", "approach_m", "wheel_disp_m", "rail_disp_m",
@@ -148,6 +162,11 @@ class SimResult(NamedTuple):
             head += [f"force_N@wheel{i}" for i in range(n)]
             head += [f"axle_acc_m_s2@wheel{i}" for i in range(n)]
             cols += list(np.asarray(self.wheel_force).T) + list(np.asarray(self.wheel_axle_acc).T)
+        if self.support_force is not None:
+            idx = np.asarray(self.hanging_sleepers)
+            head += [f"support_force_N@sleeper{i}" for i in idx]
+            head += [f"sleeper_disp_m@sleeper{i}" for i in idx]
+            cols += list(np.asarray(self.support_force).T) + list(np.asarray(self.sleeper_disp).T)
         w.writerow(head)
         for row in zip(*cols, strict=True):
             w.writerow([f"{v:.9g}" for v in row])

@@ -157,9 +157,9 @@ def void_sleeper(track: Track, index: int | Sequence[int], remaining: float = 0.
     ``n_bays // 2 - 1``) are multiplied by ``remaining`` (default 0: no support at all).
     Why these: a hanging sleeper is one whose ballast has settled away from it, leaving a
     gap under it; it stays fastened to the rail, so its pad and its mass are kept and the
-    sleeper's mass now hangs from the rail. The support is linear: a gap that closes under the
-    wheel load (a one-sided contact) is not modelled, so this is the limit of a void deeper
-    than the rail's deflection over it (default track, 118 kN above the sleeper: 1.67 mm over
+    sleeper's mass now hangs from the rail. The support is linear: the limit of a void deeper
+    than the rail's deflection over it (a gap that closes under the wheel load:
+    :func:`hanging_sleeper`; default track, 118 kN above the sleeper: 1.67 mm over
     one void against 0.87 mm over a supported sleeper).
 
     Args:

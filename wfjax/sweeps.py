@@ -40,6 +40,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from . import supports as supports_mod
 from .contact.laws import CONTACT_MODELS, cached_tables_3d, prepare, prepare_family, resolve_mode_3d
 from .interaction import (
     _wheel_positions,
@@ -483,6 +484,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             raise ValueError("tracks (support realisations) must be a non-empty sequence of "
                              "Track, and cannot be combined with a vehicle, sensors or a "
                              "detector")
+        if any(supports_mod.hanging_sleepers(tr).size for tr in tracks):
+            raise ValueError("tracks (support realisations) must not have hanging sleepers "
+                             "(ballast_gap > 0): sweep one such track at a time")
         track = tracks[0]
         models = padded_models(tracks, config, cache_dir)
     mesh = _device_mesh()

@@ -53,6 +53,7 @@ ROUGHNESS_FLAGS = {"roughness_csv": ("roughness.rail_csv", 1.0),
                    "realisations": ("roughness.realisations", 1.0),
                    "seed": ("roughness.seed", 1.0),
                    "void_sleepers": ("supports.void_sleepers", 1.0),
+                   "void_gap_mm": ("supports.void_gap", 1e-3),
                    "scatter_cv": ("supports.scatter_cv", 1.0),
                    "support_realisations": ("supports.realisations", 1.0)}
 
@@ -74,6 +75,9 @@ def add_roughness_arguments(parser: argparse.ArgumentParser, monte_carlo: bool) 
     parser.add_argument("--seed", type=int, help="seed of the random roughness (default 0)")
     parser.add_argument("--void-sleepers",
                         help="hanging sleepers 'i,j,...' (n_bays // 2 - 1 is above x = 0)")
+    parser.add_argument("--void-gap-mm", type=float,
+                        help="gap under the hanging sleepers in mm: > 0 makes their ballast "
+                             "one-sided, closing under load (default 0: no ballast)")
     parser.add_argument("--scatter-cv", type=float,
                         help="lognormal scatter of pad and ballast stiffness (cv, e.g. 0.3)")
     if monte_carlo:

@@ -88,5 +88,9 @@ def run(args) -> int:
         print(f"  wheel {w['wheel']} ({vehicle.positions[w['wheel']]:g} m behind the leading): "
               f"max {w['max_force_kN']:.1f} kN, min {w['min_force_kN']:.1f} kN, axle-box "
               f"acceleration up to {w['axle_box_acceleration_peak_m_s2']:.0f} m/s^2")
+    for h in summary.get("hanging_sleepers", []):
+        print(f"  hanging sleeper {h['sleeper']}: ballast force up to "
+              f"{h['max_support_force_kN']:.1f} kN, gap open {h['open_ms']:.1f} ms, sleeper "
+              f"down by up to {h['max_sleeper_disp_mm']:.2f} mm")
     print(f"wrote {out}/simulate.csv, simulate.json, simulate.png, case.toml")
     return 0
