@@ -19,24 +19,26 @@ SLEEPER = 35  # at x = 0.65 m
 
 
 def _direct_static(track, x_wheel, load):
-    """(rail deflection under the wheel [m], sleeper displacement [m], support force [N])
-    of the open FE track with the one-sided ballast: active-set Newton, exact."""
+    """(rail deflection under the wheel(s) [m], sleeper displacement [m], support force [N])
+    of the open FE track with the one-sided ballast: active-set Newton, exact. ``x_wheel``
+    and ``load`` [N] scalars or [n_w]."""
     fe = track_mod.assemble(track)
     k = scipy.sparse.linalg.splu(fe.stiffness.tocsc())
     idx = supports.hanging_sleepers(track)
     arrays = supports.support_arrays(track)
     gap, k_b = arrays["ballast_gap"][idx], arrays["ballast_stiffness"][idx]
-    b = track_mod._load_vector(fe, [x_wheel]).toarray()[:, 0]
-    e = np.zeros((b.size, idx.size))
+    b = track_mod._load_vector(fe, np.atleast_1d(x_wheel)).toarray()
+    e = np.zeros((b.shape[0], idx.size))
     e[fe.n_rail_dof + idx, np.arange(idx.size)] = 1.0
-    u_p, g = k.solve(b * load), k.solve(e)
+    u_p, g = k.solve(b @ np.atleast_1d(load)), k.solve(e)
     f = np.zeros(idx.size)
     for _ in range(20):
         active = (e.T @ (u_p - g @ f) - gap) > 0
         f = np.linalg.solve(np.eye(idx.size) + (k_b * active)[:, None] * (e.T @ g),
                             k_b * active * (e.T @ u_p - gap))
     u = u_p - g @ f
-    return b @ u, e.T @ u, f
+    rail = b.T @ u
+    return (rail[0] if np.ndim(x_wheel) == 0 else rail), e.T @ u, f
 
 
 def _static_start(track, x_wheel):
@@ -58,6 +60,24 @@ def test_static_start_equals_a_direct_non_linear_static_fe_solve(gap_mm, closed)
         np.testing.assert_allclose(np.asarray(hist["sleeper_disp"][0]), sleeper, rtol=1e-9)
         np.testing.assert_allclose(np.asarray(hist["support_force"][0]), force, rtol=1e-8,
                                    atol=1e-6)
+
+
+def test_bogie_static_start_over_a_hanging_sleeper_equals_the_direct_solve():
+    from wfjax.vehicle import Vehicle
+
+    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 0.4e-3)
+    config, vehicle = wf.SimConfig(), Vehicle.bogie()
+    wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3)]
+    struct = it.vehicle_structure(vehicle, wheels, track, config)
+    laws = it.vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
+                           wheels, track, wf.Material(), config)
+    for x0 in (0.65 + 3 * 0.65 / 32, 3.25):  # the leading, then the trailing wheel near it
+        hist = it.run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
+        rail, sleeper, force = _direct_static(track, x0 + vehicle.offsets(),
+                                              np.array([118e3, 90e3]))
+        assert force[0] > 0
+        np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], rail, rtol=1e-9)
+        np.testing.assert_allclose(np.asarray(hist["support_force"])[0], force, rtol=1e-8)
 
 
 def test_a_gap_that_never_closes_is_the_void_sleeper():
