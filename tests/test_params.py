@@ -26,7 +26,7 @@ def test_numbers_are_leaves_and_choices_static():
     flat = wf.Flat.rounded(0.9e-3, 0.1)
     leaves = jax.tree_util.tree_leaves(flat)
     assert 0.9e-3 in leaves and 0.1 in leaves and "rounded" not in leaves
-    assert len(jax.tree_util.tree_leaves(wf.Track())) == 11  # n_bays, elements_per_bay static
+    assert len(jax.tree_util.tree_leaves(wf.Track())) == 12  # n_bays, elements_per_bay static
     g = jax.grad(lambda f: f.depth * f.length)(flat)
     assert g.depth == pytest.approx(0.1) and g.length == pytest.approx(0.9e-3)
     depths = jnp.array([0.5e-3, 0.9e-3])

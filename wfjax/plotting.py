@@ -138,8 +138,8 @@ def force_history_figure(result, flat: Flat | None = None, preload: float = 118e
         ax.plot([], [], color="C3", alpha=0.4, lw=6, label="loss of contact")
     ax.set_xlabel("wheel position relative to the impact s [mm]")
     ax.set_ylabel("contact force [kN]")
-    ax.set_title(f"v = {float(result.speed) * 3.6:.0f} km/h, impact at "
-                 f"{float(result.impact_position) * 1e3:.0f} mm from a sleeper: "
+    ax.set_title(f"v = {float(result.speed) * 3.6:.0f} km/h, impact at x = "
+                 f"{float(result.impact_position) * 1e3:.0f} mm (a sleeper at x = 0): "
                  f"max {float(result.max_force) / 1e3:.1f} kN, min "
                  f"{float(result.min_force) / 1e3:.1f} kN")
     ax.grid(alpha=0.3)
