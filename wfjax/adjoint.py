@@ -1,0 +1,378 @@
+"""A hand-written reverse mode (adjoint) of the time loop: :func:`adjoint_loop`.
+
+Plain reverse-mode autodiff through :func:`wfjax.interaction.time_loop` stores, at every step,
+the residuals of every operation of the step (the mode shapes at the contact and the complex
+modal states, [n_modes] each) and transposes every nonlinear operation, the contact law's
+evaluations included. But the step is *linear* in the modal state (q, p, f_prev) except for
+the contact solve, whose linearisation at the converged root only needs the law's slope
+K_n = dF/d delta there. So the adjoint needs from the forward pass per-step scalars only:
+the approach delta_n and the slope K_n of every wheel (positions, flat coordinates and the
+step's compliance C_n are recomputed from the step index).
+
+Forward (``custom_vjp`` fwd): the unchanged :func:`wfjax.interaction.time_loop` (its results
+are the ones of ``run_scan``, bit for bit), then one ``vmap`` over the steps for K_n.
+
+Backward: a reverse ``lax.scan`` over the transposed linear step (the module's notes below),
+each step gathering the mode shapes of the step before and carrying them to it, so every
+step reads the shapes once; per step a tiny transposed contact system
+(I + C_n diag(K_n))^T mu_n = ... and the cotangent of the law's explicit force
+F_expl(delta_n, s_n; law) at fixed delta_n. After the scan, the law's leaves get their
+cotangent from ONE ``vmap``-ed ``jax.vjp`` of F_expl over all steps (parallel, cheap). The
+static start (delta_0, q_0, xi_W,ref) is computed outside the ``custom_vjp`` and
+differentiated by JAX as usual.
+
+Conventions: complex cotangents pair with their variable as Re(sum lambda z) (no conjugate;
+JAX's convention for ``vjp`` of complex values), so the transpose of z -> a z is
+lambda -> a lambda and of z -> Re(a z) is lambda_y -> a lambda_y.
+
+Scope: every pointwise contact law (Hertz profile and trajectory, 2D bedding, 3D table, 3D
+parametric family), one wheel or a vehicle's tuple of laws, rail/wheel roughness
+(:class:`wfjax.roughness.LoopRoughness`, not differentiated), float64 and float32. Outputs
+with cotangents: ``force`` and ``approach``; the others (``x``, ``s``, ``t``, ``residual``)
+do not depend on a differentiated input, and a cotangent on ``wheel_disp``, ``rail_disp`` or
+``axle_acc`` raises ``NotImplementedError``. The contact law is differentiated, not the
+structure, speed, time step, start or impact position, nor the roughness values:
+differentiating any of them raises ``NotImplementedError`` (``jax.grad`` through
+:func:`wfjax.interaction.run_scan` covers them). Forward mode (``jvp``/``jacfwd``) is not
+available through a ``custom_vjp``: use ``run_scan`` there. The direct 3D mode (a law with its
+own step) and sensors/the detector are not supported (``NotImplementedError``).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from . import interaction as it
+from . import track as track_mod
+from ._modal import discrete_step_coefficients
+from .contact.newton import solve_small, static_approach
+
+__all__ = ["adjoint_loop", "run_adjoint", "loop_setup", "static_start", "contact_slopes",
+           "SUPPORTED_OUTPUTS"]
+
+SUPPORTED_OUTPUTS = ("force", "approach")  # outputs whose cotangents the adjoint propagates
+_NOT_DIFFERENTIATED = ("x", "s", "t", "residual")  # no differentiated input reaches them
+
+
+class LoopSetup(NamedTuple):
+    """The time loop's precomputed arrays, in the loop's precision (what
+    :func:`wfjax.interaction.time_loop` computes before its scan).
+
+    Shapes: n = wheels, M = track modes, m = wheel modes. ``laws`` [n] (cast), ``struct``
+    (cast), ``e_r, ap_r, an_r`` [M] (exp(pole dt) and first-order-hold weights of the
+    track), ``e_w, ap_w, an_w`` [n, m] (the wheels'), ``preload`` [n] N, ``wheel_res``
+    [n, m] m/(N s), ``c_wheel`` [n] m/N, ``offsets``, ``delays`` [n] m, ``speed`` m/s,
+    ``dt`` s, ``x_start``, ``impact_position`` m.
+    """
+
+    laws: tuple
+    struct: Any
+    e_r: Any
+    ap_r: Any
+    an_r: Any
+    e_w: Any
+    ap_w: Any
+    an_w: Any
+    preload: Any
+    wheel_res: Any
+    c_wheel: Any
+    offsets: Any
+    delays: Any
+    speed: Any
+    dt: Any
+    x_start: Any
+    impact_position: Any
+    roughness: Any
+
+
+def loop_setup(laws: tuple, struct, speed, dt, x_start, impact_position, precision: str,
+               roughness=None) -> LoopSetup:
+    """:class:`LoopSetup` of a run: the same casts and coefficients as ``time_loop``.
+
+    Args: as :func:`adjoint_loop` (``laws`` a tuple, one per wheel).
+    """
+    n_wheels = len(laws)
+    wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))
+    coefficients = (discrete_step_coefficients(struct.track.poles, dt),
+                    discrete_step_coefficients(wheel_poles, dt))
+    (laws, struct, coefficients, speed, dt, x_start, impact_position,
+     roughness) = it.cast_precision((laws, struct, coefficients, speed, dt, x_start,
+                                     impact_position, roughness), precision)
+    (e_r, ap_r, an_r), (e_w, ap_w, an_w) = coefficients
+    real = jnp.asarray(struct.preload).dtype
+    wheel_res = jnp.reshape(struct.wheel_residues, (n_wheels, -1))
+    offsets = jnp.zeros(1, real) if struct.offsets is None else struct.offsets
+    delays = jnp.zeros(1, real) if struct.delays is None else struct.delays
+    return LoopSetup(laws, struct, e_r, ap_r, an_r, e_w, ap_w, an_w,
+                     jnp.reshape(struct.preload, (n_wheels,)), wheel_res,
+                     jnp.real(jnp.sum(wheel_res * an_w, axis=-1)), offsets, delays, speed, dt,
+                     x_start, impact_position, roughness)
+
+
+def _shapes_fn(model):
+    """x [n] m -> mode shapes [n, M] (``time_loop``'s node-major interpolation)."""
+    node_major = it._node_major_shapes(model)
+    return lambda x: jax.vmap(lambda xi: track_mod.interpolate_nodal(model, node_major, xi))(x)
+
+
+def static_start(ls: LoopSetup):
+    """The loop's static start, differentiable by plain autodiff.
+
+    Returns:
+        (q0 [M] complex: the rail's static modal state, xi_w_ref [n] m: the wheels'
+        reference displacement, delta0 [n] m: the static approaches), as ``time_loop``.
+    """
+    model = ls.struct.track
+    shapes_at = _shapes_fn(model)
+    s0 = ls.x_start - ls.impact_position - ls.delays
+    x0 = ls.x_start + ls.offsets
+    phi0 = shapes_at(x0)
+    q0 = -it._loads(ls.preload, phi0) / model.poles
+    xi_r0 = (jnp.real(jnp.sum(phi0 * (model.weights * q0), axis=-1))
+             + it._residual_matrix(ls.struct, model, ls.x_start) @ ls.preload)
+    shift0, rough0 = it._roughness_inputs(ls.laws, ls.roughness, x0, s0)
+    delta0 = jnp.stack([static_approach(it._static_force(lw, si, sh, ri), p)
+                        for lw, si, p, sh, ri in zip(ls.laws, s0, ls.preload, shift0, rough0,
+                                                     strict=True)])
+    return q0, xi_r0 + delta0, delta0
+
+
+def _step_forces(laws, roughness, x, s, approach):
+    """F [n] N of every wheel at one step (x, s, approach [n] m), and the point evaluated
+    there: F_i = law_i.point_force(point_i, approach_i + shift_i), as the loop's solve."""
+    shift, rough = it._roughness_inputs(laws, roughness, x, s)
+    out = []
+    for i, law in enumerate(laws):
+        point = law.point(s[i]) if rough[i] is None else law.rough_point(s[i], rough[i][0])
+        out.append((point, approach[i] + shift[i]))
+    return out
+
+
+def contact_slopes(laws, roughness, x, s, approach):
+    """K [N, n] N/m: dF/d delta of every wheel's law at the loop's approach (delta held fixed
+    at the loop's own value), from the loop's ``x``, ``s``, ``approach`` [N, n] m."""
+
+    def one(xn, sn, an):
+        ks = []
+        for law, (point, d) in zip(laws, _step_forces(laws, roughness, xn, sn, an),
+                                   strict=True):
+            ks.append(jax.jvp(lambda dd, law=law, point=point: law.point_force(point, dd),
+                              (d,), (jnp.ones_like(d),))[1])
+        return jnp.stack(ks)
+
+    return jax.vmap(one)(x, s, approach)
+
+
+def _explicit_forces(laws, roughness, x, s, approach):
+    """F_expl [N, n] N: every wheel's law force at the loop's (fixed) approach, a function
+    of the laws' leaves (what the adjoint's law cotangent differentiates)."""
+
+    def one(xn, sn, an):
+        return jnp.stack([law.point_force(point, d) for law, (point, d) in zip(
+            laws, _step_forces(laws, roughness, xn, sn, an), strict=True)])
+
+    return jax.vmap(one)(x, s, approach)
+
+
+def _compliance_fn(ls: LoopSetup):
+    """(x_ref [m], c_own [n] m/N) -> the step's compliance C [n, n] m/N, as ``time_loop``."""
+    struct, model = ls.struct, ls.struct.track
+    n_wheels = len(ls.laws)
+    cross = None
+    if n_wheels > 1:
+        bay = ls.impact_position - jnp.mod(ls.impact_position, model.sleeper_spacing)
+        cross = it._cross_table(model, _shapes_fn(model), ls.offsets,
+                                model.weights * ls.an_r, bay)
+
+    def compliance(x_ref, c_own):
+        c_rail = jnp.diag(c_own) + it._residual_matrix(struct, model, x_ref)
+        if cross is not None:
+            c_rail = c_rail + it._interp_bay(model, cross, x_ref)
+        return jnp.diag(ls.c_wheel) + c_rail
+
+    return compliance
+
+
+def _transposed_contact(C, K, rhs):
+    """mu [n] with (I + C diag(K))^T mu = rhs (C [n, n] m/N, K [n] N/m, rhs [n] 1/m-like)."""
+    if C.shape[0] == 1:
+        return rhs / (1.0 + C[0, 0] * K)
+    return solve_small(jnp.eye(C.shape[0], dtype=C.dtype) + K[:, None] * C.T, rhs)
+
+
+def backward_scan(ls: LoopSetup, n_steps: int, K, ct_force, ct_approach):
+    """The reverse scan of the transposed linear step.
+
+    Args:
+        ls: :class:`LoopSetup`. n_steps: N (static). K: [N - 1, n] N/m slopes of steps 1..N-1.
+        ct_force, ct_approach: [N - 1, n] cotangents of the force [1/N-like] and approach
+            [1/m-like] outputs of steps 1..N-1.
+
+    Returns:
+        (ct_F_expl [N - 1, n]: cotangents of the laws' explicit forces; ct_q0 [M] complex;
+        ct_xi_w_ref [n]).
+    """
+    model = ls.struct.track
+    w_r, an_r, e_r, e_w = model.weights, ls.an_r, ls.e_r, ls.e_w
+    g_r = ls.ap_r + an_r * e_r  # f_n's weight in q_hat_{n+1}, through q_n and directly
+    g_w = ls.ap_w + ls.an_w * e_w
+    wan = w_r * an_r
+    shapes_at = _shapes_fn(model)
+    compliance = _compliance_fn(ls)
+    step_x = ls.speed * ls.dt
+
+    def x_ref_at(n):
+        return ls.x_start + step_x * n
+
+    def own(phi):
+        return jnp.real(jnp.sum(wan * phi * phi, axis=-1))
+
+    def step(carry, inputs):
+        lq, lp, b, phi, c_own = carry  # adjoints of q_n, p_n; f_n's from later steps; phi_n
+        n, k, gf, gd = inputs
+        C = compliance(x_ref_at(n), c_own)
+        lf = b + gf
+        mu = _transposed_contact(C, k, gd + k * lf)
+        l_expl = lf - C.T @ mu
+        lq_hat = lq - w_r * it._loads(mu, phi)
+        lp_hat = lp - ls.wheel_res * mu[:, None]
+        phi_prev = shapes_at(x_ref_at(n - 1) + ls.offsets)
+        glq = g_r * lq_hat
+        b_prev = (jnp.real(jnp.sum(phi_prev * glq, axis=-1))
+                  + jnp.real(jnp.sum(g_w * lp_hat, axis=-1)))
+        return (e_r * lq_hat, e_w * lp_hat, b_prev, phi_prev, own(phi_prev)), (l_expl, mu)
+
+    real = ls.preload.dtype
+    n_wheels = ls.preload.shape[0]
+    phi_last = shapes_at(x_ref_at(n_steps - 1) + ls.offsets)
+    carry0 = (jnp.zeros_like(ls.e_r), jnp.zeros_like(ls.e_w), jnp.zeros(n_wheels, real),
+              phi_last, own(phi_last))
+    steps = jnp.arange(1, n_steps).astype(real)
+    (lq0, *_), (l_expl, mu) = jax.lax.scan(step, carry0, (steps, K, ct_force, ct_approach),
+                                           reverse=True)
+    return l_expl, lq0, jnp.sum(mu, axis=0)
+
+
+# -- the custom_vjp core ---------------------------------------------------------------------
+def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughness, q0,
+            xi_w_ref, delta0):
+    """``time_loop`` of the tuple of laws (q0, xi_w_ref, delta0 are its own start, computed
+    again outside for their gradients; their values here are unused)."""
+    n_steps, max_iter, precision = statics
+    return it.time_loop(laws, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
+                        precision=precision, roughness=roughness)
+
+
+_core = jax.custom_vjp(_primal, nondiff_argnums=(0,))
+
+
+def _perturbed(tree) -> bool:
+    return any(leaf.perturbed for leaf in jax.tree.leaves(
+        tree, is_leaf=lambda x: isinstance(x, jax.custom_derivatives.CustomVJPPrimal)))
+
+
+def _fwd(statics, laws, struct, speed, dt, x_start, impact_position, roughness, q0, xi_w_ref,
+         delta0):
+    names = ("struct", "speed", "dt", "x_start", "impact_position", "roughness")
+    fixed = (struct, speed, dt, x_start, impact_position, roughness)
+    bad = [name for name, value in zip(names, fixed, strict=True) if _perturbed(value)]
+    if bad:
+        raise NotImplementedError(
+            f"the adjoint time loop differentiates the contact law only, not {', '.join(bad)}: "
+            "use jax.grad through wfjax.interaction.run_scan for those")
+    values = jax.custom_derivatives.custom_vjp_primal_tree_values
+    laws, struct, speed, dt, x_start, impact_position, roughness = values(
+        (laws, struct, speed, dt, x_start, impact_position, roughness))
+    out = _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughness,
+                  None, None, None)
+    cast_laws, cast_rough = it.cast_precision((laws, roughness), statics[2])
+    K = contact_slopes(cast_laws, cast_rough, out["x"][1:], out["s"][1:], out["approach"][1:])
+    res = (laws, struct, speed, dt, x_start, impact_position, roughness, out["x"][1:],
+           out["s"][1:], out["approach"][1:], K)
+    return out, res
+
+
+def _bwd(statics, res, cts):
+    n_steps, _, precision = statics
+    laws, struct, speed, dt, x_start, impact_position, roughness, x, s, approach, K = res
+    zero = jax.custom_derivatives.SymbolicZero
+    for key, ct in cts.items():
+        if key in SUPPORTED_OUTPUTS or key in _NOT_DIFFERENTIATED or isinstance(ct, zero):
+            continue
+        raise NotImplementedError(
+            f"the adjoint time loop propagates cotangents of {SUPPORTED_OUTPUTS} only, not "
+            f"of {key!r}: use jax.grad through wfjax.interaction.run_scan for it")
+
+    def dense(key):
+        ct = cts[key]
+        return jnp.zeros_like(K) if isinstance(ct, zero) else ct[1:]
+
+    ls = loop_setup(laws, struct, speed, dt, x_start, impact_position, precision, roughness)
+    l_expl, ct_q0, ct_xi_w_ref = backward_scan(ls, n_steps, K, dense("force"),
+                                               dense("approach"))
+
+    def explicit(laws_in):
+        cast_laws, cast_rough = it.cast_precision((laws_in, roughness), precision)
+        return _explicit_forces(cast_laws, cast_rough, x, s, approach)
+
+    _, vjp = jax.vjp(explicit, laws)
+    (ct_laws,) = vjp(l_expl.astype(K.dtype))
+    ct_approach = cts["approach"]
+    ct_delta0 = (None if isinstance(ct_approach, zero) else ct_approach[0])
+    return (ct_laws, None, None, None, None, None, None, ct_q0, ct_xi_w_ref, ct_delta0)
+
+
+_core.defvjp(_fwd, _bwd, symbolic_zeros=True)
+
+
+def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
+                 max_iter: int = 30, precision: str = "float64", roughness=None) -> dict:
+    """:func:`wfjax.interaction.time_loop` with a hand-written reverse mode (pure).
+
+    The same results as ``time_loop`` (bit for bit: it runs it); ``jax.grad``/``vjp``/
+    ``jacrev`` of the ``force`` and ``approach`` histories with respect to the contact law's
+    leaves (the flat's geometry, a 3D table or family) run the adjoint described in the module
+    docstring, at about a third of plain reverse mode's cost and without its stored
+    [n_steps, n_modes] residuals. Works under ``jit`` and ``vmap``.
+
+    Args:
+        law: a pointwise contact law (:func:`wfjax.contact.laws.prepare`; not the direct 3D
+            mode), or a tuple of them, one per wheel of a vehicle (``struct`` from
+            :func:`wfjax.interaction.vehicle_structure`).
+        struct: :class:`wfjax.interaction.Structure` (not differentiated).
+        speed: v [m/s]; dt: time step [s]; x_start: rail coordinate of the reference wheel at
+            t = 0 [m]; impact_position: where s = 0 [m] (none of them differentiated).
+        n_steps: steps incl. t = 0 (static). max_iter: Newton iteration cap (static).
+        precision: ``"float64"`` or ``"float32"`` (static).
+        roughness: a :class:`wfjax.roughness.LoopRoughness` or None (not differentiated).
+
+    Returns:
+        dict as ``time_loop``: x, s, force, approach, wheel_disp, rail_disp, residual,
+        axle_acc ([n_steps] for one law, [n_steps, n] for a tuple) and t [n_steps].
+
+    Raises:
+        NotImplementedError: a law with its own step (the direct 3D mode); in reverse mode, a
+        cotangent on ``wheel_disp``, ``rail_disp`` or ``axle_acc``, or a differentiated
+        input other than the law.
+    """
+    single = not isinstance(law, tuple)
+    laws = (law,) if single else law
+    for lw in laws:
+        if not it._pointwise(lw):
+            raise NotImplementedError(
+                f"adjoint_loop supports pointwise contact laws only; {type(lw).__name__} "
+                "solves its own step (the direct 3D mode): use run_scan")
+    ls = loop_setup(laws, struct, speed, dt, x_start, impact_position, precision, roughness)
+    q0, xi_w_ref, delta0 = static_start(ls)
+    out = _core((int(n_steps), int(max_iter), precision), laws, struct, speed, dt, x_start,
+                impact_position, roughness, q0, xi_w_ref, delta0)
+    if single:
+        out = {k: (v if k == "t" else v[:, 0]) for k, v in out.items()}
+    return out
+
+
+run_adjoint = jax.jit(adjoint_loop, static_argnames=("n_steps", "max_iter", "precision"))
+run_adjoint.__doc__ = """:func:`adjoint_loop` compiled (as :func:`wfjax.interaction.run_scan`)."""
