@@ -40,6 +40,7 @@ own step) and sensors/the detector are not supported (``NotImplementedError``).
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -50,7 +51,7 @@ from . import track as track_mod
 from ._modal import discrete_step_coefficients
 from .contact.newton import solve_small, static_approach
 
-__all__ = ["adjoint_loop", "run_adjoint", "loop_setup", "static_start", "contact_slopes",
+__all__ = ["adjoint_loop", "adjoint_runs", "run_adjoint", "run_adjoint_runs", "backward_scan", "loop_setup", "static_start", "contact_slopes",
            "SUPPORTED_OUTPUTS"]
 
 SUPPORTED_OUTPUTS = ("force", "approach")  # outputs whose cotangents the adjoint propagates
@@ -203,67 +204,91 @@ def _transposed_contact(C, K, rhs):
     return solve_small(jnp.eye(C.shape[0], dtype=C.dtype) + K[:, None] * C.T, rhs)
 
 
-def backward_scan(ls: LoopSetup, n_steps: int, K, ct_force, ct_approach):
+def backward_scan(ls: LoopSetup, n_steps: int, K, ct_force, ct_approach, n_top=None,
+                  unroll: int = 1):
     """The reverse scan of the transposed linear step.
+
+    What depends on the step index only (positions, the compliance less the rail's own modal
+    part) is computed before the scan, vectorised over the steps ([N, n] scalars); the scan
+    does the modal work: per step one gather of the previous step's mode shapes, one update
+    of the modal adjoint with the current step's (carried) shapes and the reductions with the
+    previous step's. (Measured on XLA CPU, 10 batched runs: complex arrays beat a real-pair
+    layout, 0.18 s against 0.30 s, and the precomputed compliance saves a fifth.)
 
     Args:
         ls: :class:`LoopSetup`. n_steps: N (static). K: [N - 1, n] N/m slopes of steps 1..N-1.
         ct_force, ct_approach: [N - 1, n] cotangents of the force [1/N-like] and approach
             [1/m-like] outputs of steps 1..N-1.
+        n_top: None, or the last step (int, may be traced) with a nonzero cotangent: the
+            adjoint of every later step is exactly zero, so those steps are skipped
+            (``lax.cond``; a real skip when ``n_top`` is not batched, a select under ``vmap``).
+        unroll: ``lax.scan`` unroll (static).
 
     Returns:
         (ct_F_expl [N - 1, n]: cotangents of the laws' explicit forces; ct_q0 [M] complex;
         ct_xi_w_ref [n]).
     """
     model = ls.struct.track
-    w_r, an_r, e_r, e_w = model.weights, ls.an_r, ls.e_r, ls.e_w
-    g_r = ls.ap_r + an_r * e_r  # f_n's weight in q_hat_{n+1}, through q_n and directly
+    w_r, e_r, e_w = model.weights, ls.e_r, ls.e_w
+    g_r = ls.ap_r + ls.an_r * e_r  # f_n's weight in q_hat_{n+1}: through q_n and directly
     g_w = ls.ap_w + ls.an_w * e_w
-    wan = w_r * an_r
+    wan = w_r * ls.an_r
     shapes_at = _shapes_fn(model)
+    real = ls.preload.dtype
     compliance = _compliance_fn(ls)
-    step_x = ls.speed * ls.dt
+    x_ref = ls.x_start + ls.speed * ls.dt * jnp.arange(n_steps).astype(real)  # as time_loop
+    c_base = jax.vmap(lambda xr: compliance(xr, jnp.zeros_like(ls.preload)))(x_ref[1:])
 
-    def x_ref_at(n):
-        return ls.x_start + step_x * n
-
-    def own(phi):
+    def own(phi):  # Re sum_r w_r an_r phi_r^2 -> [n]
         return jnp.real(jnp.sum(wan * phi * phi, axis=-1))
 
-    def step(carry, inputs):
+    def active(carry, inputs):
         lq, lp, b, phi, c_own = carry  # adjoints of q_n, p_n; f_n's from later steps; phi_n
-        n, k, gf, gd = inputs
-        C = compliance(x_ref_at(n), c_own)
+        _, k, gf, gd, cb, x_prev = inputs
+        C = cb + jnp.diag(c_own)
         lf = b + gf
         mu = _transposed_contact(C, k, gd + k * lf)
         l_expl = lf - C.T @ mu
         lq_hat = lq - w_r * it._loads(mu, phi)
         lp_hat = lp - ls.wheel_res * mu[:, None]
-        phi_prev = shapes_at(x_ref_at(n - 1) + ls.offsets)
-        glq = g_r * lq_hat
-        b_prev = (jnp.real(jnp.sum(phi_prev * glq, axis=-1))
+        phi_prev = shapes_at(x_prev + ls.offsets)
+        b_prev = (jnp.real(jnp.sum(phi_prev * (g_r * lq_hat), axis=-1))
                   + jnp.real(jnp.sum(g_w * lp_hat, axis=-1)))
         return (e_r * lq_hat, e_w * lp_hat, b_prev, phi_prev, own(phi_prev)), (l_expl, mu)
 
-    real = ls.preload.dtype
-    n_wheels = ls.preload.shape[0]
-    phi_last = shapes_at(x_ref_at(n_steps - 1) + ls.offsets)
-    carry0 = (jnp.zeros_like(ls.e_r), jnp.zeros_like(ls.e_w), jnp.zeros(n_wheels, real),
-              phi_last, own(phi_last))
-    steps = jnp.arange(1, n_steps).astype(real)
-    (lq0, *_), (l_expl, mu) = jax.lax.scan(step, carry0, (steps, K, ct_force, ct_approach),
-                                           reverse=True)
+    if n_top is None:
+        step, n_top = active, n_steps - 1
+    else:
+        def step(carry, inputs):
+            zeros = jnp.zeros_like(ls.preload)
+            return jax.lax.cond(inputs[0] <= n_top, active,
+                                lambda c, _: (c, (zeros, zeros)), carry, inputs)
+
+    phi_top = shapes_at(x_ref[n_top] + ls.offsets)  # the shapes of the first step run
+    carry0 = (jnp.zeros_like(e_r), jnp.zeros_like(e_w), jnp.zeros_like(ls.preload),
+              phi_top, own(phi_top))
+    (lq0, *_), (l_expl, mu) = jax.lax.scan(
+        step, carry0, (jnp.arange(1, n_steps), K, ct_force, ct_approach, c_base, x_ref[:-1]),
+        reverse=True, unroll=unroll)
     return l_expl, lq0, jnp.sum(mu, axis=0)
 
 
-# -- the custom_vjp core ---------------------------------------------------------------------
+# -- the custom_vjp core (over a batch of runs that share the laws and the structure) ---------
 def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughness, q0,
             xi_w_ref, delta0):
-    """``time_loop`` of the tuple of laws (q0, xi_w_ref, delta0 are its own start, computed
-    again outside for their gradients; their values here are unused)."""
+    """``time_loop`` of the tuple of laws for runs [B] (speed, dt, x_start, impact_position
+    [B]; q0, xi_w_ref, delta0 [B, ...] are the runs' own start, computed again outside for
+    their gradients: their values are unused here)."""
     n_steps, max_iter, precision = statics
-    return it.time_loop(laws, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
-                        precision=precision, roughness=roughness)
+
+    def one(v, d, xs, xi):
+        return it.time_loop(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
+                            roughness=roughness)
+
+    if speed.shape[0] == 1:  # one run: time_loop itself (a batch of one would round apart)
+        return {k: v[None] for k, v in one(speed[0], dt[0], x_start[0],
+                                            impact_position[0]).items()}
+    return jax.vmap(one)(speed, dt, x_start, impact_position)
 
 
 _core = jax.custom_vjp(_primal, nondiff_argnums=(0,))
@@ -289,10 +314,16 @@ def _fwd(statics, laws, struct, speed, dt, x_start, impact_position, roughness, 
     out = _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughness,
                   None, None, None)
     cast_laws, cast_rough = it.cast_precision((laws, roughness), statics[2])
-    K = contact_slopes(cast_laws, cast_rough, out["x"][1:], out["s"][1:], out["approach"][1:])
-    res = (laws, struct, speed, dt, x_start, impact_position, roughness, out["x"][1:],
-           out["s"][1:], out["approach"][1:], K)
+    x, s, approach = out["x"][:, 1:], out["s"][:, 1:], out["approach"][:, 1:]
+    K = jax.vmap(lambda *a: contact_slopes(cast_laws, cast_rough, *a))(x, s, approach)
+    res = (laws, struct, speed, dt, x_start, impact_position, roughness, x, s, approach, K)
     return out, res
+
+
+def _last_nonzero(*cts):
+    """The last step (1..N-1) at which any of ``cts`` ([B, N - 1, n]) is nonzero (0: none)."""
+    nonzero = functools.reduce(jnp.logical_or, [jnp.any(c != 0, axis=(0, 2)) for c in cts])
+    return jnp.max(jnp.where(nonzero, jnp.arange(1, nonzero.shape[0] + 1), 0))
 
 
 def _bwd(statics, res, cts):
@@ -308,24 +339,60 @@ def _bwd(statics, res, cts):
 
     def dense(key):
         ct = cts[key]
-        return jnp.zeros_like(K) if isinstance(ct, zero) else ct[1:]
+        return jnp.zeros_like(K) if isinstance(ct, zero) else ct[:, 1:]
 
-    ls = loop_setup(laws, struct, speed, dt, x_start, impact_position, precision, roughness)
-    l_expl, ct_q0, ct_xi_w_ref = backward_scan(ls, n_steps, K, dense("force"),
-                                               dense("approach"))
+    ct_force, ct_approach = dense("force"), dense("approach")
+    n_top = _last_nonzero(ct_force, ct_approach)
+
+    def one(v, d, xs, xi, k, cf, ca):
+        ls = loop_setup(laws, struct, v, d, xs, xi, precision, roughness)
+        return backward_scan(ls, n_steps, k, cf, ca, n_top)
+
+    l_expl, ct_q0, ct_xi_w_ref = jax.vmap(one)(speed, dt, x_start, impact_position, K,
+                                               ct_force, ct_approach)
 
     def explicit(laws_in):
         cast_laws, cast_rough = it.cast_precision((laws_in, roughness), precision)
-        return _explicit_forces(cast_laws, cast_rough, x, s, approach)
+        return jax.vmap(lambda *a: _explicit_forces(cast_laws, cast_rough, *a))(x, s, approach)
 
     _, vjp = jax.vjp(explicit, laws)
     (ct_laws,) = vjp(l_expl.astype(K.dtype))
-    ct_approach = cts["approach"]
-    ct_delta0 = (None if isinstance(ct_approach, zero) else ct_approach[0])
+    ct_delta0 = None if isinstance(cts["approach"], zero) else cts["approach"][:, 0]
     return (ct_laws, None, None, None, None, None, None, ct_q0, ct_xi_w_ref, ct_delta0)
 
 
 _core.defvjp(_fwd, _bwd, symbolic_zeros=True)
+
+
+def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
+                 max_iter: int = 30, precision: str = "float64", roughness=None) -> dict:
+    """:func:`adjoint_loop` of a batch of runs [B] that share the law(s) and the structure.
+
+    ``speed``, ``dt``, ``x_start``, ``impact_position``: [B] arrays (m/s, s, m, m). Returns
+    the dict of :func:`adjoint_loop` with a leading run axis [B, ...] (as ``jax.vmap`` of it),
+    the same values as ``jax.vmap`` of :func:`wfjax.interaction.time_loop`. Under one
+    ``custom_vjp`` for the batch, the backward pass skips the steps after the last one that
+    any run's cotangent reaches (a max-force misfit: after the peak), which a ``vmap`` of
+    :func:`adjoint_loop` cannot (its steps are selected, not skipped, per run).
+    """
+    single = not isinstance(law, tuple)
+    laws = (law,) if single else law
+    for lw in laws:
+        if not it._pointwise(lw):
+            raise NotImplementedError(
+                f"the adjoint supports pointwise contact laws only; {type(lw).__name__} "
+                "solves its own step (the direct 3D mode): use run_scan")
+    args = tuple(jnp.asarray(a) for a in (speed, dt, x_start, impact_position))
+
+    def start(v, d, xs, xi):
+        return static_start(loop_setup(laws, struct, v, d, xs, xi, precision, roughness))
+
+    q0, xi_w_ref, delta0 = jax.vmap(start)(*args)
+    out = _core((int(n_steps), int(max_iter), precision), laws, struct, *args, roughness, q0,
+                xi_w_ref, delta0)
+    if single:
+        out = {k: (v if k == "t" else v[..., 0]) for k, v in out.items()}
+    return out
 
 
 def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
@@ -358,21 +425,12 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
         cotangent on ``wheel_disp``, ``rail_disp`` or ``axle_acc``, or a differentiated
         input other than the law.
     """
-    single = not isinstance(law, tuple)
-    laws = (law,) if single else law
-    for lw in laws:
-        if not it._pointwise(lw):
-            raise NotImplementedError(
-                f"adjoint_loop supports pointwise contact laws only; {type(lw).__name__} "
-                "solves its own step (the direct 3D mode): use run_scan")
-    ls = loop_setup(laws, struct, speed, dt, x_start, impact_position, precision, roughness)
-    q0, xi_w_ref, delta0 = static_start(ls)
-    out = _core((int(n_steps), int(max_iter), precision), laws, struct, speed, dt, x_start,
-                impact_position, roughness, q0, xi_w_ref, delta0)
-    if single:
-        out = {k: (v if k == "t" else v[:, 0]) for k, v in out.items()}
-    return out
+    out = adjoint_runs(law, struct, *(jnp.asarray(a)[None] for a in (
+        speed, dt, x_start, impact_position)), n_steps, max_iter, precision, roughness)
+    return {k: v[0] for k, v in out.items()}
 
 
 run_adjoint = jax.jit(adjoint_loop, static_argnames=("n_steps", "max_iter", "precision"))
 run_adjoint.__doc__ = """:func:`adjoint_loop` compiled (as :func:`wfjax.interaction.run_scan`)."""
+run_adjoint_runs = jax.jit(adjoint_runs, static_argnames=("n_steps", "max_iter", "precision"))
+run_adjoint_runs.__doc__ = """:func:`adjoint_runs` compiled."""

@@ -497,15 +497,20 @@ def _batch_runs(setup: _Setup, law, n_steps, speeds, dt, x_start, impact, checkp
     mode, no forward mode) instead of :func:`wfjax.interaction.run_scan`."""
     max_iter = setup.config.newton_iterations
     runner = it.run_scan
+    args = tuple(jnp.asarray(a, dtype=float) for a in (speeds, dt, x_start, impact))
     if adjoint:
-        from .adjoint import run_adjoint as runner
+        from . import adjoint as adjoint_mod
+
+        if not checkpoint:  # one custom_vjp for the batch (its backward skips late steps)
+            return adjoint_mod.run_adjoint_runs(law, setup.struct, *args, n_steps, max_iter,
+                                                precision=setup.config.precision)["force"]
+        runner = adjoint_mod.run_adjoint
 
     def one(args):
         v, d, xs, xi = args
         return runner(law, setup.struct, v, d, xs, xi, n_steps, max_iter,
                       precision=setup.config.precision)["force"]
 
-    args = tuple(jnp.asarray(a, dtype=float) for a in (speeds, dt, x_start, impact))
     if checkpoint:
         return jax.lax.map(jax.checkpoint(one), args)
     return jax.vmap(one)(args)
