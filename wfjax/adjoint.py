@@ -51,8 +51,8 @@ from . import track as track_mod
 from ._modal import discrete_step_coefficients
 from .contact.newton import solve_small, static_approach
 
-__all__ = ["adjoint_loop", "adjoint_runs", "run_adjoint", "run_adjoint_runs", "backward_scan", "loop_setup", "static_start", "contact_slopes",
-           "SUPPORTED_OUTPUTS"]
+__all__ = ["adjoint_loop", "adjoint_runs", "run_adjoint", "run_adjoint_runs", "backward_scan",
+           "loop_setup", "static_start", "contact_slopes", "SUPPORTED_OUTPUTS"]
 
 SUPPORTED_OUTPUTS = ("force", "approach")  # outputs whose cotangents the adjoint propagates
 _NOT_DIFFERENTIATED = ("x", "s", "t", "residual")  # no differentiated input reaches them
@@ -288,7 +288,12 @@ def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughnes
     if speed.shape[0] == 1:  # one run: time_loop itself (a batch of one would round apart)
         return {k: v[None] for k, v in one(speed[0], dt[0], x_start[0],
                                             impact_position[0]).items()}
-    return jax.vmap(one)(speed, dt, x_start, impact_position)
+
+    def compiled(v, d, xs, xi):  # as fit._batch_runs: vmap of run_scan, the same rounding
+        return it.run_scan(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
+                           roughness=roughness)
+
+    return jax.vmap(compiled)(speed, dt, x_start, impact_position)
 
 
 _core = jax.custom_vjp(_primal, nondiff_argnums=(0,))
