@@ -40,7 +40,9 @@ Gradients
 ---------
 Forward mode (``jax.jacfwd`` of the residual vector, one tangent per parameter) when there are
 few parameters: it costs about (1 + n_params) forward runs, needs no stored time history, and
-returns the Jacobian used by Gauss-Newton. Reverse mode (``jax.grad``) otherwise, and always
+returns the Jacobian used by Gauss-Newton. Reverse mode (``jax.grad``; for max-force and
+history data through the hand-written adjoint of the time loop, :mod:`wfjax.adjoint`, about
+1.5 forward evaluations per gradient, ``max_force_model(adjoint=True)``) otherwise, and always
 for ``"3d"`` with a measured profile (its exact table is rebuilt at every evaluation and the
 Kalker solver's implicit gradients are ``custom_vjp``); with
 ``checkpoint=True`` the simulations are run one after the other under ``jax.checkpoint``, so the
@@ -761,7 +763,9 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
             two successive steps.
         max_step: largest step in theta (a factor e^0.5 in depth) per iteration (L-BFGS).
         mode: ``"forward"`` (Jacobian by ``jacfwd``), ``"reverse"`` or ``"auto"`` (forward
-            for <= 4 parameters except for ``"3d"`` with a measured profile).
+            for <= 4 parameters except for ``"3d"`` with a measured profile). Reverse mode
+            differentiates max-force and history data through the time loop's adjoint
+            (:mod:`wfjax.adjoint`), detector data by plain autodiff.
         checkpoint: see :func:`max_force_model` (reverse mode only).
         extent_bound: static bound of the flat's half extent [m] during the fit.
         wheel, track, material, config: model parameters (default track
@@ -812,13 +816,13 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
         def build(ref):
             return max_force_model(data.speeds, ref, impact_positions=impact_positions,
                                    temperature=temperature, time_temperature=time_temperature,
-                                   checkpoint=checkpoint, **kw)
+                                   checkpoint=checkpoint, adjoint=mode == "reverse", **kw)
     else:
         y, x, kind = data.force, data.t, "history"
 
         def build(ref):
             return history_model(data.t, data.speed, ref, impact_position=data.impact_position,
-                                 **kw)
+                                 adjoint=mode == "reverse", **kw)
     scale = float(np.mean(np.abs(y)))
     y_j = jnp.asarray(y)
 
