@@ -52,10 +52,11 @@ from ._modal import discrete_step_coefficients
 from .contact.newton import solve_small, static_approach
 
 __all__ = ["adjoint_loop", "adjoint_runs", "run_adjoint", "run_adjoint_runs", "backward_scan",
-           "loop_setup", "static_start", "contact_slopes", "SUPPORTED_OUTPUTS"]
+           "loop_setup", "static_start", "contact_slopes", "forces_and_slopes", "SUPPORTED_OUTPUTS"]
 
 SUPPORTED_OUTPUTS = ("force", "approach")  # outputs whose cotangents the adjoint propagates
-_NOT_DIFFERENTIATED = ("x", "s", "t", "residual")  # no differentiated input reaches them
+# no differentiated input reaches them
+_NOT_DIFFERENTIATED = ("x", "s", "t", "residual", "own_compliance")
 
 
 class LoopSetup(NamedTuple):
@@ -155,25 +156,21 @@ def _step_forces(laws, roughness, x, s, approach):
 def contact_slopes(laws, roughness, x, s, approach):
     """K [N, n] N/m: dF/d delta of every wheel's law at the loop's approach (delta held fixed
     at the loop's own value), from the loop's ``x``, ``s``, ``approach`` [N, n] m."""
+    return forces_and_slopes(laws, roughness, x, s, approach)[1]
+
+
+def forces_and_slopes(laws, roughness, x, s, approach):
+    """(F_expl [N, n] N, K [N, n] N/m): every wheel's law force at the loop's (fixed) approach,
+    a function of the laws' leaves (what the adjoint's law cotangent differentiates), and its
+    slope dF/d delta there (the linearised contact solve), from the loop's ``x``, ``s``,
+    ``approach`` [N, n] m (``laws`` and ``roughness`` in the loop's precision)."""
 
     def one(xn, sn, an):
-        ks = []
-        for law, (point, d) in zip(laws, _step_forces(laws, roughness, xn, sn, an),
-                                   strict=True):
-            ks.append(jax.jvp(lambda dd, law=law, point=point: law.point_force(point, dd),
-                              (d,), (jnp.ones_like(d),))[1])
-        return jnp.stack(ks)
-
-    return jax.vmap(one)(x, s, approach)
-
-
-def _explicit_forces(laws, roughness, x, s, approach):
-    """F_expl [N, n] N: every wheel's law force at the loop's (fixed) approach, a function
-    of the laws' leaves (what the adjoint's law cotangent differentiates)."""
-
-    def one(xn, sn, an):
-        return jnp.stack([law.point_force(point, d) for law, (point, d) in zip(
-            laws, _step_forces(laws, roughness, xn, sn, an), strict=True)])
+        pairs = [jax.jvp(lambda dd, law=law, point=point: law.point_force(point, dd), (d,),
+                         (jnp.ones_like(d),))
+                 for law, (point, d) in zip(laws, _step_forces(laws, roughness, xn, sn, an),
+                                            strict=True)]
+        return jnp.stack([p[0] for p in pairs]), jnp.stack([p[1] for p in pairs])
 
     return jax.vmap(one)(x, s, approach)
 
@@ -204,19 +201,23 @@ def _transposed_contact(C, K, rhs):
     return solve_small(jnp.eye(C.shape[0], dtype=C.dtype) + K[:, None] * C.T, rhs)
 
 
-def backward_scan(ls: LoopSetup, n_steps: int, K, ct_force, ct_approach, n_top=None,
+def backward_scan(ls: LoopSetup, n_steps: int, K, c_own, ct_force, ct_approach, n_top=None,
                   unroll: int = 1):
     """The reverse scan of the transposed linear step.
 
-    What depends on the step index only (positions, the compliance less the rail's own modal
-    part) is computed before the scan, vectorised over the steps ([N, n] scalars); the scan
-    does the modal work: per step one gather of the previous step's mode shapes, one update
-    of the modal adjoint with the current step's (carried) shapes and the reductions with the
-    previous step's. (Measured on XLA CPU, 10 batched runs: complex arrays beat a real-pair
-    layout, 0.18 s against 0.30 s, and the precomputed compliance saves a fifth.)
+    What depends on the step index only (positions, the step's compliance C_n, from the
+    forward pass's own part and the residual/cross tables) is computed before the scan,
+    vectorised over the steps ([N, n, n] scalars); the scan does the modal work: per step one
+    gather of the previous step's mode shapes, one update of the modal adjoint with the
+    current step's (carried) shapes and one reduction with the previous step's. (Measured on
+    XLA CPU, 10 batched runs: complex arrays beat a real-pair layout, 0.18 s against 0.30 s,
+    and beat real-part arithmetic on complex arrays, 0.33 against 0.39 s; the precomputed
+    compliance saves a fifth, the forward pass's own compliance another fifth.)
 
     Args:
         ls: :class:`LoopSetup`. n_steps: N (static). K: [N - 1, n] N/m slopes of steps 1..N-1.
+        c_own: [N - 1, n] m/N the rail's own compliance within steps 1..N-1 (the forward
+            pass's ``own_compliance``).
         ct_force, ct_approach: [N - 1, n] cotangents of the force [1/N-like] and approach
             [1/m-like] outputs of steps 1..N-1.
         n_top: None, or the last step (int, may be traced) with a nonzero cotangent: the
@@ -232,20 +233,15 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, ct_force, ct_approach, n_top=N
     w_r, e_r, e_w = model.weights, ls.e_r, ls.e_w
     g_r = ls.ap_r + ls.an_r * e_r  # f_n's weight in q_hat_{n+1}: through q_n and directly
     g_w = ls.ap_w + ls.an_w * e_w
-    wan = w_r * ls.an_r
     shapes_at = _shapes_fn(model)
     real = ls.preload.dtype
     compliance = _compliance_fn(ls)
     x_ref = ls.x_start + ls.speed * ls.dt * jnp.arange(n_steps).astype(real)  # as time_loop
-    c_base = jax.vmap(lambda xr: compliance(xr, jnp.zeros_like(ls.preload)))(x_ref[1:])
-
-    def own(phi):  # Re sum_r w_r an_r phi_r^2 -> [n]
-        return jnp.real(jnp.sum(wan * phi * phi, axis=-1))
+    c_step = jax.vmap(compliance)(x_ref[1:], c_own)  # [N - 1, n, n]
 
     def active(carry, inputs):
-        lq, lp, b, phi, c_own = carry  # adjoints of q_n, p_n; f_n's from later steps; phi_n
-        _, k, gf, gd, cb, x_prev = inputs
-        C = cb + jnp.diag(c_own)
+        lq, lp, b, phi = carry  # adjoints of q_n, p_n; f_n's from later steps; phi_n
+        _, k, gf, gd, C, x_prev = inputs
         lf = b + gf
         mu = _transposed_contact(C, k, gd + k * lf)
         l_expl = lf - C.T @ mu
@@ -254,7 +250,7 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, ct_force, ct_approach, n_top=N
         phi_prev = shapes_at(x_prev + ls.offsets)
         b_prev = (jnp.real(jnp.sum(phi_prev * (g_r * lq_hat), axis=-1))
                   + jnp.real(jnp.sum(g_w * lp_hat, axis=-1)))
-        return (e_r * lq_hat, e_w * lp_hat, b_prev, phi_prev, own(phi_prev)), (l_expl, mu)
+        return (e_r * lq_hat, e_w * lp_hat, b_prev, phi_prev), (l_expl, mu)
 
     if n_top is None:
         step, n_top = active, n_steps - 1
@@ -265,10 +261,9 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, ct_force, ct_approach, n_top=N
                                 lambda c, _: (c, (zeros, zeros)), carry, inputs)
 
     phi_top = shapes_at(x_ref[n_top] + ls.offsets)  # the shapes of the first step run
-    carry0 = (jnp.zeros_like(e_r), jnp.zeros_like(e_w), jnp.zeros_like(ls.preload),
-              phi_top, own(phi_top))
+    carry0 = (jnp.zeros_like(e_r), jnp.zeros_like(e_w), jnp.zeros_like(ls.preload), phi_top)
     (lq0, *_), (l_expl, mu) = jax.lax.scan(
-        step, carry0, (jnp.arange(1, n_steps), K, ct_force, ct_approach, c_base, x_ref[:-1]),
+        step, carry0, (jnp.arange(1, n_steps), K, ct_force, ct_approach, c_step, x_ref[:-1]),
         reverse=True, unroll=unroll)
     return l_expl, lq0, jnp.sum(mu, axis=0)
 
@@ -283,7 +278,7 @@ def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughnes
 
     def one(v, d, xs, xi):
         return it.time_loop(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
-                            roughness=roughness)
+                            roughness=roughness, own_compliance=True)
 
     if speed.shape[0] == 1:  # one run: time_loop itself (a batch of one would round apart)
         return {k: v[None] for k, v in one(speed[0], dt[0], x_start[0],
@@ -291,7 +286,7 @@ def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughnes
 
     def compiled(v, d, xs, xi):  # as fit._batch_runs: vmap of run_scan, the same rounding
         return it.run_scan(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
-                           roughness=roughness)
+                           roughness=roughness, own_compliance=True)
 
     return jax.vmap(compiled)(speed, dt, x_start, impact_position)
 
@@ -318,10 +313,8 @@ def _fwd(statics, laws, struct, speed, dt, x_start, impact_position, roughness, 
         (laws, struct, speed, dt, x_start, impact_position, roughness))
     out = _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughness,
                   None, None, None)
-    cast_laws, cast_rough = it.cast_precision((laws, roughness), statics[2])
-    x, s, approach = out["x"][:, 1:], out["s"][:, 1:], out["approach"][:, 1:]
-    K = jax.vmap(lambda *a: contact_slopes(cast_laws, cast_rough, *a))(x, s, approach)
-    res = (laws, struct, speed, dt, x_start, impact_position, roughness, x, s, approach, K)
+    res = (laws, struct, speed, dt, x_start, impact_position, roughness, out["x"][:, 1:],
+           out["s"][:, 1:], out["approach"][:, 1:], out["own_compliance"][:, 1:])
     return out, res
 
 
@@ -333,7 +326,7 @@ def _last_nonzero(*cts):
 
 def _bwd(statics, res, cts):
     n_steps, _, precision = statics
-    laws, struct, speed, dt, x_start, impact_position, roughness, x, s, approach, K = res
+    laws, struct, speed, dt, x_start, impact_position, roughness, x, s, approach, c_own = res
     zero = jax.custom_derivatives.SymbolicZero
     for key, ct in cts.items():
         if key in SUPPORTED_OUTPUTS or key in _NOT_DIFFERENTIATED or isinstance(ct, zero):
@@ -342,6 +335,14 @@ def _bwd(statics, res, cts):
             f"the adjoint time loop propagates cotangents of {SUPPORTED_OUTPUTS} only, not "
             f"of {key!r}: use jax.grad through wfjax.interaction.run_scan for it")
 
+    def explicit(laws_in):  # the laws' forces at the loop's approaches, and their slopes
+        cast_laws, cast_rough = it.cast_precision((laws_in, roughness), precision)
+        f, k = jax.vmap(lambda *a: forces_and_slopes(cast_laws, cast_rough, *a))(x, s,
+                                                                                  approach)
+        return f, jax.lax.stop_gradient(k)
+
+    _, vjp, K = jax.vjp(explicit, laws, has_aux=True)  # one evaluation for both
+
     def dense(key):
         ct = cts[key]
         return jnp.zeros_like(K) if isinstance(ct, zero) else ct[:, 1:]
@@ -349,18 +350,13 @@ def _bwd(statics, res, cts):
     ct_force, ct_approach = dense("force"), dense("approach")
     n_top = _last_nonzero(ct_force, ct_approach)
 
-    def one(v, d, xs, xi, k, cf, ca):
+    def one(v, d, xs, xi, k, c, cf, ca):
         ls = loop_setup(laws, struct, v, d, xs, xi, precision, roughness)
-        return backward_scan(ls, n_steps, k, cf, ca, n_top)
+        return backward_scan(ls, n_steps, k, c, cf, ca, n_top)
 
-    l_expl, ct_q0, ct_xi_w_ref = jax.vmap(one)(speed, dt, x_start, impact_position, K,
+    l_expl, ct_q0, ct_xi_w_ref = jax.vmap(one)(speed, dt, x_start, impact_position, K, c_own,
                                                ct_force, ct_approach)
 
-    def explicit(laws_in):
-        cast_laws, cast_rough = it.cast_precision((laws_in, roughness), precision)
-        return jax.vmap(lambda *a: _explicit_forces(cast_laws, cast_rough, *a))(x, s, approach)
-
-    _, vjp = jax.vjp(explicit, laws)
     (ct_laws,) = vjp(l_expl.astype(K.dtype))
     ct_delta0 = None if isinstance(cts["approach"], zero) else cts["approach"][:, 0]
     return (ct_laws, None, None, None, None, None, None, ct_q0, ct_xi_w_ref, ct_delta0)
@@ -395,6 +391,7 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     q0, xi_w_ref, delta0 = jax.vmap(start)(*args)
     out = _core((int(n_steps), int(max_iter), precision), laws, struct, *args, roughness, q0,
                 xi_w_ref, delta0)
+    del out["own_compliance"]  # the backward pass's input, not time_loop's output
     if single:
         out = {k: (v if k == "t" else v[..., 0]) for k, v in out.items()}
     return out
