@@ -7,8 +7,8 @@ mean(((model - data) / 2e5)^2) with data the model at theta * 1.02. Rows: the fo
 evaluation (loss only), plain reverse mode (``jax.value_and_grad`` through ``run_scan``), the
 adjoint (``max_force_model(..., adjoint=True)``, ``jax.value_and_grad``) and forward mode
 (``jax.jacfwd``, 2 parameters). Compiled first; then ``--repeats`` rounds, each timing every
-row once in turn (interleaved: the machine is shared), best and median reported with the
-load average.
+row once in turn (interleaved: the machine is shared), best and median wall times and the best
+process CPU time (all threads; less sensitive to other load) reported with the load average.
 
 ``--memory``: peak RSS of each gradient in a fresh process (``ru_maxrss``, compilation
 included; the "forward" row is the floor of a process that builds the model).
@@ -65,7 +65,7 @@ def bench_time(contact: str, element: float, repeats: int) -> None:
     import jax
 
     rows, theta = scope["ROWS"], scope["theta"]
-    compile_s, times = {}, {k: [] for k in rows}
+    compile_s, times, cpu = {}, {k: [] for k in rows}, {k: [] for k in rows}
     for name, fn in rows.items():
         t0 = time.perf_counter()
         jax.block_until_ready(fn(theta))
@@ -73,18 +73,21 @@ def bench_time(contact: str, element: float, repeats: int) -> None:
     print(f"load average before timing: {_load()}")
     for _ in range(repeats):
         for name, fn in rows.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             jax.block_until_ready(fn(theta))
             times[name].append(time.perf_counter() - t0)
+            cpu[name].append(time.process_time() - c0)
     print(f"load average after timing: {_load()}\n")
-    base = min(times["forward (loss only)"])
-    base_med = statistics.median(times["forward (loss only)"])
+    fwd = "forward (loss only)"
+    base, base_med, base_cpu = (min(times[fwd]), statistics.median(times[fwd]),
+                                min(cpu[fwd]))
     print("| evaluation | first call [s] | best [s] | median [s] | best / forward | "
-          "median / forward |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+          "median / forward | CPU best [s] | CPU / forward |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for name, t in times.items():
         print(f"| {name} | {compile_s[name]:.1f} | {min(t):.3f} | {statistics.median(t):.3f} "
-              f"| {min(t) / base:.2f} | {statistics.median(t) / base_med:.2f} |")
+              f"| {min(t) / base:.2f} | {statistics.median(t) / base_med:.2f} "
+              f"| {min(cpu[name]):.3f} | {min(cpu[name]) / base_cpu:.2f} |")
     plain, adj = rows["reverse, plain autodiff (value_and_grad)"], rows[
         "reverse, adjoint (value_and_grad, adjoint=True)"]
     (v1, g1), (v2, g2) = plain(theta), adj(theta)
