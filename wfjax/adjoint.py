@@ -324,6 +324,27 @@ def _last_nonzero(*cts):
     return jnp.max(jnp.where(nonzero, jnp.arange(1, nonzero.shape[0] + 1), 0))
 
 
+class _StepChunks:
+    """Steps 1..N-1 of [B, N - 1, ...] arrays in chunks of ``size`` steps ([n_chunks, B,
+    size, ...], the last padded with the last step), so work on the steps after the last
+    nonzero cotangent can be skipped chunk by chunk (``lax.cond``)."""
+
+    def __init__(self, n: int, size: int = 256):
+        self.n, self.size = n, size
+        self.count = -(-n // size)
+        self.first = 1 + size * jnp.arange(self.count)  # each chunk's first step
+
+    def split(self, a):
+        pad = self.count * self.size - self.n
+        a = jnp.concatenate([a, jnp.repeat(a[:, -1:], pad, axis=1)], axis=1)
+        a = a.reshape((a.shape[0], self.count, self.size) + a.shape[2:])
+        return jnp.moveaxis(a, 1, 0)
+
+    def join(self, a):
+        a = jnp.moveaxis(a, 0, 1)
+        return a.reshape((a.shape[0], -1) + a.shape[3:])[:, :self.n]
+
+
 def _bwd(statics, res, cts):
     n_steps, _, precision = statics
     laws, struct, speed, dt, x_start, impact_position, roughness, x, s, approach, c_own = res
@@ -335,20 +356,31 @@ def _bwd(statics, res, cts):
             f"the adjoint time loop propagates cotangents of {SUPPORTED_OUTPUTS} only, not "
             f"of {key!r}: use jax.grad through wfjax.interaction.run_scan for it")
 
-    def explicit(laws_in):  # the laws' forces at the loop's approaches, and their slopes
-        cast_laws, cast_rough = it.cast_precision((laws_in, roughness), precision)
-        f, k = jax.vmap(lambda *a: forces_and_slopes(cast_laws, cast_rough, *a))(x, s,
-                                                                                  approach)
-        return f, jax.lax.stop_gradient(k)
+    # the laws at every step up to the last one the cotangents reach (chunks of steps)
+    leaves, treedef = jax.tree.flatten(laws)
+    diff = [i for i, leaf in enumerate(leaves)
+            if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)]
+    chunks = _StepChunks(x.shape[1])
+    xs, ss, aps = (chunks.split(a) for a in (x, s, approach))
 
-    _, vjp, K = jax.vjp(explicit, laws, has_aux=True)  # one evaluation for both
+    def evaluate(diff_leaves, xc, sc, ac):  # forces and slopes [B, chunk, n] of one chunk
+        full = list(leaves)
+        for i, leaf in zip(diff, diff_leaves, strict=True):
+            full[i] = leaf
+        cast_laws, cast_rough = it.cast_precision(
+            (jax.tree.unflatten(treedef, full), roughness), precision)
+        return jax.vmap(lambda *a: forces_and_slopes(cast_laws, cast_rough, *a))(xc, sc, ac)
 
+    diff_leaves = [leaves[i] for i in diff]
     def dense(key):
         ct = cts[key]
-        return jnp.zeros_like(K) if isinstance(ct, zero) else ct[:, 1:]
+        return jnp.zeros_like(x) if isinstance(ct, zero) else ct[:, 1:]
 
     ct_force, ct_approach = dense("force"), dense("approach")
     n_top = _last_nonzero(ct_force, ct_approach)
+    K = chunks.join(jax.lax.map(lambda c: jax.lax.cond(
+        c[0] <= n_top, lambda: evaluate(diff_leaves, *c[1:])[1],
+        lambda: jnp.zeros_like(c[1])), (chunks.first, xs, ss, aps)))
 
     def one(v, d, xs, xi, k, c, cf, ca):
         ls = loop_setup(laws, struct, v, d, xs, xi, precision, roughness)
@@ -357,7 +389,20 @@ def _bwd(statics, res, cts):
     l_expl, ct_q0, ct_xi_w_ref = jax.vmap(one)(speed, dt, x_start, impact_position, K, c_own,
                                                ct_force, ct_approach)
 
-    (ct_laws,) = vjp(l_expl.astype(K.dtype))
+    def law_cotangent(acc, c):  # sum over the chunks of the vjp of their explicit forces
+        def run():
+            _, vjp = jax.vjp(lambda d: evaluate(d, *c[1:4])[0], diff_leaves)
+            return [a + b for a, b in zip(acc, vjp(c[4])[0], strict=True)]
+
+        return jax.lax.cond(c[0] <= n_top, run, lambda: acc), None
+
+    acc0 = [jnp.zeros_like(leaf) for leaf in diff_leaves]
+    ct_diff, _ = jax.lax.scan(law_cotangent, acc0, (chunks.first, xs, ss, aps, chunks.split(
+        l_expl.astype(K.dtype))))
+    ct_leaves = [None] * len(leaves)
+    for i, ct in zip(diff, ct_diff, strict=True):
+        ct_leaves[i] = ct
+    ct_laws = jax.tree.unflatten(treedef, ct_leaves)
     ct_delta0 = None if isinstance(cts["approach"], zero) else cts["approach"][:, 0]
     return (ct_laws, None, None, None, None, None, None, ct_q0, ct_xi_w_ref, ct_delta0)
 
