@@ -326,17 +326,18 @@ def _last_nonzero(*cts):
 
 class _StepChunks:
     """Steps 1..N-1 of [B, N - 1, ...] arrays in chunks of ``size`` steps ([n_chunks, B,
-    size, ...], the last padded with the last step), so work on the steps after the last
-    nonzero cotangent can be skipped chunk by chunk (``lax.cond``)."""
+    size, ...], the last padded with the last step, or zeros for cotangents), so work on the
+    steps after the last nonzero cotangent can be skipped chunk by chunk (``lax.cond``)."""
 
     def __init__(self, n: int, size: int = 256):
         self.n, self.size = n, size
         self.count = -(-n // size)
         self.first = 1 + size * jnp.arange(self.count)  # each chunk's first step
 
-    def split(self, a):
+    def split(self, a, zero_pad: bool = False):
         pad = self.count * self.size - self.n
-        a = jnp.concatenate([a, jnp.repeat(a[:, -1:], pad, axis=1)], axis=1)
+        tail = jnp.repeat(a[:, -1:], pad, axis=1)
+        a = jnp.concatenate([a, jnp.zeros_like(tail) if zero_pad else tail], axis=1)
         a = a.reshape((a.shape[0], self.count, self.size) + a.shape[2:])
         return jnp.moveaxis(a, 1, 0)
 
@@ -398,7 +399,7 @@ def _bwd(statics, res, cts):
 
     acc0 = [jnp.zeros_like(leaf) for leaf in diff_leaves]
     ct_diff, _ = jax.lax.scan(law_cotangent, acc0, (chunks.first, xs, ss, aps, chunks.split(
-        l_expl.astype(K.dtype))))
+        l_expl.astype(K.dtype), zero_pad=True)))
     ct_leaves = [None] * len(leaves)
     for i, ct in zip(diff, ct_diff, strict=True):
         ct_leaves[i] = ct
