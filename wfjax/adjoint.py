@@ -6,20 +6,23 @@ modal states, [n_modes] each) and transposes every nonlinear operation, the cont
 evaluations included. But the step is *linear* in the modal state (q, p, f_prev) except for
 the contact solve, whose linearisation at the converged root only needs the law's slope
 K_n = dF/d delta there. So the adjoint needs from the forward pass per-step scalars only:
-the approach delta_n and the slope K_n of every wheel (positions, flat coordinates and the
-step's compliance C_n are recomputed from the step index).
+the approach delta_n of every wheel and the rail's own compliance within the step
+(positions, flat coordinates and the rest of the step's compliance C_n are recomputed from
+the step index; K_n from delta_n). See ``docs/gradients.md``.
 
 Forward (``custom_vjp`` fwd): the unchanged :func:`wfjax.interaction.time_loop` (its results
-are the ones of ``run_scan``, bit for bit), then one ``vmap`` over the steps for K_n.
+are the ones of ``run_scan``, bit for bit) with its static extra output ``own_compliance``.
 
-Backward: a reverse ``lax.scan`` over the transposed linear step (the module's notes below),
+Backward: the laws' forces and slopes K_n at every step's approach (vectorised, in chunks of
+steps), then a reverse ``lax.scan`` over the transposed linear step (:func:`backward_scan`),
 each step gathering the mode shapes of the step before and carrying them to it, so every
 step reads the shapes once; per step a tiny transposed contact system
 (I + C_n diag(K_n))^T mu_n = ... and the cotangent of the law's explicit force
 F_expl(delta_n, s_n; law) at fixed delta_n. After the scan, the law's leaves get their
-cotangent from ONE ``vmap``-ed ``jax.vjp`` of F_expl over all steps (parallel, cheap). The
-static start (delta_0, q_0, xi_W,ref) is computed outside the ``custom_vjp`` and
-differentiated by JAX as usual.
+cotangent from ``vmap``-ed ``jax.vjp`` of F_expl over the steps (parallel). Steps after the
+last nonzero output cotangent have an exactly zero adjoint and are skipped (the scan's steps
+and the law's chunks, ``lax.cond``). The static start (delta_0, q_0, xi_W,ref) is computed
+outside the ``custom_vjp`` and differentiated by JAX as usual.
 
 Conventions: complex cotangents pair with their variable as Re(sum lambda z) (no conjugate;
 JAX's convention for ``vjp`` of complex values), so the transpose of z -> a z is
@@ -450,8 +453,9 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     The same results as ``time_loop`` (bit for bit: it runs it); ``jax.grad``/``vjp``/
     ``jacrev`` of the ``force`` and ``approach`` histories with respect to the contact law's
     leaves (the flat's geometry, a 3D table or family) run the adjoint described in the module
-    docstring, at about a third of plain reverse mode's cost and without its stored
-    [n_steps, n_modes] residuals. Works under ``jit`` and ``vmap``.
+    docstring, without plain reverse mode's stored [n_steps, n_modes] residuals (3D family,
+    10 speeds, :func:`adjoint_runs`: value_and_grad 1.5 forward evaluations against 3.5,
+    ``benchmarks/README.md``). Works under ``jit`` and ``vmap``.
 
     Args:
         law: a pointwise contact law (:func:`wfjax.contact.laws.prepare`; not the direct 3D
