@@ -266,3 +266,22 @@ def test_fit_reverse_mode_uses_the_adjoint():
     np.testing.assert_array_equal(np.asarray(r_r), np.asarray(r_f))
     _close(j_r, j_f, 1e-6)
     _close(rev[0](theta)[1], fwd[0](theta)[1], 1e-6)
+
+
+@pytest.mark.slow
+def test_history_model_adjoint_option():
+    """history_model(adjoint=True), one run through the batched path: the same forces bit for
+    bit, the plain reverse-mode gradient."""
+    coarse = wf.SimConfig(max_travel_step=1e-3, max_time_step=5e-5)
+    t = np.linspace(-4e-3, 8e-3, 40)
+    kw = dict(impact_position=0.2, config=coarse)
+    plain = fit.history_model(t, V, _flat(np.asarray(TH0)), "hertz-trajectory", **kw)
+    ours = fit.history_model(t, V, _flat(np.asarray(TH0)), "hertz-trajectory", adjoint=True,
+                             **kw)
+    np.testing.assert_array_equal(np.asarray(jax.jit(lambda f: ours(f))(_flat(TH0))),
+                                  np.asarray(jax.jit(lambda f: plain(f))(_flat(TH0))))
+
+    def misfit(model):
+        return lambda th: jnp.sum((model(_flat(th)) / 1e5) ** 2)
+
+    _close(jax.jit(jax.grad(misfit(ours)))(TH0), jax.jit(jax.grad(misfit(plain)))(TH0))

@@ -277,13 +277,13 @@ def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughnes
     """``time_loop`` of the tuple of laws for runs [B] (speed, dt, x_start, impact_position
     [B]; q0, xi_w_ref, delta0 [B, ...] are the runs' own start, computed again outside for
     their gradients: their values are unused here)."""
-    n_steps, max_iter, precision = statics
+    n_steps, max_iter, precision, batched = statics
 
     def one(v, d, xs, xi):
         return it.time_loop(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
                             roughness=roughness, own_compliance=True)
 
-    if speed.shape[0] == 1:  # one run: time_loop itself (a batch of one would round apart)
+    if not batched:  # adjoint_loop: time_loop itself (a batch of one can round apart)
         return {k: v[None] for k, v in one(speed[0], dt[0], x_start[0],
                                             impact_position[0]).items()}
 
@@ -350,7 +350,7 @@ class _StepChunks:
 
 
 def _bwd(statics, res, cts):
-    n_steps, _, precision = statics
+    n_steps, _, precision, _ = statics
     laws, struct, speed, dt, x_start, impact_position, roughness, x, s, approach, c_own = res
     zero = jax.custom_derivatives.SymbolicZero
     for key, ct in cts.items():
@@ -415,12 +415,14 @@ _core.defvjp(_fwd, _bwd, symbolic_zeros=True)
 
 
 def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
-                 max_iter: int = 30, precision: str = "float64", roughness=None) -> dict:
+                 max_iter: int = 30, precision: str = "float64", roughness=None,
+                 _batched: bool = True) -> dict:
     """:func:`adjoint_loop` of a batch of runs [B] that share the law(s) and the structure.
 
     ``speed``, ``dt``, ``x_start``, ``impact_position``: [B] arrays (m/s, s, m, m). Returns
     the dict of :func:`adjoint_loop` with a leading run axis [B, ...] (as ``jax.vmap`` of it),
-    the same values as ``jax.vmap`` of :func:`wfjax.interaction.time_loop`. Under one
+    the same values as ``jax.vmap`` of :func:`wfjax.interaction.run_scan` (bit for bit,
+    also for one run, as ``fit._batch_runs`` computes without the adjoint). Under one
     ``custom_vjp`` for the batch, the backward pass skips the steps after the last one that
     any run's cotangent reaches (a max-force misfit: after the peak), which a ``vmap`` of
     :func:`adjoint_loop` cannot (its steps are selected, not skipped, per run).
@@ -438,8 +440,10 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
         return static_start(loop_setup(laws, struct, v, d, xs, xi, precision, roughness))
 
     q0, xi_w_ref, delta0 = jax.vmap(start)(*args)
-    out = _core((int(n_steps), int(max_iter), precision), laws, struct, *args, roughness, q0,
-                xi_w_ref, delta0)
+    if not _batched and args[0].shape != (1,):
+        raise ValueError("_batched=False is adjoint_loop's: one run")
+    out = _core((int(n_steps), int(max_iter), precision, bool(_batched)), laws, struct, *args,
+                roughness, q0, xi_w_ref, delta0)
     del out["own_compliance"]  # the backward pass's input, not time_loop's output
     if single:
         out = {k: (v if k == "t" else v[..., 0]) for k, v in out.items()}
@@ -478,7 +482,8 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
         input other than the law.
     """
     out = adjoint_runs(law, struct, *(jnp.asarray(a)[None] for a in (
-        speed, dt, x_start, impact_position)), n_steps, max_iter, precision, roughness)
+        speed, dt, x_start, impact_position)), n_steps, max_iter, precision, roughness,
+        _batched=False)
     return {k: v[0] for k, v in out.items()}
 
 
