@@ -153,3 +153,14 @@ def test_hanging_sleepers_refuse_sensors_and_the_direct_3d_mode():
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
     with pytest.raises(ValueError, match="sensors"):
         wf.simulate(ROUNDED, V, contact="hertz-profile", track=track, sensors=[0.3])
+
+
+def test_the_adjoint_refuses_hanging_sleepers():
+    from wfjax import adjoint
+
+    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
+    config = wf.SimConfig()
+    struct = it.structure(wf.Wheel(), track, config)
+    law = it.prepare("hertz-profile", ROUNDED, wf.Wheel(), track, wf.Material(), config)
+    with pytest.raises(NotImplementedError, match="hanging sleepers"):
+        adjoint.adjoint_loop(law, struct, V, 2.5e-5, 0.5, 0.62, 10)

@@ -499,7 +499,7 @@ def static_support_forces(closure_free, compliance, stiffness, iterations: int =
 def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
               n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
               detector=None, run_in_steps=0, sensor_history: bool = True,
-              precision: str = "float64", roughness=None):
+              precision: str = "float64", roughness=None, own_compliance: bool = False):
     """The time loop under ``lax.scan`` for any contact law and any number of wheels (pure).
 
     Args:
@@ -533,6 +533,9 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
             family) see the contact-filtered roughness added to the approach; laws with
             :meth:`~wfjax.contact.laws.ContactLaw.rough_nodes` (the 2D bedding, the direct 3D
             solve) see it element by element in the gap. ``approach`` stays xi_W - xi_R.
+        own_compliance: also return ``own_compliance`` [n_steps, n_wheels] (one law too):
+            each wheel's rail compliance within the step from the kept modes,
+            Re sum_r w_r an_r phi_r^2 [m/N] (static; for :mod:`wfjax.adjoint`).
 
     Returns:
         dict of [n_steps] arrays (one law) or [n_steps, n_wheels] (a tuple of laws): x, s,
@@ -640,6 +643,8 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     if detector is not None:
         acc0["detector_peak"] = jnp.full((n_wheels,) + detector.left.shape, -jnp.inf, real)
     first_readings, acc0 = readings(q0, preload, x0, 0, acc0)
+    if own_compliance:
+        first_readings["own_compliance"] = _rail_reads(phi0, w_r, an_r, q0)[1]
 
     def step(carry, n):
         q, p, f_prev, phi_prev, states, acc, support_state = carry
@@ -687,6 +692,8 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         if sup is not None:
             extra = {**extra, "support_force": support_state[0],
                      "sleeper_disp": support_state[1] + sup.gap}
+        if own_compliance:
+            extra = {**extra, "own_compliance": c_own}
         out = (x, s, f, delta, xi_w_free - c_wheel * f, xi_r_free + c_rail @ f, r, axle_acc,
                extra)
         return (q_new, p_new, f, phi, states, acc, support_state), out
@@ -712,7 +719,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
 
 
 run_scan = jax.jit(time_loop, static_argnames=("n_steps", "max_iter", "checkpoint",
-                                              "sensor_history", "precision"))
+                                              "sensor_history", "precision", "own_compliance"))
 run_scan.__doc__ = """:func:`time_loop` compiled (one program per law class and grid shapes).
 
 ``vmap`` it over runs, and over laws prepared for a batch of flats; ``grad`` reaches every
