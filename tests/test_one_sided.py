@@ -48,7 +48,8 @@ def _static_start(track, x_wheel):
     return it.run_scan(law, struct, V, 2e-5, x_wheel, x_wheel + 1.0, 2)
 
 
-@pytest.mark.parametrize("gap_mm, closed", [(0.2, True), (0.6, True), (5.0, False)])
+@pytest.mark.parametrize("gap_mm, closed", [
+    (0.2, True), pytest.param(0.6, True, marks=pytest.mark.slow), (5.0, False)])
 def test_static_start_equals_a_direct_non_linear_static_fe_solve(gap_mm, closed):
     # two sleepers hang; the wheel on residual-grid points over and beside them
     track = supports.hanging_sleeper(wf.Track(), [SLEEPER, SLEEPER + 1], gap_mm * 1e-3)
@@ -118,6 +119,7 @@ def test_hanging_sleeper_agrees_with_a_direct_fe_time_integration(gap_mm):
     assert sn.max() == pytest.approx(sm.max(), rel=0.03)
 
 
+@pytest.mark.slow
 def test_hanging_sleeper_gradient_matches_finite_differences():
     import jax
 
