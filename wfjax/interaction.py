@@ -591,10 +591,11 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
                          "sensors or a detector: their readings lack the support forces")
     if sup is not None:  # hanging sleepers: the static start is a non-linear solve too
         psi = sup.shapes  # [n_s, n_modes]
-        within_ss = (jnp.real(jnp.sum(w_r * an_r * psi[:, None] * psi[None], axis=-1))
-                     + sup.residual)
-        static_ss = (jnp.real(jnp.sum(w_r / -model.poles * psi[:, None] * psi[None], axis=-1))
-                     + sup.residual)
+
+        def between_sleepers(weight):  # [n_s, n_s] compliance: kept modes + truncated ones
+            return jnp.real(jnp.sum(weight * psi[:, None] * psi[None], axis=-1)) + sup.residual
+
+        within_ss, static_ss = between_sleepers(w_r * an_r), between_sleepers(w_r / -model.poles)
         r_ws0 = track_mod.read_residual_table(model, sup.residual_wheels, x_start)  # [n, n_s]
         closure0 = (jnp.real(jnp.sum(psi * (w_r * q0), axis=-1)) + r_ws0.T @ preload
                     - sup.gap)
@@ -646,17 +647,17 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     if own_compliance:
         first_readings["own_compliance"] = _rail_reads(phi0, w_r, an_r, q0)[1]
 
+    def support_loads(support_state):
+        """Modal loads [n_modes] of the hanging sleepers' ballast forces (upwards), or 0."""
+        return 0.0 if sup is None else support_state[0] @ psi
+
     def step(carry, n):
         q, p, f_prev, phi_prev, states, acc, support_state = carry
         x_ref = x_start + speed * dt * n
         x = x_ref + offsets
         s = x_ref - impact_position - delays
         phi = shapes_at(x)
-        loads_prev = _loads(f_prev, phi_prev)
-        if sup is not None:
-            f_s_prev, e_prev = support_state
-            loads_prev = loads_prev - f_s_prev @ psi
-        q_hat = e_r * q + ap_r * loads_prev
+        q_hat = e_r * q + ap_r * (_loads(f_prev, phi_prev) - support_loads(support_state))
         xi_r_free, c_own = _rail_reads(phi, w_r, an_r, q_hat)
         c_rail = jnp.diag(c_own) + _residual_matrix(struct, model, x_ref)
         if n_wheels > 1:
@@ -675,7 +676,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
                     + track_mod.read_residual_table(model, sup.residual_wheels, x_ref))
             closure_free = jnp.real(jnp.sum(psi * (w_r * q_hat), axis=-1)) - sup.gap
             system = jnp.block([[compliance, -g_ws], [-g_ws.T, within_ss]])
-            params = (e_prev, sup.stiffness, sup.damping, dt)
+            params = (support_state[1], sup.stiffness, sup.damping, dt)
             d_all, f_all, r_all, states = solve_contacts(
                 laws, jnp.concatenate([delta_free, closure_free]), system, s, states,
                 max_iter, groups, rough, extra=(support_force, params))
@@ -683,9 +684,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
             support_state = (f_all[n_wheels:], d_all[n_wheels:])
             xi_r_free = xi_r_free - g_ws @ support_state[0]
         delta = delta - shift
-        q_new = q_hat + an_r * _loads(f, phi)
-        if sup is not None:
-            q_new = q_new - an_r * (support_state[0] @ psi)
+        q_new = q_hat + an_r * (_loads(f, phi) - support_loads(support_state))
         p_new = p_hat + an_w * (f - preload)[:, None]
         axle_acc = jnp.real(jnp.sum(axle_acc_res * p_new, axis=-1))
         extra, acc = readings(q_new, f, x, n, acc)

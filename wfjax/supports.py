@@ -261,8 +261,9 @@ def one_sided_spec(track: Track, model, offsets=(0.0,)) -> OneSidedSupports | No
         return None
     arrays = support_arrays(track)
     fe = track_mod.assemble(track)
-    dof = fe.n_rail_dof + idx
-    k_inv = track_mod.static_inverse(fe)
+    unit = np.zeros((fe.stiffness.shape[0], idx.size))
+    unit[fe.n_rail_dof + idx, np.arange(idx.size)] = 1.0  # unit loads on the sleepers
+    k_inv_s = track_mod.static_solve(fe, unit)  # [n_dof, n_s]
     psi = np.asarray(model.sleeper_shapes)[:, idx].T  # [n_s, m]
     w = np.asarray(model.weights) / (-np.asarray(model.poles))
     kept_ss = np.real(np.einsum("am,bm,m->ab", psi, psi, w))
@@ -270,11 +271,11 @@ def one_sided_spec(track: Track, model, offsets=(0.0,)) -> OneSidedSupports | No
     x = np.asarray(model.residual_x)[:, None] + offsets[None, :]  # the whole-rail grid
     x = np.clip(x, fe.node_x[0], fe.node_x[-1])
     b = track_mod._load_vector(fe, x.ravel())  # [n_dof, n_res * n_w]
-    full_ws = np.asarray(b.T @ k_inv[:, dof]).reshape(*x.shape, idx.size)
+    full_ws = np.asarray(b.T @ k_inv_s).reshape(*x.shape, idx.size)
     phi = np.asarray(track_mod.mode_shapes_at(model, x))  # [n_res, n_w, m]
     kept_ws = np.real(np.einsum("rim,am,m->ria", phi, psi, w))
     return OneSidedSupports(psi, arrays["ballast_gap"][idx], arrays["ballast_stiffness"][idx],
-                            arrays["ballast_damping"][idx], k_inv[np.ix_(dof, dof)] - kept_ss,
+                            arrays["ballast_damping"][idx], unit.T @ k_inv_s - kept_ss,
                             full_ws - kept_ws)
 
 

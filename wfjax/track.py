@@ -254,12 +254,17 @@ def _load_vector(fe: FEModel, x) -> scipy.sparse.csc_matrix:
 # --------------------------------------------------------------------------------------------
 # direct solves
 # --------------------------------------------------------------------------------------------
-def static_inverse(fe: FEModel) -> np.ndarray:
-    """K^-1 [m/N] dense [n_dof, n_dof] of the FE model (Cholesky; a 70-bay track: 0.1 s):
-    static compliances between many points, where sparse solves with thousands of
-    right-hand sides take seconds."""
-    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(fe.stiffness.toarray()),
-                                  np.eye(fe.stiffness.shape[0]))
+def static_solve(fe: FEModel, rhs) -> np.ndarray:
+    """K^-1 rhs [m], dense [n_dof, k], for loads ``rhs`` [n_dof, k] [N] (dense or sparse) by a
+    dense Cholesky factor of K. With more right-hand sides than DOFs (a whole-rail table:
+    2241 x n four-entry load vectors, where SuperLU's sparse solve took 7 s) through K^-1 and
+    the sparse product (K is symmetric); with a few, a solve (about the factorisation's cost)."""
+    factor = scipy.linalg.cho_factor(fe.stiffness.toarray())
+    n_dof = fe.stiffness.shape[0]
+    if rhs.shape[1] > n_dof:
+        return np.asarray(rhs.T @ scipy.linalg.cho_solve(factor, np.eye(n_dof))).T
+    dense = rhs.toarray() if scipy.sparse.issparse(rhs) else np.asarray(rhs, dtype=float)
+    return scipy.linalg.cho_solve(factor, dense)
 
 
 def receptance(track: Track, freqs, x: float = 0.0, x_response=None) -> np.ndarray:
@@ -391,9 +396,9 @@ def residual_table_is_periodic(model: ModalModel) -> jax.Array:
 
 def read_residual_table(model: ModalModel, table, x) -> jax.Array:
     """``table`` [n_res, ...] on the model's residual grid (``model.residual_x``) read at rail
-    position ``x`` [m] (scalar), linear between the points: periodically across the bay for a
-    uniform track, at the absolute position (clamped to the rail ends) otherwise. Returns
-    [...]. Pure ``jax.numpy``."""
+    position ``x`` [m] (a scalar; any shape for a 1-D table), linear between the points:
+    periodically across the bay for a uniform track, at the absolute position (clamped to the
+    rail ends) otherwise. Returns [...]. Pure ``jax.numpy``."""
     grid = model.residual_x
     s = jnp.where(residual_table_is_periodic(model), jnp.mod(x, model.sleeper_spacing),
                   x - grid[0])
@@ -412,9 +417,7 @@ def residual_compliance_at(model: ModalModel, x) -> jax.Array:
     ``x`` [m] any shape; returns float [...]. Pure ``jax.numpy``.
     """
     x = jnp.asarray(x, dtype=jnp.result_type(x, float))  # float32 stays float32
-    periodic = residual_table_is_periodic(model)
-    s = jnp.where(periodic, jnp.mod(x, model.sleeper_spacing), x)
-    return jnp.interp(s, model.residual_x, model.residual)
+    return read_residual_table(model, model.residual, x)
 
 
 def modal_receptance(model: ModalModel, freqs, x: float = 0.0) -> np.ndarray:

@@ -280,21 +280,13 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
 
 
 def _static_pair_compliance(fe, x: np.ndarray) -> np.ndarray:
-    """K^-1(x_ri, x_rj) [m/N], [n_res, n, n], for rail positions ``x`` [n_res, n] [m].
-
-    From the dense inverse of K (:func:`wfjax.track.static_inverse`) and the four-entry load
-    vectors: a sparse LU solve with the 2241 x n right-hand sides of a whole-rail table took 7 s.
-    """
+    """K^-1(x_ri, x_rj) [m/N], [n_res, n, n], for rail positions ``x`` [n_res, n] [m]
+    (:func:`wfjax.track.static_solve` with the unit loads at every position)."""
     n_res, n = x.shape
-    b = track_mod._load_vector(fe, x.ravel())  # [n_dof, n_res * n], columns r * n + i
-    z = np.asarray(b.T @ track_mod.static_inverse(fe)).reshape(n_res, n, -1)  # row r, i: K^-1 b_ri
-    rows = b.T.tocsr()
-    full = np.empty((n_res, n, n))
-    for j in range(n):
-        b_j = rows[j::n]  # [n_res, n_dof]
-        for i in range(n):
-            full[:, i, j] = np.asarray(b_j.multiply(z[:, i]).sum(axis=1)).ravel()
-    return full
+    b = track_mod._load_vector(fe, x.ravel())  # [n_dof, n_res * n], sparse
+    u = track_mod.static_solve(fe, b)
+    return np.einsum("dri,drj->rij", b.toarray().reshape(-1, n_res, n),
+                     u.reshape(-1, n_res, n))
 
 
 def transfer_receptance(track: Track, model: track_mod.ModalModel, freqs, x_force: float,
