@@ -127,6 +127,25 @@ def test_two_wheel_vehicle(contact, struct, fam):
         np.testing.assert_array_equal(np.asarray(got[k]), np.asarray(want[k]), err_msg=k)
 
 
+
+def test_two_wheels_on_a_track_whose_supports_vary():
+    # the backward pass's step compliance reads the vehicle's tables along the whole rail,
+    # as the forward's (it once built its cross table per bay)
+    from wfjax import supports
+
+    track, vehicle = supports.void_sleeper(TRACK, 35), Vehicle.bogie()
+    vstruct = it.vehicle_structure(vehicle, [WHEEL, WHEEL], track, CONFIG)
+    smooth = laws.prepare("hertz-profile", wf.Flat.none(), WHEEL, track, MAT, CONFIG)
+
+    def loss(th, runner):
+        law = laws.prepare("hertz-profile", _flat(th), WHEEL, track, MAT, CONFIG)
+        hist = runner((law, smooth), vstruct, V, DT, 0.7 - 0.2, 0.7, N)
+        return _misfit(hist) + jnp.max(hist["force"][:, 1]) / 1e5
+
+    plain = jax.jit(jax.grad(lambda th: loss(th, it.run_scan)))(TH0)
+    ours = jax.jit(jax.grad(lambda th: loss(th, adj.run_adjoint)))(TH0)
+    _close(ours, plain)
+
 @pytest.mark.slow
 def test_float32(struct):
     def loss(th, runner):

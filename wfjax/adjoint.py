@@ -50,7 +50,6 @@ import jax
 import jax.numpy as jnp
 
 from . import interaction as it
-from . import track as track_mod
 from ._modal import discrete_step_coefficients
 from .contact.newton import solve_small, static_approach
 
@@ -117,12 +116,6 @@ def loop_setup(laws: tuple, struct, speed, dt, x_start, impact_position, precisi
                      x_start, impact_position, roughness)
 
 
-def _shapes_fn(model):
-    """x [n] m -> mode shapes [n, M] (``time_loop``'s node-major interpolation)."""
-    node_major = it._node_major_shapes(model)
-    return lambda x: jax.vmap(lambda xi: track_mod.interpolate_nodal(model, node_major, xi))(x)
-
-
 def static_start(ls: LoopSetup):
     """The loop's static start, differentiable by plain autodiff.
 
@@ -131,7 +124,7 @@ def static_start(ls: LoopSetup):
         reference displacement, delta0 [n] m: the static approaches), as ``time_loop``.
     """
     model = ls.struct.track
-    shapes_at = _shapes_fn(model)
+    shapes_at = it.shapes_fn(model)
     s0 = ls.x_start - ls.impact_position - ls.delays
     x0 = ls.x_start + ls.offsets
     phi0 = shapes_at(x0)
@@ -184,9 +177,9 @@ def _compliance_fn(ls: LoopSetup):
     n_wheels = len(ls.laws)
     cross = None
     if n_wheels > 1:
-        bay = ls.impact_position - jnp.mod(ls.impact_position, model.sleeper_spacing)
-        cross = it._cross_table(model, _shapes_fn(model), ls.offsets,
-                                model.weights * ls.an_r, bay)
+        cross = it._cross_table(model, it.shapes_fn(model), ls.offsets,
+                                model.weights * ls.an_r,
+                                it.cross_table_origin(model, ls.impact_position))
 
     def compliance(x_ref, c_own):
         c_rail = jnp.diag(c_own) + it._residual_matrix(struct, model, x_ref)
@@ -236,7 +229,7 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, c_own, ct_force, ct_approach, 
     w_r, e_r, e_w = model.weights, ls.e_r, ls.e_w
     g_r = ls.ap_r + ls.an_r * e_r  # f_n's weight in q_hat_{n+1}: through q_n and directly
     g_w = ls.ap_w + ls.an_w * e_w
-    shapes_at = _shapes_fn(model)
+    shapes_at = it.shapes_fn(model)
     real = ls.preload.dtype
     compliance = _compliance_fn(ls)
     x_ref = ls.x_start + ls.speed * ls.dt * jnp.arange(n_steps).astype(real)  # as time_loop

@@ -291,6 +291,20 @@ def _rail_reads(phi, w_r, an_r, q_hat):
     return xi, jnp.real(jnp.sum(w_r * an_r * phi * phi, axis=-1))
 
 
+def shapes_fn(model):
+    """x [n] m -> the mode shapes there, [n, n_modes] complex: the time loop's node-major
+    interpolation (each wheel gathers two contiguous rows)."""
+    node_major = _node_major_shapes(model)
+    return lambda x: jax.vmap(lambda xi: track_mod.interpolate_nodal(model, node_major, xi))(x)
+
+
+def cross_table_origin(model, impact_position):
+    """x_bay [m] of :func:`_cross_table` for a run: the impact's bay on a uniform track (the
+    table is read periodically), 0 when the supports vary (the table runs along the rail)."""
+    return jnp.where(track_mod.residual_table_is_periodic(model),
+                     impact_position - jnp.mod(impact_position, model.sleeper_spacing), 0.0)
+
+
 def _cross_table(model, shapes_at, offsets, weight, x_bay):
     """[n_res, n, n] the rail's compliance within a step between different wheels,
     Re sum_r weight_r phi_r(x + o_i) phi_r(x + o_j) (zero diagonal), for the reference wheel
@@ -573,10 +587,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     offsets = jnp.zeros(1, real) if struct.offsets is None else struct.offsets
     delays = jnp.zeros(1, real) if struct.delays is None else struct.delays
     c_wheel = jnp.real(jnp.sum(wheel_res * an_w, axis=-1))  # [n]
-    node_major = _node_major_shapes(model)
-
-    def shapes_at(x):  # [n] -> [n, n_modes]
-        return jax.vmap(lambda xi: track_mod.interpolate_nodal(model, node_major, xi))(x)
+    shapes_at = shapes_fn(model)
 
     # static equilibrium at the start: F = P, rail in its static deflected shape
     s0 = x_start - impact_position - delays
@@ -631,10 +642,8 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         return (out if sensor_history else {}), acc
 
     if n_wheels > 1:
-        # the bay of the impact (uniform track, read periodically), else the whole rail
-        bay = jnp.where(track_mod.residual_table_is_periodic(model),
-                        impact_position - jnp.mod(impact_position, model.sleeper_spacing), 0.0)
-        cross = _cross_table(model, shapes_at, offsets, w_r * an_r, bay)
+        cross = _cross_table(model, shapes_at, offsets, w_r * an_r,
+                             cross_table_origin(model, impact_position))
 
     acc0 = {}
     if sensors is not None:
