@@ -175,28 +175,75 @@ def test_table_cache_key_holds_the_builder_revision(tmp_path, monkeypatch):
     assert len(list(tmp_path.glob("table3d-*"))) == 2
 
 
-def test_sweep_prefetches_the_single_flat_groups_tables_together(monkeypatch):
-    """The exact 3D tables of one-flat groups are built before the groups run, in one call
-    that builds them together (shared window sizes, columns spread over the cores)."""
+def test_batch_groups_put_every_exact_table_in_one_group():
+    """Exact 3D tables batch together whatever the flats' kinds; the family by kind; the
+    direct mode and the other models' measured profiles one flat per program."""
+    from wfjax.sweeps import BatchGroup, batch_groups
+
+    x = np.linspace(-0.05, 0.05, 41)
+    profile = wf.Flat.from_profile(x, 0.5e-3 * np.cos(np.pi * x / 0.1) ** 2)
+    flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3), profile,
+             wf.Flat.new(0.5e-3), wf.Flat.new(0.7e-3)]
+    auto, table = wf.SimConfig(), wf.SimConfig(contact_mode_3d="table")
+    assert batch_groups(flats, "3d", auto) == [BatchGroup([1, 3, 4]), BatchGroup([0, 2], True)]
+    assert batch_groups(flats, "3d", table) == [BatchGroup([0, 1, 2, 3, 4], True)]
+    assert batch_groups(flats, "3d", wf.SimConfig(contact_mode_3d="direct")) == [
+        BatchGroup([i]) for i in range(5)]
+    assert batch_groups(flats, "2d", auto) == [BatchGroup([0]), BatchGroup([1, 3, 4]),
+                                              BatchGroup([2])]
+
+
+def test_widened_table_gives_the_same_forces():
+    """pad_columns repeats the end columns: the same forces inside and beyond the s range."""
+    table = laws.cached_table_3d(wf.Flat.new(0.9e-3), 0.45, 0.3, wf.Material(), 2e-3)
+    n = table.onset.shape[0]
+    wide = laws.tables.pad_columns(table, n + 13)
+    assert wide.force.shape == (n + 13, table.force.shape[1])
+    s = np.concatenate([np.linspace(-0.09, 0.09, 37), [0.0, 1e-3, -0.0317]])
+    for delta in (0.05e-3, 0.2e-3, 0.5e-3):
+        for si in s:
+            f = float(laws.tables.table_force(table, delta, si))
+            assert float(laws.tables.table_force(wide, delta, si)) == pytest.approx(
+                f, rel=1e-12, abs=1e-9)
+    with pytest.raises(ValueError, match="n_s"):
+        laws.tables.pad_columns(table, n - 1)
+
+
+def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path):
+    """A rounded and a new flat with exact 3D tables: one compiled program for both, and each
+    flat's extremes equal its own simulate() in its own windows (the new flat's are shorter:
+    the steps beyond them are not counted)."""
     import importlib
 
     sweeps = importlib.import_module("wfjax.sweeps")
-    calls = []
-
-    def fake(flats, wheel_radius, rail_head_radius, material, element_size, cache_dir=None):
-        calls.append([f.kind for f in flats])
-
-    monkeypatch.setattr(sweeps, "cached_tables_3d", fake)
+    config = wf.SimConfig(contact_element=2e-3, max_travel_step=2e-3, max_time_step=5e-5)
+    track = wf.Track()
     flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
-    args = (wf.Wheel(), wf.Track(), wf.Material())
-    assert sweeps.prefetch_tables(flats, "3d", *args, wf.SimConfig()) == 2
-    assert calls == [["rounded", "new"]]
-    calls.clear()
-    assert sweeps.prefetch_tables(flats, "hertz-trajectory", *args, wf.SimConfig()) == 0
-    direct = dataclasses.replace(wf.SimConfig(), contact_mode_3d="direct")
-    assert sweeps.prefetch_tables(flats, "3d", *args, direct) == 0
-    assert sweeps.prefetch_tables(flats[:1], "3d", *args, wf.SimConfig()) == 0
-    assert calls == []
+    speeds, position = np.array([50.0, 120.0]) / 3.6, 0.2
+    compiled = []
+    program = sweeps._batched
+
+    def counting(*args):
+        fn = program(*args)
+        compiled.append(fn)
+        return fn
+
+    sweeps._batched = counting
+    try:
+        sw = wf.sweep(flats, speeds, [position], contact="3d", track=track, config=config,
+                      progress=False, cache_dir=tmp_path)
+    finally:
+        sweeps._batched = program
+    assert len(compiled) == 1  # one program (compiled ahead for the tables' predicted shapes)
+    own = [it.batch_windows(flat, speeds, config)[0] for flat in flats]
+    assert own[1] < own[0]
+    for i, (flat, n_steps) in enumerate(zip(flats, own, strict=True)):
+        for j, v in enumerate(speeds):
+            r = wf.simulate(flat, float(v), contact="3d", impact_position=position,
+                            track=track, config=config, n_steps=n_steps, cache_dir=tmp_path)
+            assert sw.max_force[i, j, 0] == pytest.approx(float(r.max_force), rel=1e-9)
+            assert sw.min_force[i, j, 0] == pytest.approx(float(r.min_force), rel=1e-9,
+                                                          abs=1.0)
 
 
 def test_tables_built_together_equal_tables_built_alone(tmp_path):

@@ -35,3 +35,22 @@ def core_pool() -> concurrent.futures.ThreadPoolExecutor:
             _POOL.append(concurrent.futures.ThreadPoolExecutor(
                 max(1, os.cpu_count() or 1), thread_name_prefix="wfjax-core"))
         return _POOL[0]
+
+
+def in_background(fn: Callable, *args) -> concurrent.futures.Future:
+    """``fn(*args)`` in a daemon thread: its result (or exception) in the returned future.
+
+    For work that overlaps other work of the caller (a sweep's 3D tables while its modal
+    model builds and its program compiles); a daemon thread never keeps the process alive
+    after an error elsewhere.
+    """
+    future: concurrent.futures.Future = concurrent.futures.Future()
+
+    def run():
+        try:
+            future.set_result(fn(*args))
+        except BaseException as err:  # noqa: BLE001 - handed to the caller through the future
+            future.set_exception(err)
+
+    threading.Thread(target=run, daemon=True, name="wfjax-background").start()
+    return future

@@ -513,7 +513,8 @@ def static_support_forces(closure_free, compliance, stiffness, iterations: int =
 def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
               n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
               detector=None, run_in_steps=0, sensor_history: bool = True,
-              precision: str = "float64", roughness=None, own_compliance: bool = False):
+              precision: str = "float64", roughness=None, own_compliance: bool = False,
+              end_steps=None):
     """The time loop under ``lax.scan`` for any contact law and any number of wheels (pure).
 
     Args:
@@ -534,6 +535,10 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         detector: a :class:`wfjax.sensors.DetectorSpec` (or None): the detector's per-bay
             load estimate, and its peak while a wheel is between each bay's bridges.
         run_in_steps: steps before the sensors' running max/min start (traced int).
+        end_steps: steps of the run's own window (traced int; default ``n_steps``): the
+            sensors' and detector's running extremes count the steps
+            ``run_in_steps <= n < end_steps`` only (a sweep runs a batch's shorter windows
+            for its longest one's step count).
         sensor_history: return the sensors' and detector's time histories (static; False
             keeps only running max/min and peaks in the carry: no [n_steps] arrays).
         precision: ``"float64"`` or ``"float32"`` (static, :attr:`SimConfig.precision`): the
@@ -622,12 +627,15 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     xi_w_ref = xi_r0 + delta0
     p0 = jnp.zeros_like(wheel_poles)
 
+    def counted(n):
+        return True if end_steps is None else n < end_steps
+
     def readings(q, f, x, n, acc):
         """Sensor and detector outputs at one instant; updates the running extremes ``acc``."""
         out = {}
         if sensors is not None:
             y = sensor_mod.evaluate(sensors, model, q, f, x)
-            late = n >= run_in_steps
+            late = (n >= run_in_steps) & counted(n)
             acc = {**acc, "sensor_max": jnp.where(late, jnp.maximum(acc["sensor_max"], y),
                                                   acc["sensor_max"]),
                    "sensor_min": jnp.where(late, jnp.minimum(acc["sensor_min"], y),
@@ -635,8 +643,8 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
             out["sensors"] = y
         if detector is not None:
             est, gate = sensor_mod.detector_load(detector, model, q, f, x)
-            acc = {**acc, "detector_peak": jnp.where(gate, jnp.maximum(acc["detector_peak"],
-                                                                       est),
+            acc = {**acc, "detector_peak": jnp.where(gate & counted(n),
+                                                     jnp.maximum(acc["detector_peak"], est),
                                                      acc["detector_peak"])}
             out["detector_load"] = est
         return (out if sensor_history else {}), acc

@@ -193,11 +193,13 @@ class SimResult(NamedTuple):
 
 
 def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(),
-              preload=None) -> SimResult:
+              preload=None, end_steps=None) -> SimResult:
     """Reduce histories to a :class:`SimResult` (pure jnp; works batched under vmap).
 
     ``quantities`` names the rows of the sensor outputs in ``hist`` (if any); ``preload`` [N]
-    is the static wheel load the detector's ratio refers to.
+    is the static wheel load the detector's ratio refers to. The extremes, loss of contact
+    and axle-box peak count the steps ``run_in_steps <= n < end_steps`` (default: to the
+    end of the histories).
     """
     sensor = {}
     if "sensor_max" in hist:
@@ -215,7 +217,7 @@ def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(
             sensor["detector_load"] = hist["detector_load"]
     f = hist["force"]
     n = f.shape[-1]
-    after = jnp.arange(n) >= run_in_steps
+    after = counted_steps(n, run_in_steps, end_steps)
     f_after = jnp.where(after, f, jnp.nan)
     lost = after & (f <= 0)
     acc = hist.get("axle_acc", jnp.zeros_like(f))
@@ -232,8 +234,14 @@ def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(
     )
 
 
+def counted_steps(n_steps: int, run_in_steps, end_steps=None):
+    """[n_steps] bool: the steps a summary counts, ``run_in_steps <= n < end_steps``."""
+    n = jnp.arange(n_steps)
+    return (n >= run_in_steps) if end_steps is None else (n >= run_in_steps) & (n < end_steps)
+
+
 def summarise_vehicle(hist: dict, flat_wheel: int, speed, impact_position, dt, run_in_steps,
-                      quantities=(), preload=None) -> SimResult:
+                      quantities=(), preload=None, end_steps=None) -> SimResult:
     """:func:`summarise` for a vehicle's histories ([n_steps, n_wheels], one run): the main
     fields are the reference wheel's (``flat_wheel``), the ``wheel_*`` fields every wheel's.
 
@@ -243,9 +251,10 @@ def summarise_vehicle(hist: dict, flat_wheel: int, speed, impact_position, dt, r
                  "axle_acc")
     main = {k: (v[:, flat_wheel] if k in per_wheel else v) for k, v in hist.items()}
     main.pop("detector_peak", None)
-    res = summarise(main, speed, impact_position, dt, run_in_steps, quantities)
+    res = summarise(main, speed, impact_position, dt, run_in_steps, quantities,
+                    end_steps=end_steps)
     f, acc = hist["force"], hist["axle_acc"]
-    after = (jnp.arange(f.shape[0]) >= run_in_steps)[:, None]
+    after = counted_steps(f.shape[0], run_in_steps, end_steps)[:, None]
     extra = {}
     if "detector_peak" in hist:
         extra = {"detector_peak": hist["detector_peak"],

@@ -41,7 +41,16 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from . import supports as supports_mod
-from .contact.laws import CONTACT_MODELS, cached_tables_3d, prepare, prepare_family, resolve_mode_3d
+from ._parallel import in_background
+from .contact.laws import (
+    CONTACT_MODELS,
+    TableLaw,
+    cached_tables_3d,
+    prepare,
+    prepare_family,
+    resolve_mode_3d,
+)
+from .contact.tables import ContactTable, pad_columns, table_spec
 from .interaction import (
     _wheel_positions,
     batch_windows,
@@ -304,7 +313,7 @@ def _realisation(rough, index):
 
 
 def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, speed, dt,
-            x_start, impact_position, run_in_steps, realisation):
+            x_start, impact_position, run_in_steps, end_steps, realisation):
     batched, others = laws
     if extras.get("tracks") is not None:  # support realisations: this run's modal model
         struct = struct._replace(track=_pick_model(extras["tracks"], realisation))
@@ -314,16 +323,18 @@ def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, spee
     hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
                     sensors=extras["sensors"], detector=extras["detector"],
                     run_in_steps=run_in_steps, sensor_history=False, precision=precision,
-                    roughness=_realisation(extras.get("roughness"), realisation))
+                    roughness=_realisation(extras.get("roughness"), realisation),
+                    end_steps=end_steps)
     keys = ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual",
             "axle_acc")
     if others is None:
-        res = summarise({k: hist[k] for k in keys}, speed, impact_position, dt, run_in_steps)
+        res = summarise({k: hist[k] for k in keys}, speed, impact_position, dt, run_in_steps,
+                        end_steps=end_steps)
         per_wheel = ()
     else:
         flat_wheel = [o is None for o in others].index(True)
         res = summarise_vehicle({k: hist[k] for k in keys}, flat_wheel, speed,
-                                impact_position, dt, run_in_steps)
+                                impact_position, dt, run_in_steps, end_steps=end_steps)
         per_wheel = (res.wheel_max_force, res.wheel_min_force, res.wheel_loss_of_contact,
                      res.wheel_axle_acc_peak)
     outs = (res.max_force, res.min_force, res.loss_of_contact, res.loss_of_contact_duration,
@@ -334,8 +345,9 @@ def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, spee
 
 @functools.cache
 def _batched(mesh: Mesh, n_steps: int, max_iter: int, precision: str = "float64"):
-    """Compiled (laws, struct, flat_index, speed, dt, x_start, impact_position, run_in) ->
-    summaries, for laws stacked along a leading flat axis (one program per law class).
+    """Compiled (laws, struct, extras, flat_index, speed, dt, x_start, impact_position,
+    run_in, end, realisation) -> summaries, for laws stacked along a leading flat axis (one
+    program per law class).
 
     ``shard_map`` gives every device its own ``vmap``-ed loop over its runs: the batched
     Newton ``while_loop`` then stops on the device's own runs, with no cross-device reduction
@@ -347,7 +359,7 @@ def _batched(mesh: Mesh, n_steps: int, max_iter: int, precision: str = "float64"
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
-                                 in_specs=(PartitionSpec(),) * 3 + (by_run,) * 7))
+                                 in_specs=(PartitionSpec(),) * 3 + (by_run,) * 8))
 
 
 def _device_mesh() -> Mesh:
@@ -490,6 +502,15 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         track = tracks[0]
         models = padded_models(tracks, config, cache_dir)
     mesh = _device_mesh()
+    groups = batch_groups(flat_list, contact, config)
+    if progress and any(g.tables for g in groups):
+        print("  building the 3D contact tables (cached after the first run) ...", end="\r",
+              file=sys.stderr, flush=True)
+    # the exact 3D tables are built while the modal model builds and the program compiles
+    tables_ahead = {tuple(g.indices): in_background(
+        cached_tables_3d, [flat_list[i] for i in g.indices], float(wheel.radius),
+        float(track.rail_head_radius), material, config.contact_element, cache_dir)
+        for g in groups if g.tables}
     fleet = _Fleet.of(vehicle, wheel, flat_list, contact, track, material, config, v,
                       cache_dir)
     struct_host = fleet.struct if vehicle is not None else structure(wheel, track, config,
@@ -514,30 +535,44 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
                         ("s_max", sensors is not None), ("s_min", sensors is not None),
                         ("det", detector is not None)) if on]
     out = {}
-    groups = batch_groups(flat_list, contact, config)
-    prefetch_tables([flat_list[g[0]] for g in groups if len(g) == 1], contact, wheel, track,
-                    material, config, cache_dir, progress)
-    for group in groups:
+    for group, exact_tables in groups:
         members = [flat_list[i] for i in group]
         label = (flat_label(members[0]) if len(members) == 1
+                 else f"{len(members)} flats" if exact_tables
                  else f"{len(members)} {members[0].kind} flats")
         if progress:  # a 3D table or family build takes seconds to a minute on a cold cache
-            print(f"  {label}: preparing the {contact} contact law ...", end="\r",
-                  file=sys.stderr, flush=True)
-        laws, window_flat = prepare_batch(contact, members, wheel, track, material, config,
-                                          cache_dir, progress)
+            what = "3D contact tables" if exact_tables else f"{contact} contact law"
+            print(f"  {label}: preparing the {what} ...", end="\r", file=sys.stderr,
+                  flush=True)
+        program = None
+        if exact_tables:  # compile for the tables' shapes while they are being built
+            laws, window_flats = _table_laws_like(members, wheel, track, material, config), members
+        else:
+            laws, window_flats = prepare_batch(contact, members, wheel, track, material, config,
+                                               cache_dir, progress)
         if vehicle is not None:
-            window_flat = fleet.window_flat(window_flat)
+            window_flats = [fleet.window_flat(w) for w in window_flats]
         if roughness is not None:
-            _, _, s0_v, _ = batch_windows(window_flat, v, config)
-            s1 = max(simulation_window(window_flat, float(speed), config)[1] for speed in v)
+            s0 = min(simulation_window(w, float(speed), config)[0]
+                     for w in window_flats for speed in v)
+            s1 = max(simulation_window(w, float(speed), config)[1]
+                     for w in window_flats for speed in v)
             offs = np.zeros(1) if vehicle is None else vehicle.offsets()
-            check_rail_span(roughness, float(pos.min() + fleet.shift + s0_v.min() + offs.min()),
+            check_rail_span(roughness, float(pos.min() + fleet.shift + s0 + offs.min()),
                             float(pos.max() + fleet.shift + s1 + offs.max()))
-        cols = _run_group((_replicate(laws, mesh), others), struct, extras, window_flat,
-                          len(members), v, pos + fleet.shift, config, mesh, chunk_size,
+        runs = _plan_runs(window_flats, v, pos + fleet.shift, struct, config, mesh, chunk_size,
+                          n_real)
+        if exact_tables:
+            program = _compile_runs((_replicate(laws, mesh), others), struct, extras, runs,
+                                    config, mesh)
+            like = laws
+            laws, _ = prepare_batch(contact, members, wheel, track, material, config,
+                                    cache_dir, tables=tables_ahead[tuple(group)].result())
+            if jax.tree.map(np.shape, laws) != jax.tree.map(np.shape, like):
+                program = None  # not the shapes it was compiled for: compile as usual
+        cols = _run_group((_replicate(laws, mesh), others), struct, extras, runs, config, mesh,
                           _Progress(len(members) * v.size * pos.size * n_real, label,
-                                    enabled=progress), n_real)
+                                    enabled=progress), program)
         for key, col in zip(keys, cols, strict=True):
             batch = rough is not None or models is not None
             if batch and key in ("max", "min"):
@@ -617,28 +652,6 @@ class _Fleet:
         return window
 
 
-def prefetch_tables(flats: Sequence[Flat], contact: str, wheel: Wheel, track: Track,
-                    material: Material, config: SimConfig, cache_dir=None,
-                    progress: bool = False) -> int:
-    """Build the exact 3D tables of ``flats`` (one-flat groups) into the disk cache together,
-    before the groups run one after another.
-
-    :func:`wfjax.contact.laws.cached_tables_3d` builds the missing tables with one set of
-    window sizes (each compiles once) and spreads their columns over the CPU cores, so on
-    this 2-core machine the default sweep's two tables take about half their summed time.
-    Does nothing unless ``contact`` is ``"3d"`` in table mode and two or more tables are to
-    be built. Returns the number prefetched.
-    """
-    if contact != "3d" or resolve_mode_3d(config, batched=False) != "table" or len(flats) < 2:
-        return 0
-    if progress:
-        print(f"  building {len(flats)} 3D contact tables (cached after the first run) ...",
-              end="\r", file=sys.stderr, flush=True)
-    cached_tables_3d(flats, float(wheel.radius), float(track.rail_head_radius), material,
-                     config.contact_element, cache_dir)
-    return len(flats)
-
-
 def _sensor_extras(sensors, quantities, detector, track: Track, model) -> dict:
     """The compiled program's sensor and detector specs (None where not asked for)."""
     return {"sensors": (None if sensors is None
@@ -646,24 +659,46 @@ def _sensor_extras(sensors, quantities, detector, track: Track, model) -> dict:
             "detector": None if detector is None else detector_spec(detector, track, model)}
 
 
-def batch_groups(flats: Sequence[Flat], contact: str, config: SimConfig) -> list[list[int]]:
-    """Indices of the flats that share one compiled program.
+class BatchGroup(NamedTuple):
+    """Flats of a sweep that share one compiled program.
+
+    Attributes:
+        indices: the flats' indices in the sweep's list.
+        tables: the flats' exact 3D tables, widened to one shape (:func:`prepare_batch`).
+    """
+
+    indices: list[int]
+    tables: bool = False
+
+
+def batch_groups(flats: Sequence[Flat], contact: str, config: SimConfig) -> list[BatchGroup]:
+    """The flats' groups, each one compiled program.
 
     Laws whose geometry is a traced leaf (Hertz, 2D bedding, the parametric 3D family) batch
-    every new or rounded flat of one kind; the exact 3D table and the direct 3D mode (their
-    grids depend on the flat), measured profiles and smooth wheels run one flat per program.
-    Under ``contact_mode_3d="auto"`` a kind with several geometries uses the parametric
-    family, a kind with one geometry its exact table.
+    every new or rounded flat of one kind. The exact 3D tables (``contact_mode_3d="table"``,
+    measured profiles and smooth wheels with 3D contact, and under ``"auto"`` a kind with one
+    geometry) batch all together, whatever their kinds: their tables are widened to one shape.
+    The direct 3D mode, and measured profiles and smooth wheels with the other models, run
+    one flat per program.
     """
-    per_flat_3d = contact == "3d" and config.contact_mode_3d in ("table", "direct")
+    mode = config.contact_mode_3d if contact == "3d" else None
     kinds: dict[str, list[int]] = {}
-    singles = []
+    tables, singles = [], []
     for i, flat in enumerate(flats):
-        if flat.kind in ("new", "rounded") and not per_flat_3d:
+        if mode == "direct":
+            singles.append(i)
+        elif flat.kind in ("new", "rounded") and mode != "table":
             kinds.setdefault(flat.kind, []).append(i)
+        elif contact == "3d":
+            tables.append(i)
         else:
-            singles.append([i])
-    return list(kinds.values()) + singles
+            singles.append(i)
+    if mode == "auto":  # a kind with one geometry uses its exact table
+        for kind in [k for k, members in kinds.items() if len(members) == 1]:
+            tables += kinds.pop(kind)
+    return ([BatchGroup(members) for members in kinds.values()]
+            + ([BatchGroup(sorted(tables), tables=True)] if tables else [])
+            + [BatchGroup([i]) for i in singles])
 
 
 def common_extent(flats: Sequence[Flat]) -> list[Flat]:
@@ -675,24 +710,38 @@ def common_extent(flats: Sequence[Flat]) -> list[Flat]:
 
 def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Track,
                   material: Material, config: SimConfig, cache_dir=None,
-                  progress: bool = False):
-    """Contact laws of ``flats`` (one kind) stacked along a leading flat axis.
+                  progress: bool = False, tables=False):
+    """Contact laws of ``flats`` stacked along a leading flat axis.
 
     The concrete work (node sets, trajectory grids, the 3D family) is done once for the whole
     batch; the geometry enters through ``jax.vmap`` over the stacked flats, so the laws'
-    geometry leaves are traced and one compiled program serves every flat. Windows are sized
-    by the largest flat of the batch (``extent_bound``).
+    geometry leaves are traced and one compiled program serves every flat. With ``tables``
+    (a :class:`BatchGroup` of exact 3D tables, any kinds: True, or the flats' tables already
+    built) each flat's table is built (the missing ones together,
+    :func:`wfjax.contact.laws.cached_tables_3d`) and widened to the most columns among them
+    (:func:`wfjax.contact.tables.pad_columns`), and every flat keeps its own simulation
+    windows. Otherwise the windows are sized by the largest flat of the batch
+    (``extent_bound``).
 
     Returns:
-        (laws with leaves [n_flats, ...], the flat that sizes the simulation windows).
+        (laws with leaves [n_flats, ...], [n_flats] the flats that size each one's
+        simulation windows).
     """
     sized = common_extent(flats)
+    if tables is not False:
+        built = tables if tables is not True else cached_tables_3d(
+            flats, float(wheel.radius), float(track.rail_head_radius), material,
+            config.contact_element, cache_dir)
+        n_s = max(int(t.onset.shape[0]) for t in built)
+        laws = [TableLaw(pad_columns(t, n_s)) for t in built]
+        return (jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws),
+                list(flats))
     family = None
     if contact == "3d":
         if resolve_mode_3d(config, batched=len(flats) > 1) != "parametric":
-            (flat,) = flats  # per-flat grids: batch_groups gives one flat per group
+            (flat,) = flats  # the direct mode: batch_groups gives one flat per group
             law = prepare(contact, flat, wheel, track, material, config, cache_dir)
-            return jax.tree.map(lambda a: jnp.asarray(a)[None], law), flat
+            return jax.tree.map(lambda a: jnp.asarray(a)[None], law), [flat]
         family = prepare_family(flats, wheel, track, material, config, cache_dir, progress)
     max_depth = max(float(np.max(np.asarray(f.depth))) for f in flats)
     stacked = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *sized)
@@ -705,17 +754,37 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
     # parametric law reads the family at a few hundred positions per flat (7.6 s eagerly for
     # the Fig. 8 set).
     laws = jax.jit(jax.vmap(prepare_one, in_axes=(0, None)))(stacked, family)
-    return laws, sized[0]
+    return laws, [sized[0]] * len(flats)
 
 
-def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
-               config: SimConfig, mesh: Mesh, chunk_size: int | None,
-               bar: _Progress, n_real: int = 1) -> list[np.ndarray]:
-    """Summaries [n_flats, n_speeds, n_positions, n_real] of one batch of laws, chunked and
-    sharded (the realisation axis: roughness or support realisations, 1 without).
+class _Runs(NamedTuple):
+    """A group's runs, flattened over (flat, speed, position, realisation), and their chunks.
 
-    Every chunk is dispatched before the previous one is collected (one chunk in flight)."""
-    n_steps, dt_v, s0_v, run_in_v = batch_windows(window_flat, v, config)
+    ``columns``: [n] per-run arrays in the order of the program's run arguments (flat index,
+    speed [m/s], dt [s], x_start [m], impact position [m], run-in steps, end step,
+    realisation); ``step`` runs per chunk, each padded to ``width`` (a multiple of the device
+    count); ``shape`` (n_flats, n_speeds, n_positions, n_real).
+    """
+
+    n_steps: int
+    columns: tuple
+    step: int
+    width: int
+    shape: tuple
+
+
+def _plan_runs(window_flats: Sequence[Flat], v, pos, struct, config: SimConfig, mesh: Mesh,
+               chunk_size: int | None, n_real: int = 1) -> _Runs:
+    """The runs of one group: flat i runs in the windows of ``window_flats[i]``
+    (:func:`batch_windows`: its own start and time step per speed); the program's step count
+    is the largest of them, and the steps after a run's own window are not counted in its
+    summaries. Chunks: ``chunk_size`` runs, default from the devices' memory
+    (:func:`chunk_width`)."""
+    n_flats = len(window_flats)
+    windows = [batch_windows(f, v, config) for f in window_flats]
+    n_steps = max(w[0] for w in windows)
+    end_f = np.array([w[0] for w in windows])
+    dt_fv, s0_fv, run_in_fv = (np.stack([w[i] for w in windows]) for i in (1, 2, 3))
     if chunk_size is None:
         n_modes = int(struct.track.poles.shape[0])
         n_wheels = 1 if struct.offsets is None else int(struct.offsets.shape[0])
@@ -726,30 +795,67 @@ def _run_group(laws, struct, extras, window_flat: Flat, n_flats: int, v, pos,
     ff, jj, kk, rr = (a.ravel() for a in np.meshgrid(np.arange(n_flats), np.arange(v.size),
                                                      np.arange(pos.size), np.arange(n_real),
                                                      indexing="ij"))
-    vv, pp, dt, s_start, run_in = v[jj], pos[kk], dt_v[jj], s0_v[jj], run_in_v[jj]
-    program = _batched(mesh, n_steps, config.newton_iterations, config.precision)
+    pp, s_start = pos[kk], s0_fv[ff, jj]
+    columns = (ff, v[jj], dt_fv[ff, jj], pp + s_start, pp, run_in_fv[ff, jj], end_f[ff], rr)
+    step, width = _chunk_layout(ff.size, chunk_size, mesh.devices.size)
+    return _Runs(n_steps, columns, step, width, (n_flats, v.size, pos.size, n_real))
+
+
+def _chunk(runs: _Runs, lo: int, mesh: Mesh) -> tuple[int, list]:
+    """(runs in the chunk starting at run ``lo``, its sharded arguments, padded to width)."""
+    n = min(runs.step, runs.columns[0].size - lo)
+    pad = runs.width - n
+    return n, [_shard_runs(np.concatenate([a[lo:lo + n], np.repeat(a[lo + n - 1:lo + n], pad)]),
+                           mesh) for a in runs.columns]
+
+
+def _program(runs: _Runs, config: SimConfig, mesh: Mesh):
+    return _batched(mesh, runs.n_steps, config.newton_iterations, config.precision)
+
+
+def _compile_runs(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Mesh):
+    """The group's program compiled ahead of time for laws shaped like ``laws`` (their values
+    unused), so that it compiles while the laws are still being built."""
+    return _program(runs, config, mesh).lower(laws, struct, extras,
+                                              *_chunk(runs, 0, mesh)[1]).compile()
+
+
+def _table_laws_like(flats: Sequence[Flat], wheel: Wheel, track: Track, material: Material,
+                     config: SimConfig):
+    """Zeros shaped as the stacked laws of ``prepare_batch(..., tables=True)`` (for
+    compiling ahead: the tables' layouts, :func:`wfjax.contact.tables.table_spec`, are known
+    before they are built)."""
+    specs = [table_spec(f, float(wheel.radius), float(track.rail_head_radius), material,
+                        config.contact_element) for f in flats]
+    n, n_s, n_t = len(flats), max(sp.n_s for sp in specs), specs[0].n_t
+    scalar = np.zeros(n)
+    return TableLaw(ContactTable(s_min=scalar, ds=scalar, c_max=scalar,
+                                 onset=np.zeros((n, n_s)), force=np.zeros((n, n_s, n_t)),
+                                 slope=np.zeros((n, n_s, n_t)), converged=scalar))
+
+
+def _run_group(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Mesh,
+               bar: _Progress, program=None) -> list[np.ndarray]:
+    """Summaries [n_flats, n_speeds, n_positions, n_real] of one batch of laws, chunked and
+    sharded (the realisation axis: roughness or support realisations, 1 without), by
+    ``program`` (:func:`_compile_runs`; default the jitted :func:`_batched`).
+
+    Every chunk is dispatched before the previous one is collected (one chunk in flight)."""
+    program = program or _program(runs, config, mesh)
     results, in_flight = [], None
-    step, width = _chunk_layout(vv.size, chunk_size, mesh.devices.size)
 
     def collect(batch, n):
         results.append([b[:n] for b in _gather(batch)])
         bar.update(n)
 
-    for lo in range(0, vv.size, step):
-        sl = slice(lo, lo + step)
-        n = vv[sl].size
-
-        def padded(a, pad=width - n):
-            return _shard_runs(np.concatenate([a, np.repeat(a[-1:], pad)]), mesh)
-
-        batch = program(laws, struct, extras, padded(ff[sl]), padded(vv[sl]), padded(dt[sl]),
-                        padded(pp[sl] + s_start[sl]), padded(pp[sl]), padded(run_in[sl]),
-                        padded(rr[sl]))
+    for lo in range(0, runs.columns[0].size, runs.step):
+        n, args = _chunk(runs, lo, mesh)
+        batch = program(laws, struct, extras, *args)
         if in_flight is not None:
             collect(*in_flight)
         in_flight = (batch, n)
     collect(*in_flight)
-    return [np.concatenate(c).reshape((n_flats, v.size, pos.size, n_real) + c[0].shape[1:])
+    return [np.concatenate(c).reshape(runs.shape + c[0].shape[1:])
             for c in zip(*results, strict=True)]
 
 

@@ -57,7 +57,7 @@ from . import kalker
 
 __all__ = ["ContactTable", "Column", "TableSpec", "table_spec", "build_table_3d",
            "build_tables_3d", "table_force", "table_onset", "table_column", "column_force",
-           "window_plan", "window_solve", "window_solver"]
+           "window_plan", "window_solve", "window_solver", "pad_columns"]
 
 _DEFAULT_MATERIAL = Material()
 
@@ -680,6 +680,36 @@ def build_tables_3d(flats, wheel_radius: float = 0.45, rail_head_radius: float =
     if not flats:
         return []
     return _build_windowed(specs, flats, material, float(tol))
+
+
+def pad_columns(table: ContactTable, n_s: int) -> ContactTable:
+    """``table`` widened to ``n_s`` columns by repeating its end columns (half on either side).
+
+    Beyond its s range a table's end columns apply (the smooth wheel), so the padded table
+    gives the same forces, up to the rounding of the column coordinate (~1e-14 relative),
+    with the shape of a larger table: the tables of different flats then stack into one
+    batch, one compiled sweep program (:func:`wfjax.sweeps.sweep`).
+
+    Args:
+        table: a concrete :class:`ContactTable` with ``n <= n_s`` columns.
+        n_s: the number of columns wanted.
+
+    Returns:
+        :class:`ContactTable` with ``n_s`` columns (numpy arrays).
+    """
+    n = int(np.shape(table.onset)[0])
+    if int(n_s) < n:
+        raise ValueError(f"n_s must be >= the table's {n} columns, got {n_s!r}")
+    left = (int(n_s) - n) // 2
+    widths = (left, int(n_s) - n - left)
+
+    def pad(a):
+        a = np.asarray(a)
+        return np.pad(a, [widths] + [(0, 0)] * (a.ndim - 1), mode="edge")
+
+    return table._replace(s_min=np.asarray(table.s_min) - left * np.asarray(table.ds),
+                          onset=pad(table.onset), force=pad(table.force),
+                          slope=pad(table.slope))
 
 
 def catmull_rom_weights(w):
