@@ -44,98 +44,21 @@ own step) and sensors/the detector are not supported (``NotImplementedError``).
 from __future__ import annotations
 
 import functools
-from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from . import interaction as it
-from ._modal import discrete_step_coefficients
-from .contact.newton import solve_small, static_approach
+from .contact.newton import solve_small
+from .interaction import LoopSetup, loop_setup, static_start  # the time loop's own setup
 
 __all__ = ["adjoint_loop", "adjoint_runs", "run_adjoint", "run_adjoint_runs", "backward_scan",
-           "loop_setup", "static_start", "contact_slopes", "forces_and_slopes", "SUPPORTED_OUTPUTS"]
+           "LoopSetup", "loop_setup", "static_start", "contact_slopes", "forces_and_slopes",
+           "SUPPORTED_OUTPUTS"]
 
 SUPPORTED_OUTPUTS = ("force", "approach")  # outputs whose cotangents the adjoint propagates
 # no differentiated input reaches them
 _NOT_DIFFERENTIATED = ("x", "s", "t", "residual", "own_compliance")
-
-
-class LoopSetup(NamedTuple):
-    """The time loop's precomputed arrays, in the loop's precision (what
-    :func:`wfjax.interaction.time_loop` computes before its scan).
-
-    Shapes: n = wheels, M = track modes, m = wheel modes. ``laws`` [n] (cast), ``struct``
-    (cast), ``e_r, ap_r, an_r`` [M] (exp(pole dt) and first-order-hold weights of the
-    track), ``e_w, ap_w, an_w`` [n, m] (the wheels'), ``preload`` [n] N, ``wheel_res``
-    [n, m] m/(N s), ``c_wheel`` [n] m/N, ``offsets``, ``delays`` [n] m, ``speed`` m/s,
-    ``dt`` s, ``x_start``, ``impact_position`` m.
-    """
-
-    laws: tuple
-    struct: Any
-    e_r: Any
-    ap_r: Any
-    an_r: Any
-    e_w: Any
-    ap_w: Any
-    an_w: Any
-    preload: Any
-    wheel_res: Any
-    c_wheel: Any
-    offsets: Any
-    delays: Any
-    speed: Any
-    dt: Any
-    x_start: Any
-    impact_position: Any
-    roughness: Any
-
-
-def loop_setup(laws: tuple, struct, speed, dt, x_start, impact_position, precision: str,
-               roughness=None) -> LoopSetup:
-    """:class:`LoopSetup` of a run: the same casts and coefficients as ``time_loop``.
-
-    Args: as :func:`adjoint_loop` (``laws`` a tuple, one per wheel).
-    """
-    n_wheels = len(laws)
-    wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))
-    coefficients = (discrete_step_coefficients(struct.track.poles, dt),
-                    discrete_step_coefficients(wheel_poles, dt))
-    (laws, struct, coefficients, speed, dt, x_start, impact_position,
-     roughness) = it.cast_precision((laws, struct, coefficients, speed, dt, x_start,
-                                     impact_position, roughness), precision)
-    (e_r, ap_r, an_r), (e_w, ap_w, an_w) = coefficients
-    real = jnp.asarray(struct.preload).dtype
-    wheel_res = jnp.reshape(struct.wheel_residues, (n_wheels, -1))
-    offsets = jnp.zeros(1, real) if struct.offsets is None else struct.offsets
-    delays = jnp.zeros(1, real) if struct.delays is None else struct.delays
-    return LoopSetup(laws, struct, e_r, ap_r, an_r, e_w, ap_w, an_w,
-                     jnp.reshape(struct.preload, (n_wheels,)), wheel_res,
-                     jnp.real(jnp.sum(wheel_res * an_w, axis=-1)), offsets, delays, speed, dt,
-                     x_start, impact_position, roughness)
-
-
-def static_start(ls: LoopSetup):
-    """The loop's static start, differentiable by plain autodiff.
-
-    Returns:
-        (q0 [M] complex: the rail's static modal state, xi_w_ref [n] m: the wheels'
-        reference displacement, delta0 [n] m: the static approaches), as ``time_loop``.
-    """
-    model = ls.struct.track
-    shapes_at = it.shapes_fn(model)
-    s0 = ls.x_start - ls.impact_position - ls.delays
-    x0 = ls.x_start + ls.offsets
-    phi0 = shapes_at(x0)
-    q0 = -it._loads(ls.preload, phi0) / model.poles
-    xi_r0 = (jnp.real(jnp.sum(phi0 * (model.weights * q0), axis=-1))
-             + it._residual_matrix(ls.struct, model, ls.x_start) @ ls.preload)
-    shift0, rough0 = it._roughness_inputs(ls.laws, ls.roughness, x0, s0)
-    delta0 = jnp.stack([static_approach(it._static_force(lw, si, sh, ri), p)
-                        for lw, si, p, sh, ri in zip(ls.laws, s0, ls.preload, shift0, rough0,
-                                                     strict=True)])
-    return q0, xi_r0 + delta0, delta0
 
 
 def _step_forces(laws, roughness, x, s, approach):
@@ -173,21 +96,8 @@ def forces_and_slopes(laws, roughness, x, s, approach):
 
 def _compliance_fn(ls: LoopSetup):
     """(x_ref [m], c_own [n] m/N) -> the step's compliance C [n, n] m/N, as ``time_loop``."""
-    struct, model = ls.struct, ls.struct.track
-    n_wheels = len(ls.laws)
-    cross = None
-    if n_wheels > 1:
-        cross = it._cross_table(model, it.shapes_fn(model), ls.offsets,
-                                model.weights * ls.an_r,
-                                it.cross_table_origin(model, ls.impact_position))
-
-    def compliance(x_ref, c_own):
-        c_rail = jnp.diag(c_own) + it._residual_matrix(struct, model, x_ref)
-        if cross is not None:
-            c_rail = c_rail + it._interp_bay(model, cross, x_ref)
-        return jnp.diag(ls.c_wheel) + c_rail
-
-    return compliance
+    rail_compliance = it.rail_compliance_fn(ls)
+    return lambda x_ref, c_own: jnp.diag(ls.c_wheel) + rail_compliance(x_ref, c_own)
 
 
 def _transposed_contact(C, K, rhs):
@@ -434,7 +344,8 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     args = tuple(jnp.asarray(a) for a in (speed, dt, x_start, impact_position))
 
     def start(v, d, xs, xi):
-        return static_start(loop_setup(laws, struct, v, d, xs, xi, precision, roughness))
+        st = static_start(loop_setup(laws, struct, v, d, xs, xi, precision, roughness))
+        return st.q0, st.xi_w_ref, st.delta0
 
     q0, xi_w_ref, delta0 = jax.vmap(start)(*args)
     if not _batched and args[0].shape != (1,):

@@ -510,6 +510,154 @@ def static_support_forces(closure_free, compliance, stiffness, iterations: int =
     return stiffness * jnp.maximum(e, 0.0)
 
 
+class LoopSetup(NamedTuple):
+    """What the time loop computes before its scan, in the loop's precision
+    (:func:`loop_setup`; :func:`time_loop` and :mod:`wfjax.adjoint` read the same one).
+
+    Shapes: n = wheels, M = track modes, m = wheel modes. ``laws`` [n] (cast), ``struct``
+    (cast), ``e_r, ap_r, an_r`` [M] (exp(pole dt) and first-order-hold weights of the
+    track), ``e_w, ap_w, an_w`` [n, m] (the wheels'), ``preload`` [n] N, ``wheel_res``
+    [n, m] m/(N s), ``c_wheel`` [n] m/N (each wheel's own compliance within the step),
+    ``offsets``, ``delays`` [n] m (one wheel: [1] zeros), ``speed`` m/s, ``dt`` s,
+    ``x_start``, ``impact_position`` m, ``roughness`` (cast, or None).
+    """
+
+    laws: tuple
+    struct: Any
+    e_r: Any
+    ap_r: Any
+    an_r: Any
+    e_w: Any
+    ap_w: Any
+    an_w: Any
+    preload: Any
+    wheel_res: Any
+    c_wheel: Any
+    offsets: Any
+    delays: Any
+    speed: Any
+    dt: Any
+    x_start: Any
+    impact_position: Any
+    roughness: Any
+
+
+def loop_setup(laws: tuple, struct: Structure, speed, dt, x_start, impact_position,
+               precision: str, roughness=None) -> LoopSetup:
+    """:class:`LoopSetup` of a run: the discrete-step coefficients of the track's and the
+    wheels' poles (computed in the inputs' precision, then cast: see ``time_loop``'s
+    ``precision``), the inputs cast to ``precision`` and the per-wheel arrays.
+
+    Args: as :func:`time_loop` (``laws`` a tuple, one per wheel; ``precision`` static).
+    """
+    n_wheels = len(laws)
+    wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))
+    coefficients = (discrete_step_coefficients(struct.track.poles, dt),
+                    discrete_step_coefficients(wheel_poles, dt))
+    (laws, struct, coefficients, speed, dt, x_start, impact_position,
+     roughness) = cast_precision((laws, struct, coefficients, speed, dt, x_start,
+                                  impact_position, roughness), precision)
+    (e_r, ap_r, an_r), (e_w, ap_w, an_w) = coefficients
+    real = jnp.asarray(struct.preload).dtype  # the loop's precision
+    wheel_res = jnp.reshape(struct.wheel_residues, (n_wheels, -1))
+    offsets = jnp.zeros(1, real) if struct.offsets is None else struct.offsets
+    delays = jnp.zeros(1, real) if struct.delays is None else struct.delays
+    return LoopSetup(laws, struct, e_r, ap_r, an_r, e_w, ap_w, an_w,
+                     jnp.reshape(struct.preload, (n_wheels,)), wheel_res,
+                     jnp.real(jnp.sum(wheel_res * an_w, axis=-1)), offsets, delays, speed, dt,
+                     x_start, impact_position, roughness)
+
+
+class StaticStart(NamedTuple):
+    """The loop's state at t = 0, the static equilibrium (F = P, the rail in its static
+    deflected shape; :func:`static_start`).
+
+    Shapes: n = wheels, M = track modes, n_s = hanging sleepers. ``s0`` [n] m (flat
+    coordinates), ``x0`` [n] m (rail positions), ``phi0`` [n, M] complex (mode shapes there),
+    ``q0`` [M] complex (the rail's static modal state), ``xi_r0`` [n] m (the rail under the
+    wheels), ``delta0`` [n] m (the static approaches), ``xi_w_ref`` [n] m (the wheels'
+    reference displacement, xi_r0 + delta0), ``supports``: () or, with hanging sleepers,
+    (f_s0 [n_s] N: the one-sided ballast's static forces, upwards; e0 [n_s] m: the
+    sleepers' closure).
+    """
+
+    s0: Any
+    x0: Any
+    phi0: Any
+    q0: Any
+    xi_r0: Any
+    delta0: Any
+    xi_w_ref: Any
+    supports: tuple
+
+
+def _between_sleepers(sup, weight):
+    """[n_s, n_s] m/N compliance between the hanging sleepers ``sup``: the kept modes
+    weighted by ``weight`` [M] (w_r an_r within a step, w_r / -pole static) + the truncated
+    ones."""
+    psi = sup.shapes  # [n_s, M]
+    return jnp.real(jnp.sum(weight * psi[:, None] * psi[None], axis=-1)) + sup.residual
+
+
+def _hanging_start(ls: LoopSetup, q0, xi_r0, phi0):
+    """The hanging sleepers' non-linear static start on top of the supported one (``q0``
+    [M], ``xi_r0`` [n] m, ``phi0`` [n, M] without the ballast's forces): (q0, xi_r0, (f_s0
+    [n_s] N, e0 [n_s] m)) with the one-sided ballast's static forces
+    (:func:`static_support_forces`)."""
+    model, sup = ls.struct.track, ls.struct.supports
+    w_r, psi = model.weights, sup.shapes
+    static_ss = _between_sleepers(sup, w_r / -model.poles)
+    r_ws0 = track_mod.read_residual_table(model, sup.residual_wheels, ls.x_start)  # [n, n_s]
+    closure0 = (jnp.real(jnp.sum(psi * (w_r * q0), axis=-1)) + r_ws0.T @ ls.preload
+                - sup.gap)
+    f_s0 = static_support_forces(closure0, static_ss, sup.stiffness)
+    q_s0 = (f_s0 @ psi) / model.poles
+    xi_r0 = xi_r0 + jnp.real(jnp.sum(phi0 * (w_r * q_s0), axis=-1)) - r_ws0 @ f_s0
+    return q0 + q_s0, xi_r0, (f_s0, closure0 - static_ss @ f_s0)
+
+
+def static_start(ls: LoopSetup) -> StaticStart:
+    """The loop's static start (:class:`StaticStart`) from its :class:`LoopSetup`:
+    differentiable by plain autodiff (the contact's static approach by its implicit
+    gradient; hanging sleepers by a fixed count of Newton iterations)."""
+    model = ls.struct.track
+    s0 = ls.x_start - ls.impact_position - ls.delays
+    x0 = ls.x_start + ls.offsets
+    phi0 = shapes_fn(model)(x0)
+    q0 = -_loads(ls.preload, phi0) / model.poles
+    xi_r0 = (jnp.real(jnp.sum(phi0 * (model.weights * q0), axis=-1))
+             + _residual_matrix(ls.struct, model, ls.x_start) @ ls.preload)
+    supports = ()
+    if ls.struct.supports is not None:  # hanging sleepers: a non-linear solve too
+        q0, xi_r0, supports = _hanging_start(ls, q0, xi_r0, phi0)
+    shift0, rough0 = _roughness_inputs(ls.laws, ls.roughness, x0, s0)
+    delta0 = jnp.stack([static_approach(_static_force(lw, si, sh, ri), p)
+                        for lw, si, p, sh, ri in zip(ls.laws, s0, ls.preload, shift0, rough0,
+                                                     strict=True)])
+    return StaticStart(s0, x0, phi0, q0, xi_r0, delta0, xi_r0 + delta0, supports)
+
+
+def rail_compliance_fn(ls: LoopSetup):
+    """(x_ref m, c_own [n] m/N) -> the rail's compliance within a step between the wheels,
+    [n, n] m/N, with the reference wheel at ``x_ref``: the wheels' own kept-mode compliance
+    ``c_own`` (:func:`_rail_reads`) on the diagonal, the truncated modes' static compliance
+    and, for several wheels, the kept modes' cross terms (:func:`_cross_table`, built once
+    here)."""
+    struct, model = ls.struct, ls.struct.track
+    cross = None
+    if len(ls.laws) > 1:
+        cross = _cross_table(model, shapes_fn(model), ls.offsets, model.weights * ls.an_r,
+                             cross_table_origin(model, ls.impact_position))
+
+    def rail_compliance(x_ref, c_own):
+        c_rail = jnp.diag(c_own) + _residual_matrix(struct, model, x_ref)
+        if cross is not None:
+            c_rail = c_rail + _interp_bay(model, cross, x_ref)
+        return c_rail
+
+    return rail_compliance
+
+
 def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
               n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
               detector=None, run_in_steps=0, sensor_history: bool = True,
@@ -571,60 +719,30 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     single = not isinstance(law, tuple)
     laws = (law,) if single else law
     groups = law_groups(laws)  # before the precision cast, which copies every law
+    ls = loop_setup(laws, struct, speed, dt, x_start, impact_position, precision, roughness)
+    (laws, struct, e_r, ap_r, an_r, e_w, ap_w, an_w, preload, wheel_res, c_wheel, offsets,
+     delays, speed, dt, x_start, impact_position, roughness) = ls
+    sensors, detector = cast_precision((sensors, detector), precision)
     n_wheels = len(laws)
-    wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))
-    coefficients = (discrete_step_coefficients(struct.track.poles, dt),
-                    discrete_step_coefficients(wheel_poles, dt))
-    (laws, struct, coefficients, speed, dt, x_start, impact_position, sensors,
-     detector, roughness) = cast_precision((laws, struct, coefficients, speed, dt, x_start,
-                                            impact_position, sensors, detector, roughness),
-                                           precision)
-    (e_r, ap_r, an_r), (e_w, ap_w, an_w) = coefficients
     wheel_poles = jnp.reshape(struct.wheel_poles, (n_wheels, -1))  # in the loop's precision
     model = struct.track
     w_r = model.weights
-    real = jnp.asarray(struct.preload).dtype  # the loop's precision
-    preload = jnp.reshape(struct.preload, (n_wheels,))
-    wheel_res = jnp.reshape(struct.wheel_residues, (n_wheels, -1))
+    real = preload.dtype  # the loop's precision
     axle_res = (jnp.zeros_like(wheel_res) if struct.axle_residues is None
                 else jnp.reshape(struct.axle_residues, (n_wheels, -1)))
     axle_acc_res = -axle_res * wheel_poles**2
-    offsets = jnp.zeros(1, real) if struct.offsets is None else struct.offsets
-    delays = jnp.zeros(1, real) if struct.delays is None else struct.delays
-    c_wheel = jnp.real(jnp.sum(wheel_res * an_w, axis=-1))  # [n]
     shapes_at = shapes_fn(model)
-
-    # static equilibrium at the start: F = P, rail in its static deflected shape
-    s0 = x_start - impact_position - delays
-    x0 = x_start + offsets
-    phi0 = shapes_at(x0)
-    q0 = -_loads(preload, phi0) / model.poles
-    xi_r0 = (jnp.real(jnp.sum(phi0 * (w_r * q0), axis=-1))
-             + _residual_matrix(struct, model, x_start) @ preload)
+    rail_compliance = rail_compliance_fn(ls)
     sup = struct.supports
     if sup is not None and (sensors is not None or detector is not None):
         raise ValueError("hanging sleepers (Track.ballast_gap > 0) are not supported with "
                          "sensors or a detector: their readings lack the support forces")
-    if sup is not None:  # hanging sleepers: the static start is a non-linear solve too
+
+    # static equilibrium at the start: F = P, rail in its static deflected shape
+    s0, x0, phi0, q0, xi_r0, delta0, xi_w_ref, support0 = static_start(ls)
+    if sup is not None:  # hanging sleepers: their shapes and compliance within a step
         psi = sup.shapes  # [n_s, n_modes]
-
-        def between_sleepers(weight):  # [n_s, n_s] compliance: kept modes + truncated ones
-            return jnp.real(jnp.sum(weight * psi[:, None] * psi[None], axis=-1)) + sup.residual
-
-        within_ss, static_ss = between_sleepers(w_r * an_r), between_sleepers(w_r / -model.poles)
-        r_ws0 = track_mod.read_residual_table(model, sup.residual_wheels, x_start)  # [n, n_s]
-        closure0 = (jnp.real(jnp.sum(psi * (w_r * q0), axis=-1)) + r_ws0.T @ preload
-                    - sup.gap)
-        f_s0 = static_support_forces(closure0, static_ss, sup.stiffness)
-        q_s0 = (f_s0 @ psi) / model.poles
-        q0 = q0 + q_s0
-        xi_r0 = xi_r0 + jnp.real(jnp.sum(phi0 * (w_r * q_s0), axis=-1)) - r_ws0 @ f_s0
-        e0 = closure0 - static_ss @ f_s0
-    shift0, rough0 = _roughness_inputs(laws, roughness, x0, s0)
-    delta0 = jnp.stack([static_approach(_static_force(lw, si, sh, ri), p)
-                        for lw, si, p, sh, ri in zip(laws, s0, preload, shift0, rough0,
-                                                     strict=True)])
-    xi_w_ref = xi_r0 + delta0
+        within_ss = _between_sleepers(sup, w_r * an_r)
     p0 = jnp.zeros_like(wheel_poles)
 
     def counted(n):
@@ -649,10 +767,6 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
             out["detector_load"] = est
         return (out if sensor_history else {}), acc
 
-    if n_wheels > 1:
-        cross = _cross_table(model, shapes_at, offsets, w_r * an_r,
-                             cross_table_origin(model, impact_position))
-
     acc0 = {}
     if sensors is not None:
         shape = (len(sensors.quantities), sensors.positions.shape[0])
@@ -676,9 +790,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         phi = shapes_at(x)
         q_hat = e_r * q + ap_r * (_loads(f_prev, phi_prev) - support_loads(support_state))
         xi_r_free, c_own = _rail_reads(phi, w_r, an_r, q_hat)
-        c_rail = jnp.diag(c_own) + _residual_matrix(struct, model, x_ref)
-        if n_wheels > 1:
-            c_rail = c_rail + _interp_bay(model, cross, x_ref)
+        c_rail = rail_compliance(x_ref, c_own)
         p_hat = e_w * p + ap_w * (f_prev - preload)[:, None]
         xi_w_free = (xi_w_ref - jnp.real(jnp.sum(wheel_res * p_hat, axis=-1))
                      + c_wheel * preload)
@@ -714,8 +826,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
                extra)
         return (q_new, p_new, f, phi, states, acc, support_state), out
 
-    carry0 = (q0, p0, preload, phi0, tuple(law.init_state() for law in laws),
-              acc0, () if sup is None else (f_s0, e0))
+    carry0 = (q0, p0, preload, phi0, tuple(law.init_state() for law in laws), acc0, support0)
     (*_, acc, _), outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
                                       jnp.arange(1, n_steps))
     first = (x0, s0, preload, delta0, xi_w_ref, xi_r0, jnp.zeros_like(preload),
@@ -727,7 +838,8 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         result = {k: a[:, 0] for k, a in result.items()}
         acc = {k: (a[0] if k == "detector_peak" else a) for k, a in acc.items()}
     if sup is not None:
-        first_readings = {**first_readings, "support_force": f_s0, "sleeper_disp": e0 + sup.gap}
+        first_readings = {**first_readings, "support_force": support0[0],
+                          "sleeper_disp": support0[1] + sup.gap}
     result |= {k: jnp.concatenate([first_readings[k][None], a]) for k, a in outs[-1].items()}
     result |= acc
     result["t"] = dt * jnp.arange(n_steps)
