@@ -51,7 +51,7 @@ def complex_modes(stiffness_diag: np.ndarray, damping: np.ndarray, rel_tol: floa
     lam, u, is_real = lam[keep], u[:, keep], is_real[keep]
     lam = np.where(is_real, lam.real + 0j, lam)
     u = np.where(is_real[None, :], u.real + 0j, u)
-    norm = 2.0 * lam * (u * u).sum(axis=0) + (u * (c @ u)).sum(axis=0)
+    norm = 2.0 * lam * (u * u).sum(axis=0) + (u * (c @ u.real + 1j * (c @ u.imag))).sum(axis=0)
     u = u / np.sqrt(norm.astype(complex))[None, :]
     order = np.argsort(np.abs(lam))
     weights = np.where(is_real, 1.0, 2.0)
