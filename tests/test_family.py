@@ -106,6 +106,7 @@ def test_between_nodes_close_to_per_flat_table(rounded):
         np.testing.assert_allclose(onset_f, onset_t, atol=1e-9)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_two_stage_form_and_zero_below_onset(rounded):
     d, length = 0.7e-3, 1.76 * l0(0.7e-3)
     for s in (-0.03, 0.012, 0.2):

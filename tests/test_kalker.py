@@ -100,6 +100,7 @@ def test_smooth_wheel_matches_hertz_at_half_mm():
     assert float(res.stiffness) == pytest.approx(1.5 * F_STATIC / d_h, rel=0.01)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_refinement_converges_towards_hertz():
     d_h, a_h, p0_h = hertz_sphere(F_STATIC, R)
     hs = [1e-3, 0.5e-3, 0.25e-3]

@@ -219,7 +219,7 @@ def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path):
     config = wf.SimConfig(contact_element=2e-3, max_travel_step=2e-3, max_time_step=5e-5)
     track = wf.Track()
     flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
-    speeds, position = np.array([50.0, 120.0]) / 3.6, 0.2
+    speeds, position = np.array([120.0]) / 3.6, 0.2
     compiled = []
     program = sweeps._batched
 

@@ -49,7 +49,8 @@ def _static_start(track, x_wheel):
 
 
 @pytest.mark.parametrize("gap_mm, closed", [
-    (0.2, True), pytest.param(0.6, True, marks=pytest.mark.slow), (5.0, False)])
+    (0.2, True), pytest.param(0.6, True, marks=pytest.mark.slow),
+    pytest.param(5.0, False, marks=pytest.mark.slow)])  # the default run: under 10 min
 def test_static_start_equals_a_direct_non_linear_static_fe_solve(gap_mm, closed):
     # two sleepers hang; the wheel on residual-grid points over and beside them
     track = supports.hanging_sleeper(wf.Track(), [SLEEPER, SLEEPER + 1], gap_mm * 1e-3)

@@ -244,6 +244,7 @@ def test_support_realisations_share_one_compile_and_equal_a_loop():
                  tracks=tracks[:2], roughness=rough, progress=False)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_every_wheel_of_a_vehicle_rolls_on_the_rough_rail():
     from wfjax.vehicle import Vehicle
 

@@ -184,6 +184,7 @@ def test_detector_peak_gradient_matches_finite_differences():
     assert float(g) == pytest.approx(float(fd), rel=1e-3)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_sweep_sensors_equal_simulate():
     """The sweep's per-run extremes equal the simulation's histories' extremes."""
     flat = wfjax.Flat("rounded", depth=0.9e-3, length=0.1)

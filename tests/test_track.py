@@ -129,6 +129,7 @@ def test_mode_shapes_at_jit_vmap_and_nodes(model):
     np.testing.assert_allclose(r, r[0], rtol=1e-12)
 
 
+@pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_greens_function_fourier_transform_is_point_receptance(model):
     """v -> 0: the Fourier transform of g(x0, t) (+ residual) is the direct point receptance.
 
