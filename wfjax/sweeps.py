@@ -1,7 +1,10 @@
 """Batched simulations: speeds x impact positions (x flats), ``vmap``-ed and chunked.
 
-All runs of one flat share one compiled program: every speed uses the same number of steps
-(the largest any speed needs) with its own time step, so the batch is rectangular. The batch
+The runs of a group of flats (:func:`batch_groups`: one kind with a traced law, or every flat
+with an exact 3D table) share one compiled program: every run uses the same number of steps
+(the largest any speed and flat of the group needs) with its own time step, so the batch is
+rectangular; a flat with an exact table keeps its own windows, and the steps after a run's
+window are not counted in its summaries. The batch
 is cut into chunks sized for the devices (:func:`chunk_width`: from the device's free memory
 and the program's bytes per run, capped where more runs no longer raise throughput) and
 progress with an ETA is printed per chunk. Chunks are dispatched ahead: chunk k + 1 is queued
