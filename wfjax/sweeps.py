@@ -828,8 +828,9 @@ def _table_laws_like(flats: Sequence[Flat], wheel: Wheel, track: Track, material
     """Zeros shaped as the stacked laws of ``prepare_batch(..., tables=True)`` (for
     compiling ahead: the tables' layouts, :func:`wfjax.contact.tables.table_spec`, are known
     before they are built)."""
-    specs = [table_spec(f, float(wheel.radius), float(track.rail_head_radius), material,
-                        config.contact_element) for f in flats]
+    specs = [table_spec(dataclasses.replace(f, extent_bound=None), float(wheel.radius),
+                        float(track.rail_head_radius), material, config.contact_element)
+             for f in flats]  # as cached_tables_3d: a table spans its flat's own extent
     n, n_s, n_t = len(flats), max(sp.n_s for sp in specs), specs[0].n_t
     scalar = np.zeros(n)
     return TableLaw(ContactTable(s_min=scalar, ds=scalar, c_max=scalar,
