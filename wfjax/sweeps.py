@@ -434,7 +434,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     """Max/min contact force for every flat x speed x impact position.
 
     Args:
-        flats: one :class:`Flat` or a sequence of them.
+        flats: one :class:`Flat` or a sequence of them, run in groups that each compile
+            once (:func:`batch_groups`): a kind's flats batched through a traced law share
+            the window of the largest; flats with exact 3D tables keep their own windows.
         speeds: [n_speeds] train speeds [m/s].
         impact_positions: number of positions evenly covering one bay
             (:func:`impact_positions_grid`) or an array of positions [m] in [0, L_S).
