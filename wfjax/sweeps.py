@@ -571,8 +571,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
             program = _compile_runs((_replicate(laws, mesh), others), struct, extras, runs,
                                     config, mesh)
             like = laws
-            laws, _ = prepare_batch(contact, members, wheel, track, material, config,
-                                    cache_dir, tables=tables_ahead[tuple(group)].result())
+            laws = _table_laws(tables_ahead[tuple(group)].result())
             if jax.tree.map(np.shape, laws) != jax.tree.map(np.shape, like):
                 program = None  # not the shapes it was compiled for: compile as usual
         cols = _run_group((_replicate(laws, mesh), others), struct, extras, runs, config, mesh,
@@ -669,7 +668,7 @@ class BatchGroup(NamedTuple):
 
     Attributes:
         indices: the flats' indices in the sweep's list.
-        tables: the flats' exact 3D tables, widened to one shape (:func:`prepare_batch`).
+        tables: the flats' exact 3D tables, widened to one shape (:func:`_table_laws`).
     """
 
     indices: list[int]
@@ -715,41 +714,29 @@ def common_extent(flats: Sequence[Flat]) -> list[Flat]:
 
 def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Track,
                   material: Material, config: SimConfig, cache_dir=None,
-                  progress: bool = False, tables=False):
-    """Contact laws of ``flats`` stacked along a leading flat axis.
+                  progress: bool = False):
+    """Contact laws of ``flats`` (one kind, or one flat) stacked along a leading flat axis.
 
     The concrete work (node sets, trajectory grids, the 3D family) is done once for the whole
     batch; the geometry enters through ``jax.vmap`` over the stacked flats, so the laws'
-    geometry leaves are traced and one compiled program serves every flat. With ``tables``
-    (a :class:`BatchGroup` of exact 3D tables, any kinds: True, or the flats' tables already
-    built) each flat's table is built (the missing ones together,
-    :func:`wfjax.contact.laws.cached_tables_3d`) and widened to the most columns among them
-    (:func:`wfjax.contact.tables.pad_columns`), and every flat keeps its own simulation
-    windows. Otherwise the windows are sized by the largest flat of the batch
-    (``extent_bound``).
+    geometry leaves are traced and one compiled program serves every flat. Windows are sized
+    by the largest flat of the batch (``extent_bound``). (A group of exact 3D tables is
+    stacked by :func:`_table_laws`.)
 
     Returns:
         (laws with leaves [n_flats, ...], [n_flats] the flats that size each one's
         simulation windows).
     """
     sized = common_extent(flats)
-    if tables is not False:
-        built = tables if tables is not True else cached_tables_3d(
-            flats, float(wheel.radius), float(track.rail_head_radius), material,
-            config.contact_element, cache_dir)
-        n_s = max(int(t.onset.shape[0]) for t in built)
-        laws = [TableLaw(pad_columns(t, n_s)) for t in built]
-        return (jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws),
-                list(flats))
     family = None
     if contact == "3d":
         if resolve_mode_3d(config, batched=len(flats) > 1) != "parametric":
             (flat,) = flats  # the direct mode: batch_groups gives one flat per group
             law = prepare(contact, flat, wheel, track, material, config, cache_dir)
-            return jax.tree.map(lambda a: jnp.asarray(a)[None], law), [flat]
+            return _stack([law]), [flat]
         family = prepare_family(flats, wheel, track, material, config, cache_dir, progress)
     max_depth = max(float(np.max(np.asarray(f.depth))) for f in flats)
-    stacked = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *sized)
+    stacked = _stack(sized)
 
     def prepare_one(flat, family):
         return prepare(contact, flat, wheel, track, material, config, cache_dir, family=family,
@@ -825,9 +812,21 @@ def _compile_runs(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Me
                                               *_chunk(runs, 0, mesh)[1]).compile()
 
 
+def _stack(trees):
+    """Pytrees of equal structure and shapes stacked along a new leading (flat) axis."""
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+
+
+def _table_laws(tables) -> TableLaw:
+    """The laws of a group's exact 3D tables ([n_flats] :class:`ContactTable`), each widened
+    to the most columns among them (:func:`wfjax.contact.tables.pad_columns`), stacked."""
+    n_s = max(int(t.onset.shape[0]) for t in tables)
+    return _stack([TableLaw(pad_columns(t, n_s)) for t in tables])
+
+
 def _table_laws_like(flats: Sequence[Flat], wheel: Wheel, track: Track, material: Material,
                      config: SimConfig):
-    """Zeros shaped as the stacked laws of ``prepare_batch(..., tables=True)`` (for
+    """Zeros shaped as :func:`_table_laws` of the flats' tables (for
     compiling ahead: the tables' layouts, :func:`wfjax.contact.tables.table_spec`, are known
     before they are built)."""
     specs = [table_spec(dataclasses.replace(f, extent_bound=None), float(wheel.radius),
