@@ -275,7 +275,7 @@ def _residual_matrix(struct: Structure, model, x_ref):
     reference wheel at ``x_ref`` [m] (one wheel: the track's own residual there)."""
     if struct.residual_pairs is None:
         return track_mod.residual_compliance_at(model, x_ref)[None, None]
-    return _interp_bay(model, struct.residual_pairs, x_ref)
+    return track_mod.read_residual_table(model, struct.residual_pairs, x_ref)
 
 
 def _loads(f, phi):
@@ -309,7 +309,7 @@ def _cross_table(model, shapes_at, offsets, weight, x_bay):
     """[n_res, n, n] the rail's compliance within a step between different wheels,
     Re sum_r weight_r phi_r(x + o_i) phi_r(x + o_j) (zero diagonal), for the reference wheel
     at x = x_bay + model.residual_x: across one bay on a uniform track, along the whole rail
-    (``x_bay`` = 0) when the supports vary (read by :func:`_interp_bay`).
+    (``x_bay`` = 0) when the supports vary (read by :func:`wfjax.track.read_residual_table`).
 
     These cross terms are about 1e-3 of a wheel's own step compliance (the rail's response
     within one step hardly reaches the next wheel), but summing them over the modes at every
@@ -328,13 +328,6 @@ def _cross_table(model, shapes_at, offsets, weight, x_bay):
         return table + table.T
 
     return jax.lax.map(at, x_bay + model.residual_x)
-
-
-def _interp_bay(model, table, x):
-    """``table`` [n_res, ...] on the residual grid read at rail position ``x`` [m]: across the
-    bay periodically (uniform track), else at the absolute position
-    (:func:`wfjax.track.read_residual_table`)."""
-    return track_mod.read_residual_table(model, table, x)
 
 
 def _pointwise(law: ContactLaw) -> bool:
@@ -652,7 +645,7 @@ def rail_compliance_fn(ls: LoopSetup):
     def rail_compliance(x_ref, c_own):
         c_rail = jnp.diag(c_own) + _residual_matrix(struct, model, x_ref)
         if cross is not None:
-            c_rail = c_rail + _interp_bay(model, cross, x_ref)
+            c_rail = c_rail + track_mod.read_residual_table(model, cross, x_ref)
         return c_rail
 
     return rail_compliance
