@@ -209,7 +209,7 @@ def test_widened_table_gives_the_same_forces():
         laws.tables.pad_columns(table, n - 1)
 
 
-def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path):
+def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path, monkeypatch):
     """A rounded and a new flat with exact 3D tables: one compiled program for both, and each
     flat's extremes equal its own simulate() in its own windows (the new flat's are shorter:
     the steps beyond them are not counted)."""
@@ -222,18 +222,9 @@ def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path):
     speeds, position = np.array([120.0]) / 3.6, 0.2
     compiled = []
     program = sweeps._batched
-
-    def counting(*args):
-        fn = program(*args)
-        compiled.append(fn)
-        return fn
-
-    sweeps._batched = counting
-    try:
-        sw = wf.sweep(flats, speeds, [position], contact="3d", track=track, config=config,
-                      progress=False, cache_dir=tmp_path)
-    finally:
-        sweeps._batched = program
+    monkeypatch.setattr(sweeps, "_batched", lambda *args: compiled.append(args) or program(*args))
+    sw = wf.sweep(flats, speeds, [position], contact="3d", track=track, config=config,
+                  progress=False, cache_dir=tmp_path)
     assert len(compiled) == 1  # one program (compiled ahead for the tables' predicted shapes)
     own = [it.batch_windows(flat, speeds, config)[0] for flat in flats]
     assert own[1] < own[0]
