@@ -8,6 +8,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 SCRIPT = textwrap.dedent("""
     import sys
@@ -76,3 +77,26 @@ def test_cli_exposes_one_device_per_core_unless_told(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=3")
     expose_cpu_cores()
     assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=3"
+
+
+def test_in_background_hands_back_the_result_or_the_error():
+    """The sweep's table builds run through _parallel.in_background: the future holds the
+    result, or the exception raised in the thread (never lost), from a daemon thread."""
+    import threading
+
+    from wfjax._parallel import in_background
+
+    seen = {}
+
+    def work(x):
+        seen["daemon"] = threading.current_thread().daemon
+        return 2 * x
+
+    assert in_background(work, 21).result(timeout=10) == 42
+    assert seen["daemon"] is True
+
+    def fail():
+        raise ValueError("table build failed")
+
+    with pytest.raises(ValueError, match="table build failed"):
+        in_background(fail).result(timeout=10)
