@@ -64,14 +64,33 @@ def test_sweep_equals_looped_simulate():
     speeds = np.array([40.0, 120.0]) / 3.6
     positions = np.array([0.1, 0.4])
     sw = wf.sweep(ROUNDED, speeds, positions, contact="2d", progress=False, chunk_size=3)
-    n_steps = max(it.n_steps_for(ROUNDED, float(v), wf.SimConfig())[0] for v in speeds)
     for j, v in enumerate(speeds):
-        for k, p in enumerate(positions):
-            r = wf.simulate(ROUNDED, float(v), contact="2d", impact_position=float(p),
-                            n_steps=n_steps)
+        for k, p in enumerate(positions):  # each run in simulate's own window and time step
+            r = wf.simulate(ROUNDED, float(v), contact="2d", impact_position=float(p))
             assert sw.max_force[0, j, k] == pytest.approx(float(r.max_force), rel=1e-9)
             assert sw.min_force[0, j, k] == pytest.approx(float(r.min_force), rel=1e-9,
                                                            abs=1e-6)
+
+
+def test_a_loop_that_stops_early_equals_the_full_loop_on_its_steps():
+    """time_loop(n_run=k) computes the steps of the blocks up to step k - 1, bit for bit those
+    of the full scan, and leaves zeros after them (what a sweep's chunk skips)."""
+    speed, cfg = 60 / 3.6, wf.SimConfig()
+    n, dt = it.n_steps_for(ROUNDED, speed, cfg)
+    s0, _ = it.simulation_window(ROUNDED, speed, cfg)
+    struct = it.structure(wf.Wheel(), wf.Track(), cfg)
+    law = laws.prepare("hertz-trajectory", ROUNDED, wf.Wheel(), wf.Track(), wf.Material(), cfg)
+    full = it.run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n)
+    k = n // 2
+    part = it.run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n, n_run=k)
+    done = 1 + -(-(k - 1) // it.LOOP_BLOCK) * it.LOOP_BLOCK  # steps computed, incl. t = 0
+    assert k <= done < k + it.LOOP_BLOCK
+    for key in ("force", "approach", "rail_disp", "axle_acc"):
+        np.testing.assert_array_equal(np.asarray(part[key])[:done],
+                                      np.asarray(full[key])[:done])
+        assert not np.any(np.asarray(part[key])[done:])
+    whole = it.run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n, n_run=n)
+    np.testing.assert_array_equal(np.asarray(whole["force"]), np.asarray(full["force"]))
 
 
 def _max_force_fn(contact, speed, position=0.1):

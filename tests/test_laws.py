@@ -42,11 +42,10 @@ def test_sweep_over_depths_is_one_program_equal_to_single_runs():
                   config=COARSE, progress=False)
     assert _batched.cache_info().misses - before <= 1
     sized = common_extent(FLATS)
-    n_steps = max(it.n_steps_for(sized[0], float(v), COARSE)[0] for v in speeds)
     for i, flat in enumerate(sized):
         for j, v in enumerate(speeds):
             r = wf.simulate(flat, float(v), contact="hertz-trajectory", impact_position=0.2,
-                            track=MODEL[1], config=COARSE, n_steps=n_steps)
+                            track=MODEL[1], config=COARSE)
             assert sw.max_force[i, j, 0] == pytest.approx(float(r.max_force), rel=1e-9)
     assert np.allclose(sw.depths, [f.depth for f in FLATS])
     assert "depth_mm" in sw.to_csv().splitlines()[0]
@@ -226,12 +225,12 @@ def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path, monkeypatch):
     sw = wf.sweep(flats, speeds, [position], contact="3d", track=track, config=config,
                   progress=False, cache_dir=tmp_path)
     assert len(compiled) == 1  # one program (compiled ahead for the tables' predicted shapes)
-    own = [it.batch_windows(flat, speeds, config)[0] for flat in flats]
+    own = [it.run_windows(flat, speeds, config)[0][0] for flat in flats]
     assert own[1] < own[0]
-    for i, (flat, n_steps) in enumerate(zip(flats, own, strict=True)):
+    for i, flat in enumerate(flats):
         for j, v in enumerate(speeds):
             r = wf.simulate(flat, float(v), contact="3d", impact_position=position,
-                            track=track, config=config, n_steps=n_steps, cache_dir=tmp_path)
+                            track=track, config=config, cache_dir=tmp_path)
             assert sw.max_force[i, j, 0] == pytest.approx(float(r.max_force), rel=1e-9)
             assert sw.min_force[i, j, 0] == pytest.approx(float(r.min_force), rel=1e-9,
                                                           abs=1.0)

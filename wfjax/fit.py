@@ -528,9 +528,11 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
     """Differentiable maximum impact force [N] at each of ``speeds`` (impact load detector).
 
     For every speed and impact position one simulation is run (all with the step count of the
-    slowest, each with its own time step, as :func:`wfjax.sweep`); its maximum force after the
-    run-in (``smooth_max`` with ``time_temperature``, hard by default) is then reduced over the
-    positions with ``smooth_max(temperature)`` [N].
+    slowest, each with its own time step: one rectangular batch,
+    :func:`wfjax.interaction.batch_windows`, finer than :func:`wfjax.simulate`'s time step at
+    most speeds); its maximum force after the run-in (``smooth_max`` with
+    ``time_temperature``, hard by default) is then reduced over the positions with
+    ``smooth_max(temperature)`` [N].
 
     Args:
         speeds: [n] train speeds [m/s].

@@ -84,6 +84,7 @@ __all__ = [
     "impact_position_from_angle",
     "simulation_window",
     "batch_windows",
+    "run_windows",
     "cast_precision",
     "vehicle_structure",
     "vehicle_laws",
@@ -158,6 +159,20 @@ def n_steps_for(flat: Flat, speed: float, config: SimConfig) -> tuple[int, float
     dt = config.time_step_for(speed)
     n = int(math.ceil(duration / dt)) + 1
     return n, duration / (n - 1)
+
+
+def run_windows(flat: Flat, speeds, config: SimConfig):
+    """Every speed's own window, as :func:`simulate` runs it (:func:`n_steps_for`).
+
+    Returns:
+        (n_steps [n_speeds] int, dt [n_speeds] s, s_start [n_speeds] m, run_in [n_speeds]
+        steps before the max/min summaries start).
+    """
+    speeds = np.asarray(speeds, dtype=float)
+    n_steps, dt = (np.array(a) for a in zip(*(n_steps_for(flat, float(v), config)
+                                              for v in speeds), strict=True))
+    s0 = np.array([simulation_window(flat, float(v), config)[0] for v in speeds])
+    return n_steps.astype(int), dt, s0, np.floor(0.5 * RUN_IN_TIME / dt).astype(int)
 
 
 def batch_windows(flat: Flat, speeds, config: SimConfig):
@@ -651,11 +666,35 @@ def rail_compliance_fn(ls: LoopSetup):
     return rail_compliance
 
 
+LOOP_BLOCK = 128  # steps per block of a loop that stops early (``time_loop(n_run=...)``)
+
+
+def _scan_until(step, carry0, n_steps: int, n_run, block: int = LOOP_BLOCK):
+    """``lax.scan(step, carry0, arange(1, n_steps))`` that computes only the steps before
+    ``n_run`` (traced int; rounded up to whole blocks of ``block`` steps): a ``fori_loop`` over
+    blocks, each a scan of ``block`` steps written into the stacked outputs. The outputs of the
+    steps not computed are zeros; the carry is the one after the last step computed."""
+    n_blocks = -(-(n_steps - 1) // block)
+    shapes = jax.eval_shape(lambda c: step(c, jnp.arange(1, 2)[0])[1], carry0)
+    outs0 = jax.tree.map(lambda a: jnp.zeros((n_blocks * block,) + a.shape, a.dtype), shapes)
+
+    def run_block(b, state):
+        carry, outs = state
+        first = 1 + b * block
+        carry, out = jax.lax.scan(step, carry, first + jnp.arange(block))
+        return carry, jax.tree.map(
+            lambda a, o: jax.lax.dynamic_update_slice_in_dim(a, o, first - 1, 0), outs, out)
+
+    todo = jnp.clip((jnp.asarray(n_run) - 1 + block - 1) // block, 0, n_blocks)
+    carry, outs = jax.lax.fori_loop(0, todo, run_block, (carry0, outs0))
+    return carry, jax.tree.map(lambda a: a[:n_steps - 1], outs)
+
+
 def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
               n_steps: int, max_iter: int = 30, checkpoint: bool = False, sensors=None,
               detector=None, run_in_steps=0, sensor_history: bool = True,
               precision: str = "float64", roughness=None, own_compliance: bool = False,
-              end_steps=None):
+              end_steps=None, n_run=None):
     """The time loop under ``lax.scan`` for any contact law and any number of wheels (pure).
 
     Args:
@@ -680,6 +719,10 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
             sensors' and detector's running extremes count the steps
             ``run_in_steps <= n < end_steps`` only (a sweep runs a batch's shorter windows
             for its longest one's step count).
+        n_run: steps to compute (traced int, at most ``n_steps``; default all): the loop
+            stops after the block of :data:`LOOP_BLOCK` steps that holds step ``n_run - 1``
+            and the later steps' outputs are zeros (a sweep's chunk of runs stops at its
+            longest run's own window; ``end_steps`` keeps the zeros out of the summaries).
         sensor_history: return the sensors' and detector's time histories (static; False
             keeps only running max/min and peaks in the carry: no [n_steps] arrays).
         precision: ``"float64"`` or ``"float32"`` (static, :attr:`SimConfig.precision`): the
@@ -820,8 +863,11 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
         return (q_new, p_new, f, phi, states, acc, support_state), out
 
     carry0 = (q0, p0, preload, phi0, tuple(law.init_state() for law in laws), acc0, support0)
-    (*_, acc, _), outs = jax.lax.scan(jax.checkpoint(step) if checkpoint else step, carry0,
-                                      jnp.arange(1, n_steps))
+    step_fn = jax.checkpoint(step) if checkpoint else step
+    if n_run is None:
+        (*_, acc, _), outs = jax.lax.scan(step_fn, carry0, jnp.arange(1, n_steps))
+    else:
+        (*_, acc, _), outs = _scan_until(step_fn, carry0, n_steps, n_run)
     first = (x0, s0, preload, delta0, xi_w_ref, xi_r0, jnp.zeros_like(preload),
              jnp.zeros_like(preload))
     keys = ("x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual", "axle_acc")

@@ -1,10 +1,12 @@
 """Batched simulations: speeds x impact positions (x flats), ``vmap``-ed and chunked.
 
 The runs of a group of flats (:func:`batch_groups`: one kind with a traced law, or every flat
-with an exact 3D table) share one compiled program: every run uses the same number of steps
-(the largest any speed and flat of the group needs) with its own time step, so the batch is
-rectangular; a flat with an exact table keeps its own windows, and the steps after a run's
-window are not counted in its summaries. The batch
+with an exact 3D table) share one compiled program. Every run has the window, step count and
+time step :func:`wfjax.simulate` gives it (a kind's traced flats: the window of the group's
+largest; a flat with an exact table: its own), so a sweep's run equals that ``simulate``. The
+program's histories have the largest step count; the runs are sorted by their own, and each
+chunk's loop stops at its longest run (``time_loop(n_run=...)``; the steps after a run's window
+are not counted in its summaries). The batch
 is cut into chunks sized for the devices (:func:`chunk_width`: from the device's free memory
 and the program's bytes per run, capped where more runs no longer raise throughput) and
 progress with an ETA is printed per chunk. Chunks are dispatched ahead: chunk k + 1 is queued
@@ -56,10 +58,10 @@ from .contact.laws import (
 from .contact.tables import ContactTable, pad_columns, table_spec
 from .interaction import (
     _wheel_positions,
-    batch_windows,
     check_rail_span,
     detector_config,
     run_scan,
+    run_windows,
     simulation_window,
     structure,
     vehicle_laws,
@@ -315,7 +317,7 @@ def _realisation(rough, index):
     return rough._replace(rail=rail, wheel=wheel)
 
 
-def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, speed, dt,
+def _reduce(n_steps, max_iter, precision, laws, struct, extras, n_run, flat_index, speed, dt,
             x_start, impact_position, run_in_steps, end_steps, realisation):
     batched, others = laws
     if extras.get("tracks") is not None:  # support realisations: this run's modal model
@@ -327,7 +329,7 @@ def _reduce(n_steps, max_iter, precision, laws, struct, extras, flat_index, spee
                     sensors=extras["sensors"], detector=extras["detector"],
                     run_in_steps=run_in_steps, sensor_history=False, precision=precision,
                     roughness=_realisation(extras.get("roughness"), realisation),
-                    end_steps=end_steps)
+                    end_steps=end_steps, n_run=n_run)
     keys = ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual",
             "axle_acc")
     if others is None:
@@ -355,10 +357,12 @@ def _batched(mesh: Mesh, n_steps: int, max_iter: int, precision: str = "float64"
     ``shard_map`` gives every device its own ``vmap``-ed loop over its runs: the batched
     Newton ``while_loop`` then stops on the device's own runs, with no cross-device reduction
     of its condition at every step (what a plain ``jit`` over sharded inputs would compile).
+    Every device's loop stops at its own runs' longest window (``time_loop(n_run=...)``).
     """
     def local(laws, struct, extras, *runs):
+        n_run = jnp.max(runs[6])  # the runs' end steps: the longest own window here
         return jax.vmap(functools.partial(_reduce, n_steps, max_iter, precision, laws, struct,
-                                          extras))(*runs)
+                                          extras, n_run))(*runs)
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
@@ -437,6 +441,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         flats: one :class:`Flat` or a sequence of them, run in groups that each compile
             once (:func:`batch_groups`): a kind's flats batched through a traced law share
             the window of the largest; flats with exact 3D tables keep their own windows.
+            Every run takes :func:`wfjax.simulate`'s step count and time step at its speed.
         speeds: [n_speeds] train speeds [m/s].
         impact_positions: number of positions evenly covering one bay
             (:func:`impact_positions_grid`) or an array of positions [m] in [0, L_S).
@@ -754,8 +759,9 @@ class _Runs(NamedTuple):
 
     ``columns``: [n] per-run arrays in the order of the program's run arguments (flat index,
     speed [m/s], dt [s], x_start [m], impact position [m], run-in steps, end step,
-    realisation); ``step`` runs per chunk, each padded to ``width`` (a multiple of the device
-    count); ``shape`` (n_flats, n_speeds, n_positions, n_real).
+    realisation), the runs sorted by their step count (``order``: where each one's results
+    go); ``step`` runs per chunk, each padded to ``width`` (a multiple of the device count);
+    ``shape`` (n_flats, n_speeds, n_positions, n_real).
     """
 
     n_steps: int
@@ -763,20 +769,23 @@ class _Runs(NamedTuple):
     step: int
     width: int
     shape: tuple
+    order: np.ndarray  # [n] each planned run's index in the (flat, speed, position,
+    # realisation) order of the results
 
 
 def _plan_runs(window_flats: Sequence[Flat], v, pos, struct, config: SimConfig, mesh: Mesh,
                chunk_size: int | None, n_real: int = 1) -> _Runs:
-    """The runs of one group: flat i runs in the windows of ``window_flats[i]``
-    (:func:`batch_windows`: its own start and time step per speed); the program's step count
-    is the largest of them, and the steps after a run's own window are not counted in its
-    summaries. Chunks: ``chunk_size`` runs, default from the devices' memory
+    """The runs of one group: flat i runs at every speed in the window of ``window_flats[i]``
+    there, with the step count and time step :func:`wfjax.simulate` takes
+    (:func:`run_windows`); the program's step count is the largest, and the steps after a
+    run's own window are not counted in its summaries. The runs are sorted by their step
+    count, so a chunk's loop stops at its longest run (on each device: the runs are dealt to
+    the devices in turn); chunks: ``chunk_size`` runs, default from the devices' memory
     (:func:`chunk_width`)."""
     n_flats = len(window_flats)
-    windows = [batch_windows(f, v, config) for f in window_flats]
-    n_steps = max(w[0] for w in windows)
-    end_f = np.array([w[0] for w in windows])
-    dt_fv, s0_fv, run_in_fv = (np.stack([w[i] for w in windows]) for i in (1, 2, 3))
+    windows = [run_windows(f, v, config) for f in window_flats]
+    n_fv, dt_fv, s0_fv, run_in_fv = (np.stack([w[i] for w in windows]) for i in range(4))
+    n_steps = int(n_fv.max())
     if chunk_size is None:
         n_modes = int(struct.track.poles.shape[0])
         n_wheels = 1 if struct.offsets is None else int(struct.offsets.shape[0])
@@ -788,9 +797,19 @@ def _plan_runs(window_flats: Sequence[Flat], v, pos, struct, config: SimConfig, 
                                                      np.arange(pos.size), np.arange(n_real),
                                                      indexing="ij"))
     pp, s_start = pos[kk], s0_fv[ff, jj]
-    columns = (ff, v[jj], dt_fv[ff, jj], pp + s_start, pp, run_in_fv[ff, jj], end_f[ff], rr)
+    columns = (ff, v[jj], dt_fv[ff, jj], pp + s_start, pp, run_in_fv[ff, jj], n_fv[ff, jj], rr)
     step, width = _chunk_layout(ff.size, chunk_size, mesh.devices.size)
-    return _Runs(n_steps, columns, step, width, (n_flats, v.size, pos.size, n_real))
+    order = _dealt(np.argsort(n_fv[ff, jj], kind="stable"), step, mesh.devices.size)
+    return _Runs(n_steps, tuple(a[order] for a in columns), step, width,
+                 (n_flats, v.size, pos.size, n_real), order)
+
+
+def _dealt(order: np.ndarray, step: int, n_devices: int) -> np.ndarray:
+    """``order`` with every chunk of ``step`` runs dealt to the devices in turn (device d
+    gets the chunk's runs d, d + n_devices, ...), so each device's share of a sorted chunk
+    spans its range of step counts, not one end of it."""
+    return np.concatenate([np.concatenate([chunk[d::n_devices] for d in range(n_devices)])
+                           for chunk in np.split(order, range(step, order.size, step))])
 
 
 def _chunk(runs: _Runs, lo: int, mesh: Mesh) -> tuple[int, list]:
@@ -860,8 +879,15 @@ def _run_group(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Mesh,
             collect(*in_flight)
         in_flight = (batch, n)
     collect(*in_flight)
-    return [np.concatenate(c).reshape(runs.shape + c[0].shape[1:])
+    return [_unsorted(np.concatenate(c), runs.order).reshape(runs.shape + c[0].shape[1:])
             for c in zip(*results, strict=True)]
+
+
+def _unsorted(planned: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Per-run results [n, ...] in planned order back in the results' order."""
+    out = np.empty_like(planned)
+    out[order] = planned
+    return out
 
 
 _MIN_KEYS = ("min", "w_min", "s_min")
