@@ -3,8 +3,8 @@
 Run: ``python benchmarks/bench_sweep.py [--default] [--scaling] [--png PATH]`` (both parts when
 neither is given). Prints Markdown.
 
-* ``--scaling``: Hertz-trajectory sweeps of the 0.9 mm rounded flat (speeds from 50 km/h, so
-  every batch has the same step count). Throughput [simulations/s] against ``chunk_size``, and
+* ``--scaling``: Hertz-trajectory sweeps of the 0.9 mm rounded flat (speeds 50-250 km/h,
+  each run in its own window: 2145-3614 steps). Throughput [simulations/s] against ``chunk_size``, and
   total time against the number of speeds, positions and flats with a log-log plot and the
   slope fitted beyond one compiled batch. Compile time (from ``jax.monitoring`` compile events)
   is reported apart; run times are the median of repeats with compiled code.
