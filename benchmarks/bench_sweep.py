@@ -4,10 +4,11 @@ Run: ``python benchmarks/bench_sweep.py [--default] [--scaling] [--png PATH]`` (
 neither is given). Prints Markdown.
 
 * ``--scaling``: Hertz-trajectory sweeps of the 0.9 mm rounded flat (speeds 50-250 km/h,
-  each run in its own window: 2145-3614 steps). Throughput [simulations/s] against ``chunk_size``, and
-  total time against the number of speeds, positions and flats with a log-log plot and the
-  slope fitted beyond one compiled batch. Compile time (from ``jax.monitoring`` compile events)
-  is reported apart; run times are the median of repeats with compiled code.
+  each run in its own window: 2145-3614 steps). Throughput [simulations/s] against
+  ``chunk_size``, and total time against the number of speeds, positions and flats with a
+  log-log plot and the slope fitted beyond one compiled batch. Compile time (from
+  ``jax.monitoring`` compile events) is reported apart; run times are the median of repeats
+  with compiled code.
 * ``--default``: the default ``wfjax sweep`` (rounded 0.9 mm/100 mm and new 0.9 mm flats,
   20-300 km/h in 10 km/h steps, 10 positions, 3D table contact) from a fresh
   ``WFJAX_CACHE_DIR`` (cold: modal model build, table builds, compilation, batched loop), then

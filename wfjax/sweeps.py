@@ -404,17 +404,24 @@ def _gather(arrays) -> list[np.ndarray]:
 
 
 class _Progress:
+    """Runs done of ``total`` with an ETA; ``work`` (e.g. run-steps) done and in all, when
+    given, paces the ETA (a sweep's chunks of short runs go first)."""
+
     def __init__(self, total: int, label: str, stream=sys.stderr, enabled: bool = True):
         self.total, self.label, self.stream, self.enabled = total, label, stream, enabled
         self.start = time.perf_counter()
         self.done = 0
+        self.work_done, self.work_total = 0.0, None
 
-    def update(self, n: int) -> None:
+    def update(self, n: int, work: float | None = None) -> None:
         self.done += n
+        self.work_done += n if work is None else work
         if not self.enabled:
             return
         elapsed = time.perf_counter() - self.start
-        eta = elapsed / self.done * (self.total - self.done) if self.done else float("nan")
+        total = self.total if self.work_total is None else self.work_total
+        eta = (elapsed / self.work_done * (total - self.work_done) if self.work_done
+               else float("nan"))
         end = "\n" if self.done >= self.total else "\r"
         line = (f"  {self.label}: {self.done}/{self.total} runs, {elapsed:5.1f} s elapsed, "
                 f"ETA {eta:5.1f} s")
@@ -867,17 +874,22 @@ def _run_group(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Mesh,
     Every chunk is dispatched before the previous one is collected (one chunk in flight)."""
     program = program or _program(runs, config, mesh)
     results, in_flight = [], None
+    starts = range(0, runs.columns[0].size, runs.step)
+    ends = runs.columns[6]  # each run's steps: a chunk's work is its runs x its longest
+    work = [min(runs.step, ends.size - lo) * int(ends[lo:lo + runs.step].max())
+            for lo in starts]
+    bar.work_total = float(sum(work))
 
-    def collect(batch, n):
+    def collect(batch, n, chunk_work):
         results.append([b[:n] for b in _gather(batch)])
-        bar.update(n)
+        bar.update(n, chunk_work)
 
-    for lo in range(0, runs.columns[0].size, runs.step):
+    for lo, chunk_work in zip(starts, work, strict=True):
         n, args = _chunk(runs, lo, mesh)
         batch = program(laws, struct, extras, *args)
         if in_flight is not None:
             collect(*in_flight)
-        in_flight = (batch, n)
+        in_flight = (batch, n, chunk_work)
     collect(*in_flight)
     return [_unsorted(np.concatenate(c), runs.order).reshape(runs.shape + c[0].shape[1:])
             for c in zip(*results, strict=True)]
