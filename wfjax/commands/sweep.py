@@ -119,9 +119,14 @@ def argparse_hide():
 
 
 def run(args) -> int:
-    case = resolve_case(args, "sweep", FLAGS)
-    from ..plotting import percentile_band_figure, sweep_figure, sweep_wheels_figure
+    import importlib
+
+    from .._parallel import in_background
     from ..sweeps import sweep
+
+    # matplotlib (0.3 s) imports while the sweep runs: only the figures at the end need it
+    plotting_ahead = in_background(importlib.import_module, "wfjax.plotting")
+    case = resolve_case(args, "sweep", FLAGS)
 
     speeds = case.speeds()
     positions = case["run.impact_positions"]
@@ -141,6 +146,9 @@ def run(args) -> int:
                    material=material, config=config, vehicle=vehicle, roughness=rail_rough,
                    wheel_roughness=wheel_rough, tracks=tracks)
     elapsed = time.perf_counter() - t0
+    plotting_ahead.result()
+    from ..plotting import percentile_band_figure, sweep_figure, sweep_wheels_figure
+
     check_finite("sweep", max_force=result.max_force, min_force=result.min_force)
     write_atomic(out / "sweep.csv", result.to_csv())
     extra = ", sweep_wheels.png" if vehicle is not None else ""
