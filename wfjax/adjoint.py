@@ -364,7 +364,7 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     ``jacrev`` of the ``force`` and ``approach`` histories with respect to the contact law's
     leaves (the flat's geometry, a 3D table or family) run the adjoint described in the module
     docstring, without plain reverse mode's stored [n_steps, n_modes] residuals (3D family,
-    10 speeds, :func:`adjoint_runs`: value_and_grad 1.5 forward evaluations against 3.5,
+    10 speeds, :func:`adjoint_runs`: value_and_grad 1.3-1.4 forward evaluations against 3.3-4,
     ``benchmarks/README.md``). Works under ``jit`` and ``vmap``.
 
     Args:

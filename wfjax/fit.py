@@ -42,7 +42,7 @@ Forward mode (``jax.jacfwd`` of the residual vector, one tangent per parameter) 
 few parameters: it costs about (1 + n_params) forward runs, needs no stored time history, and
 returns the Jacobian used by Gauss-Newton. Reverse mode (``jax.grad``; for max-force and
 history data through the hand-written adjoint of the time loop, :mod:`wfjax.adjoint`, about
-1.5 forward evaluations per gradient, ``max_force_model(adjoint=True)``) otherwise, and always
+1.3-1.4 forward evaluations per gradient, ``max_force_model(adjoint=True)``) otherwise, and always
 for ``"3d"`` with a measured profile (its exact table is rebuilt at every evaluation and the
 Kalker solver's implicit gradients are ``custom_vjp``); with
 ``checkpoint=True`` the simulations are run one after the other under ``jax.checkpoint``, so the
@@ -547,7 +547,7 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
             memory: one time history at a time instead of n x positions).
         adjoint: reverse mode through the hand-written adjoint of the time loop
             (:mod:`wfjax.adjoint`: the same forces; measured for 10 speeds of the 3D family,
-            value_and_grad at 1.5 forward evaluations instead of 3.5); the model then
+            value_and_grad at 1.3-1.4 forward evaluations instead of 3.3-4); the model then
             supports reverse mode only (``grad``/``jacrev``, not ``jacfwd``). Default False:
             plain autodiff.
 
