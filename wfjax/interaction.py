@@ -723,6 +723,7 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
             stops after the block of :data:`LOOP_BLOCK` steps that holds step ``n_run - 1``
             and the later steps' outputs are zeros (a sweep's chunk of runs stops at its
             longest run's own window; ``end_steps`` keeps the zeros out of the summaries).
+            A loop of traced length: forward evaluation and ``jvp`` only, no reverse mode.
         sensor_history: return the sensors' and detector's time histories (static; False
             keeps only running max/min and peaks in the carry: no [n_steps] arrays).
         precision: ``"float64"`` or ``"float32"`` (static, :attr:`SimConfig.precision`): the
