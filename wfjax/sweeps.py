@@ -54,8 +54,9 @@ from .contact.laws import (
     prepare,
     prepare_family,
     resolve_mode_3d,
+    table_specs_3d,
 )
-from .contact.tables import ContactTable, pad_columns, table_spec
+from .contact.tables import ContactTable, pad_columns
 from .interaction import (
     _wheel_positions,
     check_rail_span,
@@ -360,7 +361,7 @@ def _batched(mesh: Mesh, n_steps: int, max_iter: int, precision: str = "float64"
     Every device's loop stops at its own runs' longest window (``time_loop(n_run=...)``).
     """
     def local(laws, struct, extras, *runs):
-        n_run = jnp.max(runs[6])  # the runs' end steps: the longest own window here
+        n_run = jnp.max(runs[_END_STEPS])  # the longest own window among this device's runs
         return jax.vmap(functools.partial(_reduce, n_steps, max_iter, precision, laws, struct,
                                           extras, n_run))(*runs)
 
@@ -779,6 +780,13 @@ class _Runs(NamedTuple):
     order: np.ndarray  # [n] each planned run's index in the (flat, speed, position,
     # realisation) order of the results
 
+    def chunk_runs(self, lo: int) -> int:
+        """Runs in the chunk starting at run ``lo`` (before padding)."""
+        return min(self.step, self.columns[0].size - lo)
+
+
+_END_STEPS = 6  # the end-step column among _Runs.columns (_reduce's run arguments)
+
 
 def _plan_runs(window_flats: Sequence[Flat], v, pos, struct, config: SimConfig, mesh: Mesh,
                chunk_size: int | None, n_real: int = 1) -> _Runs:
@@ -821,7 +829,7 @@ def _dealt(order: np.ndarray, step: int, n_devices: int) -> np.ndarray:
 
 def _chunk(runs: _Runs, lo: int, mesh: Mesh) -> tuple[int, list]:
     """(runs in the chunk starting at run ``lo``, its sharded arguments, padded to width)."""
-    n = min(runs.step, runs.columns[0].size - lo)
+    n = runs.chunk_runs(lo)
     pad = runs.width - n
     return n, [_shard_runs(np.concatenate([a[lo:lo + n], np.repeat(a[lo + n - 1:lo + n], pad)]),
                            mesh) for a in runs.columns]
@@ -852,12 +860,11 @@ def _table_laws(tables) -> TableLaw:
 
 def _table_laws_like(flats: Sequence[Flat], wheel: Wheel, track: Track, material: Material,
                      config: SimConfig):
-    """Zeros shaped as :func:`_table_laws` of the flats' tables (for
-    compiling ahead: the tables' layouts, :func:`wfjax.contact.tables.table_spec`, are known
-    before they are built)."""
-    specs = [table_spec(dataclasses.replace(f, extent_bound=None), float(wheel.radius),
-                        float(track.rail_head_radius), material, config.contact_element)
-             for f in flats]  # as cached_tables_3d: a table spans its flat's own extent
+    """Zeros shaped as :func:`_table_laws` of the flats' tables (for compiling ahead: the
+    tables' layouts, :func:`wfjax.contact.laws.table_specs_3d`, are known before they are
+    built)."""
+    specs = table_specs_3d(flats, float(wheel.radius), float(track.rail_head_radius), material,
+                           config.contact_element)
     n, n_s, n_t = len(flats), max(sp.n_s for sp in specs), specs[0].n_t
     scalar = np.zeros(n)
     return TableLaw(ContactTable(s_min=scalar, ds=scalar, c_max=scalar,
@@ -875,9 +882,8 @@ def _run_group(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Mesh,
     program = program or _program(runs, config, mesh)
     results, in_flight = [], None
     starts = range(0, runs.columns[0].size, runs.step)
-    ends = runs.columns[6]  # each run's steps: a chunk's work is its runs x its longest
-    work = [min(runs.step, ends.size - lo) * int(ends[lo:lo + runs.step].max())
-            for lo in starts]
+    ends = runs.columns[_END_STEPS]  # a chunk's work: its runs x its longest run's steps
+    work = [runs.chunk_runs(lo) * int(ends[lo:lo + runs.step].max()) for lo in starts]
     bar.work_total = float(sum(work))
 
     def collect(batch, n, chunk_work):

@@ -65,6 +65,7 @@ __all__ = [
     "resolve_mode_3d",
     "cached_table_3d",
     "cached_tables_3d",
+    "table_specs_3d",
     "table_batch_size",
 ]
 
@@ -401,6 +402,22 @@ def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
                             cache_dir)[0]
 
 
+def _own_extent(flats) -> list:
+    """``flats`` without their window bounds: a concrete flat's table spans its own extent (a
+    window bound, ``extent_bound``, sizes the simulation windows of batches) and must neither
+    change the table nor alias its cache key."""
+    return [dataclasses.replace(f, extent_bound=None) for f in flats]
+
+
+def table_specs_3d(flats, wheel_radius: float, rail_head_radius: float, material: Material,
+                   element_size: float) -> list:
+    """The layouts (:class:`wfjax.contact.tables.TableSpec`) of the tables
+    :func:`cached_tables_3d` builds for ``flats`` (concrete; R_W, R_R [m], element size [m]),
+    known before they are built: a sweep compiles its program for their shapes meanwhile."""
+    return [tables.table_spec(f, wheel_radius, rail_head_radius, material, element_size)
+            for f in _own_extent(flats)]
+
+
 def cached_tables_3d(flats, wheel_radius: float, rail_head_radius: float,
                      material: Material, element_size: float, cache_dir=None) -> list:
     """:func:`cached_table_3d` of several concrete flats: the tables missing from the cache
@@ -408,9 +425,7 @@ def cached_tables_3d(flats, wheel_radius: float, rail_head_radius: float,
     sizes, compiled once, and every column spread over the CPU cores)."""
     from .. import _cache
 
-    # A concrete flat's table spans its own extent: a window bound (extent_bound, which sizes
-    # simulation windows of batches) must neither change the table nor alias its cache key.
-    flats = [dataclasses.replace(f, extent_bound=None) for f in flats]
+    flats = _own_extent(flats)
     paths = [_cache.cache_path("table3d", {
         "flat_kind": f.kind, "flat": [np.asarray(v) for v in jax.tree_util.tree_leaves(
             (f, material))],
