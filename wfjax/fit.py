@@ -71,6 +71,7 @@ the linearised, data-noise-only uncertainty (no model error, no prior/penalty).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from typing import Any, NamedTuple
@@ -81,6 +82,7 @@ import numpy as np
 import optax
 
 from . import interaction as it
+from ._xla import LOOP_COMPILER_OPTIONS
 from .contact.laws import CONTACT_MODELS, ContactLaw, TableLaw, prepare, prepare_family_range
 from .params import Flat, Material, SimConfig, Track, Wheel, new_flat_length
 from .sweeps import impact_positions_grid
@@ -895,17 +897,18 @@ def _objective(model: ForceModel, par, y_j, scale: float, mode: str):
         r = residuals(theta)
         return jnp.mean(r**2) + par.penalty(theta)
 
+    jit = functools.partial(jax.jit, compiler_options=LOOP_COMPILER_OPTIONS)
     if mode == "forward":
-        @jax.jit
+        @jit
         def evaluate(theta):
             J, r = jax.jacfwd(lambda th: (residuals(th),) * 2, has_aux=True)(theta)
             pen, g_pen = jax.value_and_grad(par.penalty)(theta)
             return jnp.mean(r**2) + pen, 2 * J.T @ r / r.size + g_pen, J, r
 
-        return (lambda theta: evaluate(theta)[:2]), jax.jit(loss), (
+        return (lambda theta: evaluate(theta)[:2]), jit(loss), (
             lambda theta: evaluate(theta)[2:])
-    jacobian = jax.jit(lambda theta: (jax.jacrev(residuals)(theta), residuals(theta)))
-    return jax.jit(jax.value_and_grad(loss)), jax.jit(loss), jacobian
+    jacobian = jit(lambda theta: (jax.jacrev(residuals)(theta), residuals(theta)))
+    return jit(jax.value_and_grad(loss)), jit(loss), jacobian
 
 
 def _inside_family(spec, flat: Flat) -> bool:

@@ -70,6 +70,7 @@ from . import track as track_mod
 from . import vehicle as vehicle_mod
 from . import wheel as wheel_mod
 from ._modal import discrete_step_coefficients
+from ._xla import LOOP_COMPILER_OPTIONS
 from .contact.laws import CONTACT_MODELS, FLAT_MARGIN, ContactLaw, prepare
 from .contact.newton import solve_contact_system, solve_small, static_approach
 from .params import Flat, Material, SimConfig, Track, Wheel
@@ -886,12 +887,16 @@ def time_loop(law, struct: Structure, speed, dt, x_start, impact_position,
     return result
 
 
-run_scan = jax.jit(time_loop, static_argnames=("n_steps", "max_iter", "checkpoint",
-                                              "sensor_history", "precision", "own_compliance"))
+_LOOP_STATIC = ("n_steps", "max_iter", "checkpoint", "sensor_history", "precision",
+                "own_compliance")
+run_scan = jax.jit(time_loop, static_argnames=_LOOP_STATIC)
 run_scan.__doc__ = """:func:`time_loop` compiled (one program per law class and grid shapes).
 
 ``vmap`` it over runs, and over laws prepared for a batch of flats; ``grad`` reaches every
 traced leaf of the law (the flat's geometry) and of the structure."""
+# simulate's own program: a top-level jit may carry compiler options, a nested one may not
+_simulation = jax.jit(time_loop, static_argnames=_LOOP_STATIC,
+                      compiler_options=LOOP_COMPILER_OPTIONS)
 
 
 def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: float = 0.0,
@@ -993,7 +998,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
     rough = loop_roughness(roughness, wheel_roughness, wheels, track, material)
     offsets = np.zeros(1) if vehicle is None else vehicle.offsets()
     check_rail_span(roughness, x_abs + s_start + offsets.min(), x_abs + s_end + offsets.max())
-    hist = run_scan(law, struct, v, dt, x_abs + s_start, x_abs, int(n_steps),
+    hist = _simulation(law, struct, v, dt, x_abs + s_start, x_abs, int(n_steps),
                     config.newton_iterations, sensors=sensor_spec, detector=det_spec,
                     run_in_steps=run_in_steps, precision=config.precision, roughness=rough)
     quantities = () if sensor_spec is None else sensor_spec.quantities

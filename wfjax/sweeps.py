@@ -47,6 +47,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from . import supports as supports_mod
 from ._parallel import in_background
+from ._xla import LOOP_COMPILER_OPTIONS
 from .contact.laws import (
     CONTACT_MODELS,
     TableLaw,
@@ -367,7 +368,8 @@ def _batched(mesh: Mesh, n_steps: int, max_iter: int, precision: str = "float64"
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
-                                 in_specs=(PartitionSpec(),) * 3 + (by_run,) * 8))
+                                 in_specs=(PartitionSpec(),) * 3 + (by_run,) * 8),
+                   compiler_options=LOOP_COMPILER_OPTIONS)
 
 
 def _device_mesh() -> Mesh:
