@@ -153,6 +153,29 @@ def test_config_print_defaults_reloads_to_the_defaults(tmp_path, capsys):
     assert case.model() == (wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig())
 
 
+def test_console_script_exits_at_once_with_its_output_and_status(tmp_path, capsys):
+    """``entry_point`` skips Python's teardown (``os._exit``): piped output must still arrive
+    whole (it flushes first) and the exit status must be main's."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # a buffered pipe
+    env["WFJAX_CACHE_DIR"] = str(tmp_path)
+
+    def console(*argv):
+        code = f"import sys; sys.argv = ['wfjax', *{list(argv)!r}]; " \
+               "from wfjax.cli import entry_point; entry_point()"
+        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              cwd=tmp_path, env=env)
+
+    assert main(["config", "--print-defaults"]) == 0
+    done = console("config", "--print-defaults")
+    assert done.returncode == 0 and done.stdout == capsys.readouterr().out
+    done = console("sweep", "--speeds-kmh", "-5")
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.count("\n") == 1 and "--speeds-kmh" in done.stderr
+
+
 def test_config_check_shows_environment_precision_and_flag_wins(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("WFJAX_PRECISION", "float32")
     cfg = tmp_path / "c.toml"
