@@ -253,6 +253,9 @@ def test_notebook_fast_mode(monkeypatch):
     assert "depth:" in text and "length:" in text
 
 
+@pytest.mark.slow  # 32-45 s; the default run keeps the Hertz notebook's end-to-end fit and
+# test_adjoint's central-difference check of the 3D family's gradient (the 2-core CI's
+# default run took 552 s of its 10 minutes with it)
 def test_3d_notebook_fast_mode(monkeypatch):
     """Executes notebooks/fit_flat_3d.ipynb with WFJAX_FAST=1 (2.5 mm elements, 5 speeds, one
     position): truth from the exact per-flat 3D table with 3 % noise, start 50 % off; the
