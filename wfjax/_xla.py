@@ -1,4 +1,4 @@
-"""XLA compiler options of wfjax's compiled time loops.
+"""XLA compiler options of wfjax's compiled time loops, and host arrays to the device.
 
 ``LOOP_COMPILER_OPTIONS`` goes to the top-level ``jax.jit`` of every program wfjax compiles
 around a time loop: :func:`wfjax.simulate`'s, the sweep's, the fits' objectives (JAX refuses
@@ -13,4 +13,22 @@ The 3D contact solver is left at XLA's default (there the two emitters are equal
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
 LOOP_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+
+def to_device(x, dtype=None):
+    """``jnp.asarray(x, dtype)`` without compiling for host values (NumPy arrays and scalars).
+
+    In this JAX ``jnp.asarray`` of a NumPy array compiles a small program per shape and dtype
+    (15-35 ms each; a cold ``wfjax sweep`` compiled 20 of them while it built its modal model
+    and tables); ``jax.device_put`` copies. A Python scalar keeps ``jnp.asarray``'s weak type
+    unless ``dtype`` is given; JAX arrays and tracers go through ``jnp.asarray``.
+    """
+    if isinstance(x, (np.ndarray, np.generic)) or (dtype is not None
+                                                    and isinstance(x, (int, float, complex))):
+        return jax.device_put(np.asarray(x, dtype))
+    return jnp.asarray(x, dtype)

@@ -70,7 +70,7 @@ from . import track as track_mod
 from . import vehicle as vehicle_mod
 from . import wheel as wheel_mod
 from ._modal import discrete_step_coefficients
-from ._xla import LOOP_COMPILER_OPTIONS
+from ._xla import LOOP_COMPILER_OPTIONS, to_device
 from .contact.laws import CONTACT_MODELS, FLAT_MARGIN, ContactLaw, prepare
 from .contact.newton import solve_contact_system, solve_small, static_approach
 from .params import Flat, Material, SimConfig, Track, Wheel
@@ -248,7 +248,7 @@ def structure(wheel: Wheel, track: Track, config: SimConfig, cache_dir=None) -> 
                                   cache_dir=cache_dir)
     wheel_modes = wheel_mod.modal_model(wheel)
     return Structure(model, wheel_modes.poles, wheel_modes.residues,
-                     jnp.asarray(wheel.preload, dtype=float), wheel_modes.axle_residues,
+                     to_device(wheel.preload, float), wheel_modes.axle_residues,
                      supports=_one_sided(track, model))
 
 

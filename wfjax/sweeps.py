@@ -47,7 +47,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from . import supports as supports_mod
 from ._parallel import in_background
-from ._xla import LOOP_COMPILER_OPTIONS
+from ._xla import LOOP_COMPILER_OPTIONS, to_device
 from .contact.laws import (
     CONTACT_MODELS,
     TableLaw,
@@ -857,7 +857,8 @@ def _table_laws(tables) -> TableLaw:
     """The laws of a group's exact 3D tables ([n_flats] :class:`ContactTable`), each widened
     to the most columns among them (:func:`wfjax.contact.tables.pad_columns`), stacked."""
     n_s = max(int(t.onset.shape[0]) for t in tables)
-    return _stack([TableLaw(pad_columns(t, n_s)) for t in tables])
+    return jax.tree.map(lambda *xs: to_device(np.stack([np.asarray(x) for x in xs])),
+                        *[TableLaw(pad_columns(t, n_s)) for t in tables])
 
 
 def _table_laws_like(flats: Sequence[Flat], wheel: Wheel, track: Track, material: Material,

@@ -42,6 +42,7 @@ import scipy.sparse.linalg
 from . import _cache
 from . import supports as _supports
 from ._modal import complex_modes, discrete_step_coefficients, real_times_complex
+from ._xla import to_device
 from .params import SUPPORT_FIELDS, Track, concrete_positive_numbers
 
 __all__ = [
@@ -626,11 +627,11 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
     else:
         arrays = build()
     return ModalModel(
-        jnp.asarray(arrays["poles"]), jnp.asarray(arrays["weights"]),
-        jnp.asarray(arrays["node_x"]), jnp.asarray(arrays["shapes"]),
-        jnp.asarray(arrays["residual_x"]), jnp.asarray(arrays["residual"]),
+        to_device(arrays["poles"]), to_device(arrays["weights"]),
+        to_device(arrays["node_x"]), to_device(arrays["shapes"]),
+        to_device(arrays["residual_x"]), to_device(arrays["residual"]),
         float(arrays["sleeper_spacing"]), float(arrays["element_phi"]),
-        jnp.asarray(arrays["sleeper_shapes"]))
+        to_device(arrays["sleeper_shapes"]))
 
 
 # --------------------------------------------------------------------------------------------

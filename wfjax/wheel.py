@@ -26,6 +26,7 @@ import numpy as np
 import scipy.linalg
 
 from ._modal import complex_modes, discrete_step_coefficients
+from ._xla import to_device
 from .params import Wheel, concrete_positive_numbers
 
 __all__ = [
@@ -112,8 +113,8 @@ def modal_model(wheel: Wheel) -> WheelModal:
     w2, phi = scipy.linalg.eigh(k, m)
     poles, weights, a = complex_modes(w2, phi.T @ c @ phi)
     u = phi @ a
-    return WheelModal(jnp.asarray(poles), jnp.asarray(weights * u[0] ** 2),
-                      jnp.asarray(weights * u[0] * u[1]))
+    return WheelModal(to_device(poles), to_device(weights * u[0] ** 2),
+                      to_device(weights * u[0] * u[1]))
 
 
 def greens_function(wheel: Wheel, t) -> jax.Array:

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import geometry
+from .._xla import to_device
 from ..params import (
     MAX_FLAT_DEPTH,
     Flat,
@@ -445,4 +446,4 @@ def cached_tables_3d(flats, wheel_radius: float, rail_head_radius: float,
         for i, table in zip(missing, built, strict=True):
             arrays[i] = {k: np.asarray(v) for k, v in table._asdict().items()}
             _cache.store(paths[i], arrays[i])
-    return [tables.ContactTable(**{k: jnp.asarray(v) for k, v in a.items()}) for a in arrays]
+    return [tables.ContactTable(**{k: to_device(v) for k, v in a.items()}) for a in arrays]

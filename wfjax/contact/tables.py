@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._parallel import core_pool
+from .._xla import to_device
 from ..params import Flat, Material
 from . import kalker
 
@@ -336,7 +337,7 @@ def _column_gaps_jit(spec: TableSpec, flat: Flat, s_values):
 def _column_gaps(spec: TableSpec, flat: Flat, s_values) -> tuple[np.ndarray, np.ndarray]:
     """([n, nx, ny] gap [m] on the table grid, [n] rigid onset [m]) at concrete flat
     positions ``s_values`` [n] [m]: one compiled program per layout and flat kind."""
-    gaps, onsets = _column_gaps_jit(spec, flat, jnp.asarray(s_values))
+    gaps, onsets = _column_gaps_jit(spec, flat, np.asarray(s_values))
     return np.asarray(gaps), np.asarray(onsets)
 
 
@@ -493,7 +494,7 @@ _SOLVERS_LOCK = threading.Lock()
 
 
 def _solver_inputs(material: Material, dtype) -> Material:
-    return jax.tree.map(lambda v: jnp.asarray(v, dtype), material)
+    return jax.tree.map(lambda v: to_device(v, dtype), material)
 
 
 def window_solver(size: tuple[int, int], element_size: float, tol: float, dtype=np.float64):
@@ -535,8 +536,11 @@ def _compile_window_solver(wx: int, wy: int, h: float, tol: float, dtype: str):
         return (jnp.stack([r.pressure, z]),
                 jnp.stack([r.force, r.stiffness, r.diagnostics.converged.astype(dtype)]))
 
-    return jax.jit(solve).lower(jnp.zeros((3, wx, wy), dtype), jnp.zeros((), dtype),
-                                _solver_inputs(_DEFAULT_MATERIAL, dtype)).compile()
+    def like(shape):  # lowered from shapes: no eager zeros, no compiled broadcast
+        return jax.ShapeDtypeStruct(shape, dtype)
+
+    return jax.jit(solve).lower(like((3, wx, wy)), like(()), jax.tree.map(
+        lambda _: like(()), _DEFAULT_MATERIAL)).compile()
 
 
 def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, size_index,
@@ -599,7 +603,7 @@ def _build_windowed(specs, flats, material: Material, tol: float,
                                    strict=True)
         force_t, slope_t = _column_outputs(spec, np.stack(force), np.stack(stiffness))
         table = _assemble(spec, gaps[t][1], force_t, slope_t, all(ok))
-        tables.append(jax.tree.map(jnp.asarray, table))  # host arrays to the device: no compiling
+        tables.append(jax.tree.map(to_device, table))
     return tables
 
 
