@@ -8,7 +8,11 @@ emitters spend about twice the CPU time of its classic LLVM IR emitters on the l
 fusions, for the same run time and results to the last bits of float64 rounding
 (``benchmarks/README.md``, issue 20: the default sweep's program 3.9 -> 2.0 CPU-s, the cold
 main job ~1.5 s shorter). The option names a CPU code generator only; other backends ignore it.
-The 3D contact solver is left at XLA's default (there the two emitters are equally fast).
+``SOLVER_COMPILER_OPTIONS`` goes to the 3D window solvers of the table builds on the CPU
+(:func:`wfjax.contact.tables.window_solver`): LLVM's optimisation level 1 instead of 2 and the
+classic emitters compile each in ~0.2 CPU-s less (0.85-0.94 against 0.98-1.27 CPU-s) and
+solve as fast (1.56-1.58 against 1.57-1.73 ms on a 45 x 50 window); a cold default sweep
+compiles three. The time loops gain nothing from level 1 (within noise).
 """
 
 from __future__ import annotations
@@ -18,6 +22,13 @@ import jax.numpy as jnp
 import numpy as np
 
 LOOP_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+SOLVER_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False,
+                           "xla_backend_optimization_level": 1}
+
+
+def cpu_only(options: dict) -> dict | None:
+    """``options`` when JAX's default backend is the CPU, else None (level 1 is for CPUs)."""
+    return options if jax.default_backend() == "cpu" else None
 
 
 def to_device(x, dtype=None):

@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._parallel import core_pool
-from .._xla import to_device
+from .._xla import SOLVER_COMPILER_OPTIONS, cpu_only, to_device
 from ..params import Flat, Material
 from . import kalker
 
@@ -540,7 +540,8 @@ def _compile_window_solver(wx: int, wy: int, h: float, tol: float, dtype: str):
         return jax.ShapeDtypeStruct(shape, dtype)
 
     return jax.jit(solve).lower(like((3, wx, wy)), like(()), jax.tree.map(
-        lambda _: like(()), _DEFAULT_MATERIAL)).compile()
+        lambda _: like(()), _DEFAULT_MATERIAL)).compile(
+            compiler_options=cpu_only(SOLVER_COMPILER_OPTIONS))
 
 
 def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, size_index,
