@@ -1,4 +1,4 @@
-"""XLA compiler options of wfjax's compiled time loops, and host arrays to the device.
+"""XLA compiler options of wfjax's time loops and 3D window solvers; host arrays to the device.
 
 ``LOOP_COMPILER_OPTIONS`` goes to the top-level ``jax.jit`` of every program wfjax compiles
 around a time loop: :func:`wfjax.simulate`'s, the sweep's, the fits' objectives (JAX refuses
@@ -8,6 +8,7 @@ emitters spend about twice the CPU time of its classic LLVM IR emitters on the l
 fusions, for the same run time and results to the last bits of float64 rounding
 (``benchmarks/README.md``, issue 20: the default sweep's program 3.9 -> 2.0 CPU-s, the cold
 main job ~1.5 s shorter). The option names a CPU code generator only; other backends ignore it.
+
 ``SOLVER_COMPILER_OPTIONS`` goes to the 3D window solvers of the table builds on the CPU
 (:func:`wfjax.contact.tables.window_solver`): LLVM's optimisation level 1 instead of 2 and the
 classic emitters compile each in ~0.2 CPU-s less (0.85-0.94 against 0.98-1.27 CPU-s) and
