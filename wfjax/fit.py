@@ -82,7 +82,7 @@ import numpy as np
 import optax
 
 from . import interaction as it
-from ._xla import LOOP_COMPILER_OPTIONS
+from ._xla import LOOP_COMPILER_OPTIONS, to_device
 from .contact.laws import CONTACT_MODELS, ContactLaw, TableLaw, prepare, prepare_family_range
 from .params import Flat, Material, SimConfig, Track, Wheel, new_flat_length
 from .sweeps import impact_positions_grid
@@ -565,7 +565,7 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
     n_steps, dt, s0, run_in = it.batch_windows(ref, v, setup.config)
     vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
     dd, ss, rr = (np.repeat(a, pos.size) for a in (dt, s0, run_in))
-    after = jnp.asarray(np.arange(n_steps)[None, :] >= rr[:, None])
+    after = to_device(np.arange(n_steps)[None, :] >= rr[:, None])
 
     def fn(flat: Flat):
         law = _contact(setup, flat)

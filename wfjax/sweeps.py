@@ -969,15 +969,15 @@ def padded_models(tracks, config: SimConfig, cache_dir=None):
         return np.concatenate([a, extra])
 
     def stack(name, fill):
-        return jnp.asarray(np.stack([pad(getattr(m, name), fill) for m in models]))
+        return to_device(np.stack([pad(getattr(m, name), fill) for m in models]))
 
     sleeper = (None if first.sleeper_shapes is None else stack("sleeper_shapes", 0.0))
     return first._replace(
         poles=stack("poles", -1.0 + 0j), weights=stack("weights", 0.0),
         shapes=stack("shapes", 0.0), sleeper_shapes=sleeper,
-        node_x=jnp.asarray(np.stack([np.asarray(m.node_x) for m in models])),
-        residual_x=jnp.asarray(np.stack([np.asarray(m.residual_x) for m in models])),
-        residual=jnp.asarray(np.stack([np.asarray(m.residual) for m in models])))
+        node_x=to_device(np.stack([np.asarray(m.node_x) for m in models])),
+        residual_x=to_device(np.stack([np.asarray(m.residual_x) for m in models])),
+        residual=to_device(np.stack([np.asarray(m.residual) for m in models])))
 
 
 _MODEL_BATCHED = ("poles", "weights", "shapes", "sleeper_shapes", "node_x", "residual_x",

@@ -38,6 +38,7 @@ import scipy.sparse.linalg
 
 from . import track as track_mod
 from . import wheel as wheel_mod
+from ._xla import to_device
 from .params import Flat, Track, Wheel
 
 __all__ = [
@@ -244,9 +245,9 @@ def wheel_set(wheels: list[Wheel]) -> WheelSet:
         return np.concatenate([a, np.full(n_w - a.size, fill, dtype=complex)])
 
     return WheelSet(
-        jnp.asarray(np.stack([pad(m.poles, -1.0) for m in models])),
-        jnp.asarray(np.stack([pad(m.residues, 0.0) for m in models])),
-        jnp.asarray(np.stack([pad(m.axle_residues, 0.0) for m in models])),
+        to_device(np.stack([pad(m.poles, -1.0) for m in models])),
+        to_device(np.stack([pad(m.residues, 0.0) for m in models])),
+        to_device(np.stack([pad(m.axle_residues, 0.0) for m in models])),
         jnp.asarray([float(w.preload) for w in wheels]))
 
 

@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._xla import to_device
 from ..params import Flat, Material, SimConfig, Track, Wheel, _pytree
 from . import tables
 from .laws import TableLaw, cached_table_3d
@@ -142,7 +143,7 @@ def prepare_direct(flat: Flat, wheel: Wheel, track: Track, material: Material,
     plan = tables.window_plan(layout, flat, layout.s, max_sizes=DIRECT_WINDOW_SIZES)
 
     def per_node(a):  # [n_s, n_t - 1] -> [n_t]: node 0 (F = 0) takes node 1's window
-        return jnp.asarray(np.concatenate([a[:, :1], a], axis=1))
+        return to_device(np.concatenate([a[:, :1], a], axis=1))
 
     return Direct3DLaw(table, flat, material, per_node(plan.size_index), per_node(plan.x0),
                        per_node(plan.y0), layout, plan.sizes)
