@@ -196,4 +196,5 @@ def test_windowed_build_equals_whole_grid(flat, rail_radius):
     np.testing.assert_allclose(windowed.force, whole.force, rtol=0, atol=1e-9 * scale)
     np.testing.assert_allclose(windowed.slope, whole.slope, rtol=0,
                                atol=1e-9 * float(np.max(whole.slope)))
-    np.testing.assert_array_equal(windowed.onset, whole.onset)
+    # the windowed build evaluates the geometry in NumPy, the whole grid in XLA: rounding
+    np.testing.assert_allclose(windowed.onset, whole.onset, rtol=0, atol=1e-17)

@@ -42,26 +42,30 @@ def new_flat_half_angle(depth, wheel_radius):
     return jnp.arccos(1.0 - depth / wheel_radius)
 
 
-def _safe_positive(value):
+# The shape functions take the array module ``xp``: jnp (traceable, differentiable) or np,
+# which the 3D table builds use for concrete flats (their gaps then compile nothing).
+
+
+def _safe_positive(value, xp=jnp):
     """max(value, 0) with a zero (not NaN) gradient where value <= 0."""
-    return jnp.where(value > 0, value, 0.0)
+    return xp.where(value > 0, value, 0.0)
 
 
-def _new_flat_exact(depth, wheel_radius, x):
+def _new_flat_exact(depth, wheel_radius, x, xp=jnp):
     # Radial distance of the chord at angle theta = x/R is (R - d)/cos(theta); the deviation is
     # R minus that, clipped to zero beyond the chord's ends at theta = +-arccos(1 - d/R).
-    theta = jnp.clip(x / wheel_radius, -1.2, 1.2)
-    return _safe_positive(wheel_radius - (wheel_radius - depth) / jnp.cos(theta))
+    theta = xp.clip(x / wheel_radius, -1.2, 1.2)
+    return _safe_positive(wheel_radius - (wheel_radius - depth) / xp.cos(theta), xp)
 
 
-def _rounded_flat(depth, length, x):
-    inside = jnp.abs(x) <= length / 2
-    safe_x = jnp.where(inside, x, 0.0)
-    return jnp.where(inside, 0.5 * depth * (1.0 + jnp.cos(2.0 * jnp.pi * safe_x / length)), 0.0)
+def _rounded_flat(depth, length, x, xp=jnp):
+    inside = xp.abs(x) <= length / 2
+    safe_x = xp.where(inside, x, 0.0)
+    return xp.where(inside, 0.5 * depth * (1.0 + xp.cos(2.0 * np.pi * safe_x / length)), 0.0)
 
 
-def _profile_flat(profile_x, profile_z, x):
-    return jnp.interp(x, profile_x, profile_z, left=0.0, right=0.0)
+def _profile_flat(profile_x, profile_z, x, xp=jnp):
+    return xp.interp(x, profile_x, profile_z, left=0.0, right=0.0)
 
 
 def profile_deviation(flat: Flat, x):
@@ -82,14 +86,18 @@ def profile_deviation(flat: Flat, x):
     Returns:
         Array shaped like ``x`` [m].
     """
-    x = jnp.asarray(x)
+    return _deviation(flat, jnp.asarray(x), jnp)
+
+
+def _deviation(flat: Flat, x, xp):
+    """:func:`profile_deviation` with array module ``xp`` (np: a concrete flat's leaves)."""
     if flat.kind == "new":
-        return _new_flat_exact(flat.depth, flat.wheel_radius, x)
+        return _new_flat_exact(flat.depth, flat.wheel_radius, x, xp)
     if flat.kind == "rounded":
-        return _rounded_flat(flat.depth, flat.length, x)
+        return _rounded_flat(flat.depth, flat.length, x, xp)
     if flat.kind == "profile":
-        return _profile_flat(flat.profile_x, flat.profile_z, x)
-    return jnp.zeros_like(x, dtype=jnp.result_type(float))
+        return _profile_flat(flat.profile_x, flat.profile_z, x, xp)
+    return xp.zeros_like(x, dtype=float)
 
 
 def profile_deviation_small_depth(flat: Flat, x):
@@ -122,10 +130,14 @@ def flat_surface(flat: Flat, x, y, transverse_radius):
     Returns:
         [nx, ny] deviation [m].
     """
-    z = profile_deviation(flat, jnp.asarray(x))[:, None]
-    y = jnp.asarray(y)[None, :]
-    arc = transverse_radius - jnp.sqrt(transverse_radius**2 - y**2)
-    return _safe_positive(z - arc)
+    return _surface(flat, jnp.asarray(x), jnp.asarray(y), transverse_radius, jnp)
+
+
+def _surface(flat: Flat, x, y, transverse_radius, xp):
+    """:func:`flat_surface` with array module ``xp``; x may be [..., nx] (then [..., nx, ny])."""
+    z = _deviation(flat, x, xp)[..., None]
+    arc = transverse_radius - xp.sqrt(transverse_radius**2 - y**2)
+    return _safe_positive(z - arc, xp)
 
 
 def wheel_radius_at(flat: Flat, theta):

@@ -497,36 +497,45 @@ class _SharedBuilder:
             element_size=spec.element_size, s_max=(self.n - 1) * spec.element_size,
             n_s=self.n, c_max=spec.c_max, n_t=spec.n_t, symmetric=True,
             wheel_radius=spec.wheel_radius, rail_head_radius=spec.rail_head_radius)
-        self.gaps, boxes = {}, {}
+        self.gaps, boxes, self.shared = {}, {}, {}
+        cs = tables._compressions(self.tspec)
         for i, (_, _, flat, s) in self.geometry.items():
-            # padded to the longest node, so one compiled gap program serves every node
-            padded = np.concatenate([s, np.repeat(s[-1:], self.n - len(s))])
-            gaps, onsets = (a[:len(s)] for a in tables._column_gaps(self.tspec, flat, padded))
+            gaps, onsets = tables._column_gaps(self.tspec, flat, s)
             self.gaps[i] = gaps, onsets
+            self.shared[i] = tables.shared_prefix(gaps, onsets, cs)
             boxes[i] = tables._boxes(self.tspec, gaps - gaps.min(axis=(1, 2), keepdims=True),
                                      tables.WINDOW_MARGIN)
-        self.sizes = tuple(tables._merge_sizes(tables.needed_sizes(list(boxes.values())),
+        solved = [np.arange(len(cs))[None, :] >= self.shared[i][:, None] for i in boxes]
+        self.sizes = tuple(tables._merge_sizes(tables.needed_sizes(list(boxes.values()), solved),
                                                FAMILY_WINDOW_SIZES,
                                                tables.COST_PER_WINDOW_SIZE))
         self.plans = {i: tables.assign_windows(self.tspec, b, self.sizes)
                       for i, b in boxes.items()}
         dtype = next(iter(self.gaps.values()))[0].dtype
         self.material = tables._solver_inputs(material, dtype)
+        self.estar = float(kalker.combined_modulus(material))
         pool = core_pool()
         self.solvers = [pool.submit(tables.window_solver, size, spec.element_size, tol, dtype)
                         for size in self.sizes]
 
     def __call__(self, idx: int):
         gaps, onsets = self.gaps[idx]
-        plan = self.plans[idx]
+        plan, shared = self.plans[idx], self.shared[idx]
         solvers = [c.result() for c in self.solvers]
         cs = tables._compressions(self.tspec)
-        force, stiffness, ok = zip(*(
-            tables._solve_column(solvers, self.sizes, gaps[i], onsets[i], cs,
-                                 plan.size_index[i], plan.x0[i], plan.y0[i], self.material)
-            for i in range(len(onsets))), strict=True)
-        force, slope = tables._column_outputs(self.tspec, np.stack(force), np.stack(stiffness))
-        return onsets, np.asarray(force), np.asarray(slope), all(ok)
+
+        def column(i, reference=None, keep=False):
+            return tables._solve_column(solvers, self.sizes, gaps[i], onsets[i], cs,
+                                        plan.size_index[i], plan.x0[i], plan.y0[i],
+                                        self.material, self.estar, int(shared[i]), reference,
+                                        keep)
+
+        last = len(onsets) - 1  # the smooth wheel: solved first, the others share its solves
+        reference = column(last, keep=bool(np.any(shared)))
+        solved = [column(i, reference) for i in range(last)] + [reference]
+        force, slope = tables._column_outputs(self.tspec, np.stack([c.force for c in solved]),
+                                              np.stack([c.stiffness for c in solved]))
+        return onsets, np.asarray(force), np.asarray(slope), all(c.converged for c in solved)
 
 
 def _node_build(builder: _SharedBuilder, idx: int) -> dict[str, np.ndarray]:

@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..geometry import flat_surface
+from .. import geometry
 from ..params import Flat, Material
 
 __all__ = [
@@ -744,11 +744,16 @@ def gap_3d(flat: Flat, s, x, y, wheel_radius, rail_head_radius):
     Returns:
         [nx, ny] gap [m] (>= 0; 0 at the nominal contact point of a smooth wheel).
     """
-    x = jnp.asarray(x)
-    y = jnp.asarray(y)
-    zx = wheel_radius - jnp.sqrt(wheel_radius**2 - x**2)
-    zy = rail_head_radius - jnp.sqrt(rail_head_radius**2 - y**2)
-    return zx[:, None] + zy[None, :] + flat_surface(flat, x + s, y, rail_head_radius)
+    return _gap(flat, s, jnp.asarray(x), jnp.asarray(y), wheel_radius, rail_head_radius, jnp)
+
+
+def _gap(flat: Flat, s, x, y, wheel_radius, rail_head_radius, xp):
+    """:func:`gap_3d` with array module ``xp`` (np: a concrete flat's leaves, no compiling);
+    ``s`` may be [n] (then [n, nx, ny])."""
+    s = xp.asarray(s)[..., None]
+    zx = wheel_radius - xp.sqrt(wheel_radius**2 - x**2)
+    zy = rail_head_radius - xp.sqrt(rail_head_radius**2 - y**2)
+    return zx[:, None] + zy[None, :] + geometry._surface(flat, x + s, y, rail_head_radius, xp)
 
 
 def elliptic_hertz(force, radius_x, radius_y, material: Material = _DEFAULT_MATERIAL):

@@ -170,34 +170,37 @@ def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float =
                      wheel_radius=float(wheel_radius), rail_head_radius=float(rail_head_radius))
 
 
-def _onset(spec: TableSpec, flat: Flat, s):
+def _onset(spec: TableSpec, flat: Flat, s, xp=jnp):
     """Continuum rigid contact onset min_x' gap(x', 0; s) [m] (smooth in s; differentiable).
 
     The minimum over y is at y = 0 (the flat's transverse arcs follow the rail head), so a 1D
     search suffices: a grid at 1/8 element across the contact grid, refined to 1/256 element
     around its minimiser (the minimiser is held fixed for the gradient: envelope theorem), and
-    the chord ends of a new flat (corners of the gap).
+    the chord ends of a new flat (corners of the gap). ``xp``: jnp (traceable) or np (a
+    concrete flat's leaves and s; ``s`` may then be [n], the onsets [n]).
     """
-    from ..geometry import profile_deviation
+    from ..geometry import _deviation
 
+    hold = jax.lax.stop_gradient if xp is jnp else np.asarray
+    s = xp.asarray(s)[..., None]
     rw = spec.wheel_radius
     half = (spec.nx - 1) / 2 * spec.element_size
     step = spec.element_size / 8
 
-    def g1d(x):
-        return rw - jnp.sqrt(rw**2 - x**2) + profile_deviation(flat, x + s)
+    def g1d(x):  # [..., m] gap along y = 0 at x [..., m]
+        return rw - xp.sqrt(rw**2 - x**2) + _deviation(flat, x + s, xp)
 
-    xs = jnp.asarray(np.arange(-8 * (spec.nx - 1) // 2, 8 * (spec.nx - 1) // 2 + 1) * step)
-    x0 = jax.lax.stop_gradient(xs[jnp.argmin(g1d(xs))])
-    xf = jnp.clip(x0 + jnp.asarray(np.linspace(-step, step, 65)), -half, half)
-    onset = jnp.min(g1d(jax.lax.stop_gradient(xf)))
+    xs = np.arange(-8 * (spec.nx - 1) // 2, 8 * (spec.nx - 1) // 2 + 1) * step
+    x0 = hold(xp.asarray(xs)[xp.argmin(g1d(xs), axis=-1)])[..., None]
+    xf = xp.clip(x0 + np.linspace(-step, step, 65), -half, half)
+    onset = xp.min(g1d(hold(xf)), axis=-1)
     if flat.kind == "new":
         # The chord ends are corners of the gap, often its minimum: a grid minimum misses a
         # corner by up to |slope| x spacing (~0.4 um at 2 mm elements). They move with the
         # depth and keep their gradient.
-        edge = flat.wheel_radius * jnp.arccos(1.0 - flat.depth / flat.wheel_radius)
-        onset = jnp.minimum(onset, jnp.min(g1d(jnp.clip(jnp.stack([edge - s, -edge - s]),
-                                                        -half, half))))
+        edge = flat.wheel_radius * xp.arccos(1.0 - flat.depth / flat.wheel_radius)
+        ends = xp.clip(xp.concatenate([edge - s, -edge - s], axis=-1), -half, half)
+        onset = xp.minimum(onset, xp.min(g1d(ends), axis=-1))
     return onset
 
 
@@ -273,10 +276,12 @@ WINDOW_MARGIN = 2  # elements between the rigid overlap's bounding box and the w
 # margin (the direct mode's solves, between the columns, keep WINDOW_MARGIN).
 TABLE_WINDOW_MARGIN = 0
 MAX_WINDOW_SIZES = 4  # static window sizes per build, at most
-# One more window size (one more compiled solver, about 1 s on the 2-core CPU) must save at
-# least this much modelled solve cost (FFT size m times log m, summed over the solves):
-# measured 5e-8 s per unit there (81 x 81 grid, 1230 solves, 17 s).
-COST_PER_WINDOW_SIZE = 2e7
+# One more window size (one more compiled solver: ~1 CPU-s to trace and compile on the 2-core
+# CPU) must save at least this much modelled solve cost (FFT size m times log m, summed over
+# the solves): measured ~2.2e-8 CPU-s per unit there (the default sweep's two tables, 1533
+# solves, 2.0 CPU-s warm). 2e7 (from 5e-8 s per unit before the solver's speed-ups) chose 3
+# sizes for them and built 0.4-0.9 s slower from cold than this, which chooses 2.
+COST_PER_WINDOW_SIZE = 5e7
 
 
 @functools.lru_cache(maxsize=8)
@@ -325,20 +330,13 @@ def _merge_sizes(needed: dict[tuple[int, int], int], max_sizes: int,
     return [(int(wx), int(wy)) for wx, wy in w[order]]
 
 
-@functools.partial(jax.jit, static_argnums=0)
-def _column_gaps_jit(spec: TableSpec, flat: Flat, s_values):
-    def one(s):
-        return (kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius,
-                              spec.rail_head_radius), _onset(spec, flat, s))
-
-    return jax.vmap(one)(s_values)
-
-
 def _column_gaps(spec: TableSpec, flat: Flat, s_values) -> tuple[np.ndarray, np.ndarray]:
     """([n, nx, ny] gap [m] on the table grid, [n] rigid onset [m]) at concrete flat
-    positions ``s_values`` [n] [m]: one compiled program per layout and flat kind."""
-    gaps, onsets = _column_gaps_jit(spec, flat, np.asarray(s_values))
-    return np.asarray(gaps), np.asarray(onsets)
+    positions ``s_values`` [n] [m] of a concrete flat, in NumPy (nothing to compile)."""
+    flat = jax.tree.map(np.asarray, flat)
+    s_values = np.asarray(s_values, dtype=float)
+    return (kalker._gap(flat, s_values, spec.x, spec.y, spec.wheel_radius,
+                        spec.rail_head_radius, np), _onset(spec, flat, s_values, np))
 
 
 def _relative_gaps(spec: TableSpec, flat: Flat, s_values) -> np.ndarray:
@@ -411,9 +409,14 @@ def _boxes(spec: TableSpec, rel: np.ndarray, margin: int) -> OverlapBoxes:
     return OverlapBoxes(xa, xb, ya, yb, wx, wy)
 
 
-def needed_sizes(boxes: list[OverlapBoxes]) -> dict[tuple[int, int], int]:
-    """Window size (wx, wy) -> number of solves that need it, over several builds."""
-    w = np.concatenate([np.stack([b.wx, b.wy], -1).reshape(-1, 2) for b in boxes])
+def needed_sizes(boxes: list[OverlapBoxes], solved=None) -> dict[tuple[int, int], int]:
+    """Window size (wx, wy) -> number of solves that need it, over several builds.
+
+    ``solved``: per build a [n_columns, n_t - 1] mask of the solves that run (default all;
+    the others are shared, :func:`shared_prefix`)."""
+    solved = [np.ones(b.wx.shape, bool) for b in boxes] if solved is None else solved
+    w = np.concatenate([np.stack([b.wx, b.wy], -1)[m] for b, m in zip(boxes, solved,
+                                                                       strict=True)])
     sizes, counts = np.unique(w, axis=0, return_counts=True)
     return {(int(a), int(b)): int(c) for (a, b), c in zip(sizes, counts, strict=True)}
 
@@ -544,21 +547,82 @@ def _compile_window_solver(wx: int, wy: int, h: float, tol: float, dtype: str):
             compiler_options=cpu_only(SOLVER_COMPILER_OPTIONS))
 
 
+class SolvedColumn(NamedTuple):
+    """One column's solves (host arrays): force [N] and stiffness dF/ddelta [N/m], [n_t - 1]
+    each, all converged, and, when kept, the pressure [Pa] and the stiffness solve's z [1/m]
+    on the whole grid after each solve, [n_t - 1, 2, nx, ny] (else None)."""
+
+    force: np.ndarray
+    stiffness: np.ndarray
+    converged: bool
+    warm: np.ndarray | None
+
+
+def shared_prefix(gaps: np.ndarray, onsets: np.ndarray, compressions) -> np.ndarray:
+    """[n] how many of each column's first compressions have the last column's solution.
+
+    Column i at compression c has the reference's (last column's) contact problem when its
+    onset is the reference's (the same approach onset + c), its gap is nowhere below the
+    reference's and equals it on the reference's rigid overlap {gap_ref < onset + c}: the
+    reference's pressure is then zero where the gaps differ and the gap is larger there, so
+    it solves column i's problem too (the solution is unique). At a table's end the last
+    column is the smooth wheel: the columns whose flat is still outside the overlap at small
+    compressions share them (about a fifth of the default sweep's solves).
+
+    Args:
+        gaps: [n, nx, ny] gap [m] of the columns on one grid; onsets: [n] onset [m].
+        compressions: [n_c] ascending compressions c [m].
+
+    Returns:
+        [n] int; the last column's entry is 0 (it is solved).
+    """
+    ref_gap, ref_onset = gaps[-1], onsets[-1]
+    eligible = (onsets == ref_onset) & np.all(gaps >= ref_gap, axis=(1, 2))
+    # the lowest reference gap where the column's gap differs: the reference's overlap stays
+    # below it up to c = that - onset
+    differ = np.min(np.where(gaps == ref_gap, np.inf, ref_gap), axis=(1, 2))
+    count = np.searchsorted(np.asarray(compressions), differ - ref_onset, side="left")
+    count = np.where(eligible, count, 0)
+    count[-1] = 0
+    return count
+
+
 def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, size_index,
-                  x0, y0, material):
-    """Forces, stiffnesses [n_t - 1] and convergence of one column, each compression on its
-    window (host loop; pressures and stiffness solves warm-started along the column)."""
+                  x0, y0, material, estar: float, shared: int = 0,
+                  reference: SolvedColumn | None = None, keep: bool = False) -> SolvedColumn:
+    """One column, each compression on its window (host loop).
+
+    The first ``shared`` compressions come from ``reference`` (:func:`shared_prefix`), which
+    also warm-starts the next solve. Each solve starts from the previous pressure plus the
+    first-order change with the approach, E* dc z (z = dq/ddelta on the previous contact
+    area, which the stiffness solve gives: about 15 % fewer CG iterations), and its stiffness
+    solve from the previous z. ``estar``: E* [Pa]. ``keep``: return the whole-grid pressures
+    and z after every solve (a reference for other columns).
+    """
+    n_c = len(compressions)
     gpz = np.zeros((3,) + gap.shape, gap.dtype)  # gap, then the warm starts p and z
     gpz[0] = gap
-    out = np.zeros((len(compressions), 3), gap.dtype)
-    for j, c in enumerate(compressions):
+    out = np.zeros((n_c, 3), gap.dtype)
+    warm = np.zeros((n_c, 2) + gap.shape, gap.dtype) if keep else None
+    if shared:
+        out[:shared] = np.stack([reference.force[:shared], reference.stiffness[:shared],
+                                 np.ones(shared)], axis=-1)
+        gpz[1:] = reference.warm[shared - 1]
+        if keep:
+            warm[:shared] = reference.warm[:shared]
+    for j in range(shared, n_c):
+        c = compressions[j]
+        if j:
+            gpz[1] += estar * (c - compressions[j - 1]) * gpz[2]
         k = int(size_index[j])
         wx, wy = sizes[k]
         window = np.s_[:, int(x0[j]):int(x0[j]) + wx, int(y0[j]):int(y0[j]) + wy]
         pz, out[j] = solvers[k](gpz[window], onset + c, material)
         gpz[1:] = 0.0
         gpz[(np.s_[1:],) + window[1:]] = pz
-    return out[:, 0], out[:, 1], bool(np.all(out[:, 2] == 1.0))
+        if keep:
+            warm[j] = gpz[1:]
+    return SolvedColumn(out[:, 0], out[:, 1], bool(np.all(out[:, 2] == 1.0)), warm)
 
 
 def _grid_sizes(spec: TableSpec, sizes) -> tuple[tuple[int, int], ...]:
@@ -570,40 +634,56 @@ def _build_windowed(specs, flats, material: Material, tol: float,
                     max_sizes: int = MAX_WINDOW_SIZES) -> list[ContactTable]:
     """:func:`build_tables_3d` of concrete flats: every solve on its window, the window sizes
     merged over all the tables (:func:`_merge_sizes`), the solvers from :func:`window_solver`
-    and the columns of all tables as items of :func:`wfjax._parallel.core_pool`, the most
-    expensive first (so the cores stay busy whatever the tables' sizes)."""
+    and the columns of all tables as items of :func:`wfjax._parallel.core_pool`: each table's
+    last column first (the smooth wheel: the others share its solves where the flat is
+    still outside the overlap, :func:`shared_prefix`), then the most expensive first (so the
+    cores stay busy whatever the tables' sizes)."""
     columns = [(spec, _solve_positions(spec)) for spec in specs]
     gaps = [_column_gaps(spec, flat, s) for (spec, s), flat in zip(columns, flats, strict=True)]
+    shared = [shared_prefix(g, onsets, _compressions(spec))
+              for spec, (g, onsets) in zip(specs, gaps, strict=True)]
+    solved = [np.arange(spec.n_t - 1)[None, :] >= n[:, None]
+              for spec, n in zip(specs, shared, strict=True)]
     boxes = [_boxes(spec, g - g.min(axis=(1, 2), keepdims=True), TABLE_WINDOW_MARGIN)
              for spec, (g, _) in zip(specs, gaps, strict=True)]
-    merged = _merge_sizes(needed_sizes(boxes), max_sizes, COST_PER_WINDOW_SIZE)
+    merged = _merge_sizes(needed_sizes(boxes, solved), max_sizes, COST_PER_WINDOW_SIZE)
     plans = [assign_windows(spec, b, _grid_sizes(spec, merged))
              for spec, b in zip(specs, boxes, strict=True)]
     dtype = gaps[0][0].dtype
     mat = _solver_inputs(material, dtype)
+    estar = float(kalker.combined_modulus(material))
     pool = core_pool()
     h = {spec.element_size for spec in specs}.pop()
     compiled = {size: pool.submit(window_solver, size, h, tol, dtype)
                 for size in dict.fromkeys(size for plan in plans for size in plan.sizes)}
+    references = {}
 
     def column(item):
         t, i = item
-        plan, (g, onsets) = plans[t], gaps[t]
+        plan, (g, onsets), n_shared = plans[t], gaps[t], int(shared[t][i])
+        last = i == len(onsets) - 1
         solvers = [compiled[size].result() for size in plan.sizes]
         return _solve_column(solvers, plan.sizes, g[i], onsets[i], _compressions(specs[t]),
-                             plan.size_index[i], plan.x0[i], plan.y0[i], mat)
+                             plan.size_index[i], plan.x0[i], plan.y0[i], mat, estar,
+                             n_shared, references[t].result() if n_shared else None,
+                             keep=last and bool(np.any(shared[t])))
 
+    futures = {}
+    for t, (_, s) in enumerate(columns):  # the references first: the others wait for them
+        futures[t, len(s) - 1] = references[t] = pool.submit(column, (t, len(s) - 1))
     cost = {(t, i): c for t, plan in enumerate(plans)
-            for i, c in enumerate(_solve_cost(*np.asarray(plan.sizes)[plan.size_index].T)
-                                  .sum(axis=0))}
-    futures = {item: pool.submit(column, item) for item in sorted(cost, key=cost.get,
-                                                                 reverse=True)}
+            for i, c in enumerate(np.sum(solved[t] * _solve_cost(
+                *np.moveaxis(np.asarray(plan.sizes)[plan.size_index], -1, 0)), axis=1))
+            if (t, i) not in futures}
+    futures.update({item: pool.submit(column, item)
+                    for item in sorted(cost, key=cost.get, reverse=True)})
     tables = []
     for t, (spec, s) in enumerate(columns):
-        force, stiffness, ok = zip(*(futures[t, i].result() for i in range(len(s))),
-                                   strict=True)
-        force_t, slope_t = _column_outputs(spec, np.stack(force), np.stack(stiffness))
-        table = _assemble(spec, gaps[t][1], force_t, slope_t, all(ok))
+        solved_t = [futures[t, i].result() for i in range(len(s))]
+        force_t, slope_t = _column_outputs(spec, np.stack([c.force for c in solved_t]),
+                                           np.stack([c.stiffness for c in solved_t]))
+        table = _assemble(spec, gaps[t][1], force_t, slope_t,
+                          all(c.converged for c in solved_t))
         tables.append(jax.tree.map(to_device, table))
     return tables
 
