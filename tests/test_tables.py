@@ -198,3 +198,53 @@ def test_windowed_build_equals_whole_grid(flat, rail_radius):
                                atol=1e-9 * float(np.max(whole.slope)))
     # the windowed build evaluates the geometry in NumPy, the whole grid in XLA: rounding
     np.testing.assert_allclose(windowed.onset, whole.onset, rtol=0, atol=1e-17)
+
+
+def test_shared_prefix_counts_the_compressions_whose_overlap_misses_the_difference():
+    """Synthetic columns on a 5 x 5 grid: a column shares the reference's (last column's)
+    first compressions while the reference's rigid overlap {gap_ref < onset + c} holds none
+    of the elements where the gaps differ; a lower gap anywhere or another onset shares none."""
+    x = np.arange(5.0) - 2
+    ref = (x[:, None] ** 2 + x[None, :] ** 2) * 1e-6  # gap [m], 0 in the centre
+    raised = ref.copy()
+    raised[4, 2] += 1e-6  # differs where ref = 4e-6
+    lowered = raised.copy()
+    lowered[0, 0] -= 0.5e-6  # nowhere below the reference: violated
+    gaps = np.stack([raised, lowered, ref, ref])
+    onsets = np.array([0.0, 0.0, 1e-7, 0.0])
+    cs = np.array([1e-6, 3e-6, 4e-6, 5e-6])
+    # raised: the overlap holds (4, 2) once c > 4e-6; at c = 4e-6 exactly it is on the boundary
+    np.testing.assert_array_equal(tables.shared_prefix(gaps, onsets, cs), [2, 0, 0, 0])
+
+
+def test_shared_solves_equal_the_columns_own(coarse):
+    """On a real table the columns near its end share the smooth wheel's first solves, the
+    centre shares none, and a shared solve equals the column's own (solved without sharing)
+    to 1e-9 of the force: the sharing is exact, not an approximation."""
+    spec, _ = coarse
+    s = tables._solve_positions(spec)
+    gaps, onsets = tables._column_gaps(spec, FLAT, s)
+    cs = tables._compressions(spec)
+    shared = tables.shared_prefix(gaps, onsets, cs)
+    assert shared[0] == 0 and shared[-1] == 0 and shared[-2] == len(cs)  # centre, reference
+    i = int(np.flatnonzero((shared > 0) & (shared < len(cs)))[0])  # partly shared
+    boxes = tables._boxes(spec, gaps - gaps.min(axis=(1, 2), keepdims=True), 0)
+    sizes = tables._merge_sizes(tables.needed_sizes([boxes]), 2, 0.0)
+    plan = tables.assign_windows(spec, boxes, tables._grid_sizes(spec, sizes))
+    solvers = [tables.window_solver(size, spec.element_size, 1e-12) for size in plan.sizes]
+    mat = tables._solver_inputs(MAT, np.float64)
+    estar = float(kalker.combined_modulus(MAT))
+
+    def column(k, n_shared=0, reference=None, keep=False):
+        return tables._solve_column(solvers, plan.sizes, gaps[k], onsets[k], cs,
+                                    plan.size_index[k], plan.x0[k], plan.y0[k], mat, estar,
+                                    n_shared, reference, keep)
+
+    reference = column(len(s) - 1, keep=True)
+    own, with_shared = column(i), column(i, int(shared[i]), reference)
+    assert own.converged and with_shared.converged
+    np.testing.assert_allclose(with_shared.force, own.force, rtol=0,
+                               atol=1e-9 * float(np.max(own.force)))
+    np.testing.assert_allclose(with_shared.stiffness, own.stiffness, rtol=1e-8)
+    # and the column is not the smooth wheel: the flat is in reach at the largest compression
+    assert abs(own.force[-1] - reference.force[-1]) > 1e-6 * reference.force[-1]

@@ -308,24 +308,40 @@ def _merge_sizes(needed: dict[tuple[int, int], int], max_sizes: int,
                  cost_per_size: float) -> list[tuple[int, int]]:
     """Window sizes covering ``needed`` (size -> solve count): greedily join the two sizes
     whose union (elementwise max) adds the least cost while more than ``max_sizes`` remain,
-    or while the join costs less than ``cost_per_size``."""
+    or while the join costs less than ``cost_per_size``.
+
+    The pairwise costs are kept in a matrix and only a join's row is recomputed (the default
+    sweep's ~300 sizes: 0.1 s to recompute them all at every join, ~10 ms this way).
+    """
     w = np.array(list(needed), dtype=int).reshape(-1, 2)
     count = np.array(list(needed.values()), dtype=float)
-    while len(w) > 1:
-        ux, uy = np.maximum.outer(w[:, 0], w[:, 0]), np.maximum.outer(w[:, 1], w[:, 1])
-        own = count * _solve_cost(w[:, 0], w[:, 1])
-        extra = (count[:, None] + count[None, :]) * _solve_cost(ux, uy) - own[:, None] \
-            - own[None, :]
-        extra[np.tril_indices(len(w))] = np.inf
+    alive = np.ones(len(w), bool)
+    own = count * _solve_cost(w[:, 0], w[:, 1])
+
+    def extra_with(k):  # [n] cost added by joining size k with each size (inf: itself, gone)
+        union = np.maximum(w, w[k])
+        e = (count + count[k]) * _solve_cost(union[:, 0], union[:, 1]) - own - own[k]
+        e[~alive] = np.inf
+        e[k] = np.inf
+        return e
+
+    extra = np.full((len(w), len(w)), np.inf)
+    for k in range(len(w)):
+        extra[k] = extra_with(k)
+    while alive.sum() > 1:
         a, b = np.unravel_index(np.argmin(extra), extra.shape)
-        if len(w) <= max_sizes and extra[a, b] > cost_per_size:
+        if alive.sum() <= max_sizes and extra[a, b] > cost_per_size:
             break
-        keep = np.ones(len(w), bool)
-        keep[[a, b]] = False
-        w = np.concatenate([w[keep], [[ux[a, b], uy[a, b]]]])
-        count = np.concatenate([count[keep], [count[a] + count[b]]])
-        w, inverse = np.unique(w, axis=0, return_inverse=True)  # a union may equal a size
-        count = np.bincount(inverse.ravel(), weights=count, minlength=len(w))
+        union = np.maximum(w[a], w[b])
+        alive[[a, b]] = False
+        extra[[a, b], :] = np.inf
+        extra[:, [a, b]] = np.inf
+        same = np.flatnonzero(alive & np.all(w == union, axis=1))  # a union may equal a size
+        k = same[0] if len(same) else a
+        w[k], count[k], alive[k] = union, count[k] * (k != a) + count[a] + count[b], True
+        own[k] = count[k] * _solve_cost(w[k, 0], w[k, 1])
+        extra[k] = extra[:, k] = extra_with(k)
+    w = w[alive]
     order = np.argsort(_solve_cost(w[:, 0], w[:, 1]), kind="stable")
     return [(int(wx), int(wy)) for wx, wy in w[order]]
 
