@@ -248,3 +248,19 @@ def test_shared_solves_equal_the_columns_own(coarse):
     np.testing.assert_allclose(with_shared.stiffness, own.stiffness, rtol=1e-8)
     # and the column is not the smooth wheel: the flat is in reach at the largest compression
     assert abs(own.force[-1] - reference.force[-1]) > 1e-6 * reference.force[-1]
+
+
+def test_merge_sizes_covers_every_solve_within_the_limit():
+    """The merged window sizes hold every needed size, number at most max_sizes, join all
+    into the elementwise maximum when a size is dear, and keep the sizes when it is free."""
+    rng = np.random.default_rng(3)
+    needed = {(int(a), int(b)): int(c) for a, b, c in
+              zip(rng.integers(2, 80, 60), rng.integers(2, 70, 60), rng.integers(1, 40, 60))}
+    for max_sizes in (1, 2, 4):
+        merged = np.array(tables._merge_sizes(needed, max_sizes, 5e7))
+        assert len(merged) <= max_sizes
+        for a, b in needed:
+            assert np.any((merged[:, 0] >= a) & (merged[:, 1] >= b))
+    top = tuple(int(v) for v in np.max(np.array(list(needed)), axis=0))
+    assert tables._merge_sizes(needed, 4, np.inf) == [top]
+    assert sorted(tables._merge_sizes(needed, len(needed), -np.inf)) == sorted(needed)
