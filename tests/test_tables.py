@@ -254,8 +254,8 @@ def test_merge_sizes_covers_every_solve_within_the_limit():
     """The merged window sizes hold every needed size, number at most max_sizes, join all
     into the elementwise maximum when a size is dear, and keep the sizes when it is free."""
     rng = np.random.default_rng(3)
-    needed = {(int(a), int(b)): int(c) for a, b, c in
-              zip(rng.integers(2, 80, 60), rng.integers(2, 70, 60), rng.integers(1, 40, 60))}
+    needed = {(int(a), int(b)): int(c) for a, b, c in zip(
+        rng.integers(2, 80, 60), rng.integers(2, 70, 60), rng.integers(1, 40, 60), strict=True)}
     for max_sizes in (1, 2, 4):
         merged = np.array(tables._merge_sizes(needed, max_sizes, 5e7))
         assert len(merged) <= max_sizes

@@ -25,9 +25,13 @@ Parametrisation (chosen so that every column is smooth and Hertz-like):
   same grid).
 
 Build: one :func:`wfjax.contact.kalker.solve` per node, warm-started along c (pressures and the
-stiffness solve), sequential along each column. A concrete flat's solves each run on a window of
-the table grid around its own rigid overlap (:func:`window_plan`: the same problem, since the
-contact lies inside the overlap; 2-3.5x faster than the whole grid), with a few window sizes,
+stiffness solve), sequential along each column; a concrete build starts each solve from the
+previous pressure plus its first-order change E* dc z (z = dq/ddelta from the stiffness solve),
+and takes the first compressions of a column whose flat is still outside the rigid overlap
+from the table's last column, the smooth wheel (:func:`shared_prefix`: the same problem). A
+concrete flat's solves each run on a window of the table grid around its own rigid overlap
+(:func:`window_plan`: the same problem, since the contact lies inside the overlap; 2-3.5x
+faster than the whole grid), with a few window sizes,
 each one compiled solver (:func:`window_solver`) shared by every table and family node of the
 process; a host loop drives each column, and the columns of all tables built together
 (:func:`build_tables_3d`) are spread over the CPU cores. Traced flats or materials
