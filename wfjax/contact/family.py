@@ -111,6 +111,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._parallel import core_pool, map_per_core
+from .._xla import to_device
 from ..params import MAX_FLAT_DEPTH, Flat, Material
 from . import kalker, tables
 
@@ -614,8 +615,8 @@ def build_family(spec: FamilySpec, material: Material = _DEFAULT_MATERIAL, cache
             _mirror_padded(a[name], spec.n_half + 1 - n_cols)
             for name in ("onset", "force", "slope"))
         ok = ok and bool(a["converged"] == 1.0)
-    return FlatFamily(spec, jnp.asarray(spec.c_max), jnp.asarray(onset), jnp.asarray(force),
-                      jnp.asarray(slope), jnp.asarray(1.0 if ok else 0.0))
+    return FlatFamily(spec, jnp.asarray(spec.c_max), to_device(onset), to_device(force),
+                      to_device(slope), jnp.asarray(1.0 if ok else 0.0))
 
 
 # ----------------------------------------------------------------------------------------
