@@ -215,6 +215,11 @@ def test_shared_prefix_counts_the_compressions_whose_overlap_misses_the_differen
     cs = np.array([1e-6, 3e-6, 4e-6, 5e-6])
     # raised: the overlap holds (4, 2) once c > 4e-6; at c = 4e-6 exactly it is on the boundary
     np.testing.assert_array_equal(tables.shared_prefix(gaps, onsets, cs), [2, 0, 0, 0])
+    np.testing.assert_array_equal(tables.solved_mask(np.array([2, 0]), 3),
+                                  [[False, False, True], [True, True, True]])
+    with pytest.raises(ValueError, match="shared must be 0"):
+        tables._solve_column([], [], ref, 0.0, cs, [0] * 4, [0] * 4, [0] * 4, None, 1.0,
+                             shared=1, keep=True)
 
 
 def test_shared_solves_equal_the_columns_own(coarse):

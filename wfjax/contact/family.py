@@ -506,7 +506,7 @@ class _SharedBuilder:
             self.shared[i] = tables.shared_prefix(gaps, onsets, cs)
             boxes[i] = tables._boxes(self.tspec, gaps - gaps.min(axis=(1, 2), keepdims=True),
                                      tables.WINDOW_MARGIN)
-        solved = [np.arange(len(cs))[None, :] >= self.shared[i][:, None] for i in boxes]
+        solved = [tables.solved_mask(self.shared[i], len(cs)) for i in boxes]
         self.sizes = tuple(tables._merge_sizes(tables.needed_sizes(list(boxes.values()), solved),
                                                FAMILY_WINDOW_SIZES,
                                                tables.COST_PER_WINDOW_SIZE))

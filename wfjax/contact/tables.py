@@ -341,8 +341,10 @@ def _merge_sizes(needed: dict[tuple[int, int], int], max_sizes: int,
         extra[[a, b], :] = np.inf
         extra[:, [a, b]] = np.inf
         same = np.flatnonzero(alive & np.all(w == union, axis=1))  # a union may equal a size
-        k = same[0] if len(same) else a
-        w[k], count[k], alive[k] = union, count[k] * (k != a) + count[a] + count[b], True
+        k = same[0] if len(same) else a  # the join lives on in that size, or in a's slot
+        joined = count[a] + count[b]
+        count[k] = joined if k == a else count[k] + joined
+        w[k], alive[k] = union, True
         own[k] = count[k] * _solve_cost(w[k, 0], w[k, 1])
         extra[k] = extra[:, k] = extra_with(k)
     w = w[alive]
@@ -432,8 +434,8 @@ def _boxes(spec: TableSpec, rel: np.ndarray, margin: int) -> OverlapBoxes:
 def needed_sizes(boxes: list[OverlapBoxes], solved=None) -> dict[tuple[int, int], int]:
     """Window size (wx, wy) -> number of solves that need it, over several builds.
 
-    ``solved``: per build a [n_columns, n_t - 1] mask of the solves that run (default all;
-    the others are shared, :func:`shared_prefix`)."""
+    ``solved``: per build a [n_columns, n_t - 1] mask of the solves that run
+    (:func:`solved_mask`; default all)."""
     solved = [np.ones(b.wx.shape, bool) for b in boxes] if solved is None else solved
     w = np.concatenate([np.stack([b.wx, b.wy], -1)[m] for b, m in zip(boxes, solved,
                                                                        strict=True)])
@@ -607,6 +609,12 @@ def shared_prefix(gaps: np.ndarray, onsets: np.ndarray, compressions) -> np.ndar
     return count
 
 
+def solved_mask(shared: np.ndarray, n_c: int) -> np.ndarray:
+    """[n, n_c] True for the solves that run: each column's compressions from its shared
+    prefix (:func:`shared_prefix`, [n]) on."""
+    return np.arange(n_c)[None, :] >= np.asarray(shared)[:, None]
+
+
 def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, size_index,
                   x0, y0, material, estar: float, shared: int = 0,
                   reference: SolvedColumn | None = None, keep: bool = False) -> SolvedColumn:
@@ -616,9 +624,11 @@ def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, s
     also warm-starts the next solve. Each solve starts from the previous pressure plus the
     first-order change with the approach, E* dc z (z = dq/ddelta on the previous contact
     area, which the stiffness solve gives: about 15 % fewer CG iterations), and its stiffness
-    solve from the previous z. ``estar``: E* [Pa]. ``keep``: return the whole-grid pressures
-    and z after every solve (a reference for other columns).
+    solve from the previous z. ``estar``: E* [Pa]. ``keep`` (with ``shared`` = 0): return the
+    whole-grid pressures and z after every solve (a reference for other columns).
     """
+    if keep and shared:
+        raise ValueError("a reference column (keep=True) is solved whole: shared must be 0")
     n_c = len(compressions)
     gpz = np.zeros((3,) + gap.shape, gap.dtype)  # gap, then the warm starts p and z
     gpz[0] = gap
@@ -628,8 +638,6 @@ def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, s
         out[:shared] = np.stack([reference.force[:shared], reference.stiffness[:shared],
                                  np.ones(shared)], axis=-1)
         gpz[1:] = reference.warm[shared - 1]
-        if keep:
-            warm[:shared] = reference.warm[:shared]
     for j in range(shared, n_c):
         c = compressions[j]
         if j:
@@ -662,8 +670,7 @@ def _build_windowed(specs, flats, material: Material, tol: float,
     gaps = [_column_gaps(spec, flat, s) for (spec, s), flat in zip(columns, flats, strict=True)]
     shared = [shared_prefix(g, onsets, _compressions(spec))
               for spec, (g, onsets) in zip(specs, gaps, strict=True)]
-    solved = [np.arange(spec.n_t - 1)[None, :] >= n[:, None]
-              for spec, n in zip(specs, shared, strict=True)]
+    solved = [solved_mask(n, spec.n_t - 1) for spec, n in zip(specs, shared, strict=True)]
     boxes = [_boxes(spec, g - g.min(axis=(1, 2), keepdims=True), TABLE_WINDOW_MARGIN)
              for spec, (g, _) in zip(specs, gaps, strict=True)]
     merged = _merge_sizes(needed_sizes(boxes, solved), max_sizes, COST_PER_WINDOW_SIZE)
