@@ -1,0 +1,36 @@
+"""The restructured core reproduces the results of the code before issue 30's restructuring
+(``tests/baselines.py`` wrote ``tests/data/issue30_baselines.npz`` at the commit it records,
+from an empty cache).
+
+Tolerance: 1e-12 relative to the largest magnitude of each array, plus 1e-12 P absolute on forces
+(the minima and histories near loss of contact sit near zero)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import baselines
+
+P = 65e3 + 1e-9  # N, the default preload
+SLOW = {"default_sweep", "single/3d", "fit3d"}  # 3D tables or a 3D family from empty caches
+
+
+def _stored(case: str) -> dict:
+    data = np.load(baselines.PATH)
+    prefix = f"{case}::"
+    return {k[len(prefix):]: data[k] for k in data.files if k.startswith(prefix)}
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW else c
+                                  for c in baselines.CASES])
+def test_results_equal_the_baseline(case):
+    want = _stored(case)
+    got = baselines.CASES[case]()
+    assert set(got) == set(want)
+    for key, ref in want.items():
+        value = np.asarray(got[key])
+        assert value.shape == ref.shape, key
+        forces = any(w in key for w in ("force", "load", "peak"))
+        bound = 1e-12 * np.max(np.abs(ref)) + (1e-12 * P if forces else 0.0)
+        assert np.max(np.abs(value - ref)) <= bound, (key, np.max(np.abs(value - ref)))
