@@ -24,10 +24,10 @@ import numpy as np
 import scipy.optimize
 
 import wfjax as wf
-from wfjax import interaction as I  # noqa: N812
 from wfjax import track as T  # noqa: N812
 from wfjax import wheel as W  # noqa: N812
 from wfjax.contact import laws
+from wfjax.scenario.windows import run_windows
 
 
 def step_coefficients(poles: np.ndarray, dt: float):
@@ -42,7 +42,7 @@ def simulate_numpy(c_h, s_grid, drop, poles_r, weights, phi, res, poles_w, resid
     """One Hertz-trajectory simulation; returns force [n_steps] [N].
 
     phi: complex [n_steps, n_modes] rail mode shapes at the contact positions; res: [n_steps]
-    residual compliance [m/N]; other arguments as in :func:`wfjax.interaction.time_loop`.
+    residual compliance [m/N]; other arguments as in :func:`wfjax.loop.run.time_loop`.
     """
     def law(delta, s):
         comp = delta - np.interp(s, s_grid, drop, left=0.0, right=0.0)
@@ -89,7 +89,7 @@ def baseline_sweep(flat, speeds, positions):
     c_h, s_grid, drop = (np.asarray(a) for a in (law.c_h, law.s_grid, law.drop))
     poles_r, weights = np.asarray(model.poles), np.asarray(model.weights)
     poles_w, residues_w = np.asarray(wm.poles), np.asarray(wm.residues)
-    steps, dts, starts, run_ins = I.run_windows(flat, speeds, config)  # as wfjax.sweep
+    steps, dts, starts, run_ins = run_windows(flat, speeds, config)  # as wfjax.sweep
     fmax = np.zeros((speeds.size, positions.size))
     fmin = np.zeros_like(fmax)
     for i, v in enumerate(speeds):
@@ -136,7 +136,7 @@ def main() -> None:
     fmax, fmin = baseline_sweep(flat, speeds, positions)
     t_np = time.perf_counter() - t0
 
-    run_steps = int(I.run_windows(flat, speeds, wf.SimConfig())[0].sum()) * positions.size
+    run_steps = int(run_windows(flat, speeds, wf.SimConfig())[0].sum()) * positions.size
     d_max = np.max(np.abs(fmax - ref.max_force[0]) / ref.max_force[0])
     d_min = np.max(np.abs(fmin - ref.min_force[0]) / ref.max_force[0])
     print(f"Hertz-trajectory sweep, rounded 0.9 mm/100 mm flat, {speeds.size} speeds x "

@@ -22,7 +22,7 @@ PRELUDE = """
 import resource, time
 import jax, jax.numpy as jnp, numpy as np
 import wfjax as wf
-from wfjax import interaction as I
+from wfjax.loop.structure import structure
 t0 = time.perf_counter()
 """
 
@@ -31,7 +31,7 @@ jax.effects_barrier()
 print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 """
 
-STRUCTURE = "I.structure(wf.Wheel(), wf.Track(), wf.SimConfig())"
+STRUCTURE = "structure(wf.Wheel(), wf.Track(), wf.SimConfig())"
 
 
 def _table(flat: str) -> str:

@@ -2,7 +2,7 @@
 
 Rounded flat d = 0.9 mm, l = 100 mm, 100 km/h, impact above a sleeper, default ``SimConfig``
 (1 mm of travel per step). The prepared contact law (tables, node sets) and the modal models
-are built once and timed apart; the time loop (:func:`wfjax.interaction.run_scan`; the 3D
+are built once and timed apart; the time loop (:func:`wfjax.loop.run.run_scan`; the 3D
 direct mode is :class:`wfjax.contact.direct3d.Direct3DLaw`, with every solve on its window
 and, for comparison, on the table's whole grid) is timed with
 ``block_until_ready``:
@@ -23,9 +23,11 @@ import time
 import jax
 
 import wfjax as wf
-from wfjax import interaction as I  # noqa: N812
 from wfjax._compile_clock import compile_seconds
 from wfjax.contact import laws
+from wfjax.loop.run import run_scan
+from wfjax.loop.structure import structure
+from wfjax.scenario.windows import n_steps_for, simulation_window
 
 
 def timed(fn):
@@ -48,11 +50,11 @@ def main() -> None:
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
     wheel, track, material, config = wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig()
     v, imp = 100 / 3.6, 0.0
-    n, dt = I.n_steps_for(flat, v, config)
-    s0, s1 = I.simulation_window(flat, v, config)
+    n, dt = n_steps_for(flat, v, config)
+    s0, s1 = simulation_window(flat, v, config)
     travel = s1 - s0
-    t_struct, _ = timed(lambda: I.structure(wheel, track, config))
-    struct = I.structure(wheel, track, config)
+    t_struct, _ = timed(lambda: structure(wheel, track, config))
+    struct = structure(wheel, track, config)
     print(f"devices {jax.devices()}, x64 {jax.config.jax_enable_x64}; {n} steps, dt = "
           f"{dt * 1e6:.1f} us, {travel:.3f} m of travel at 100 km/h; modal models "
           f"{t_struct:.2f} s (from the disk cache if warm)\n")
@@ -66,7 +68,7 @@ def main() -> None:
         t_prep = time.perf_counter() - t0
 
         def run(law=law):
-            return I.run_scan(law, struct, v, dt, imp + s0, imp, n, config.newton_iterations)
+            return run_scan(law, struct, v, dt, imp + s0, imp, n, config.newton_iterations)
 
         first, comp = timed(run)
         t_run = statistics.median(timed(run)[0] for _ in range(a.repeats))
@@ -81,7 +83,7 @@ def main() -> None:
             out = {}
 
             def direct(law=law, out=out):
-                out["h"] = I.run_scan(law, struct, v, dt, imp + s0, imp, n,
+                out["h"] = run_scan(law, struct, v, dt, imp + s0, imp, n,
                                       cfg.newton_iterations)
                 return out["h"]
 

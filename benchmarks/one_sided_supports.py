@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 import wfjax as wf
-from wfjax import interaction as it
 from wfjax import supports
+from wfjax.scenario.windows import RUN_IN_TIME
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from fe_reference import newmark_wheels  # noqa: E402
@@ -37,7 +37,7 @@ def main():
         x, out = np.asarray(res.x), []
         f = newmark_wheels(FLAT, V, x[0], x[0] - float(res.s[0]), [0.0], float(res.time_step),
                            x.size, track=track, supports_out=out)
-        a = np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME
+        a = np.asarray(res.t) >= 0.5 * RUN_IN_TIME
         fm, fn = np.asarray(res.force)[a], f[a, 0]
         sm, sn = np.asarray(res.support_force)[a, 0], out[0][a, 0]
         print(f"gap {gap * 1e3:g} mm (loop / Newmark): max {fm.max() / 1e3:.2f} / "

@@ -7,9 +7,9 @@ import scipy.sparse.linalg
 
 import wfjax as wf
 from wfjax import geometry, supports
-from wfjax import interaction as it
 from wfjax import track as track_mod
 from wfjax import wheel as wheel_mod
+from wfjax.contact.laws import prepare
 
 
 def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_roughness=None,
@@ -29,7 +29,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
     track, wheel = track or wf.Track(), wf.Wheel()
     fe = track_mod.assemble(track)
     k, m, c = fe.stiffness.tocsc(), fe.mass.tocsc(), fe.damping.tocsc()
-    c_h = float(it.prepare("hertz-profile", flat, wheel, track, wf.Material(),
+    c_h = float(prepare("hertz-profile", flat, wheel, track, wf.Material(),
                            wf.SimConfig()).c_h)
     mw, cw, kw = wheel_mod.system_matrices(wheel)
     a0, a1 = 4 / dt**2, 2 / dt

@@ -21,9 +21,11 @@ import pytest
 import wfjax as wf
 from wfjax import adjoint as adj
 from wfjax import fit
-from wfjax import interaction as it
 from wfjax import roughness as rough_mod
+from wfjax.api import loop_roughness
 from wfjax.contact import family, laws
+from wfjax.loop.run import run_scan
+from wfjax.loop.structure import structure, vehicle_structure
 from wfjax.vehicle import Vehicle, placement
 
 V, DT, N = 100 / 3.6, 3e-5, 400
@@ -37,7 +39,7 @@ REL = 1e-8
 
 @pytest.fixture(scope="module")
 def struct():
-    return it.structure(WHEEL, TRACK, CONFIG)
+    return structure(WHEEL, TRACK, CONFIG)
 
 
 @pytest.fixture(scope="module")
@@ -76,12 +78,12 @@ def test_gradient_matches_plain_autodiff_and_forward_is_bit_identical(contact, s
     def loss(th, runner):
         return _misfit(runner(_law(contact, th, fam), struct, V, DT, X0, IMPACT, N))
 
-    plain = jax.jit(jax.grad(lambda th: loss(th, it.run_scan)))(TH0)
+    plain = jax.jit(jax.grad(lambda th: loss(th, run_scan)))(TH0)
     ours = jax.jit(jax.grad(lambda th: loss(th, adj.run_adjoint)))(TH0)
     assert np.all(np.abs(np.asarray(plain)) > 0)
     _close(ours, plain)
     law = _law(contact, TH0, fam)
-    want = it.run_scan(law, struct, V, DT, X0, IMPACT, N)
+    want = run_scan(law, struct, V, DT, X0, IMPACT, N)
     got = adj.run_adjoint(law, struct, V, DT, X0, IMPACT, N)
     assert want.keys() == got.keys()
     for k in want:
@@ -96,7 +98,7 @@ def test_table_law_leaves_get_the_plain_cotangents(struct, fam):
     def loss(law, runner):
         return _misfit(runner(law, struct, V, DT, X0, IMPACT, N))
 
-    plain = jax.jit(jax.grad(lambda lw: loss(lw, it.run_scan)))(table)
+    plain = jax.jit(jax.grad(lambda lw: loss(lw, run_scan)))(table)
     ours = jax.jit(jax.grad(lambda lw: loss(lw, adj.run_adjoint)))(table)
     for name in ("onset", "force", "slope"):
         a, b = getattr(ours.table, name), getattr(plain.table, name)
@@ -108,7 +110,7 @@ def test_table_law_leaves_get_the_plain_cotangents(struct, fam):
 @pytest.mark.parametrize("contact", ["hertz-trajectory", "3d"])
 def test_two_wheel_vehicle(contact, struct, fam):
     vehicle = Vehicle.bogie()
-    vstruct = it.vehicle_structure(vehicle, [WHEEL, WHEEL], TRACK, CONFIG)
+    vstruct = vehicle_structure(vehicle, [WHEEL, WHEEL], TRACK, CONFIG)
     smooth = (laws.parametric_law(fam, jnp.asarray(0.6e-3), jnp.asarray(0.095)) if contact == "3d"
               else laws.prepare(contact, wf.Flat.none(), WHEEL, TRACK, MAT, CONFIG))
     x_imp = placement(vehicle, 0.65) + IMPACT
@@ -117,11 +119,11 @@ def test_two_wheel_vehicle(contact, struct, fam):
         hist = runner((_law(contact, th, fam), smooth), vstruct, V, DT, x_imp - 0.2, x_imp, N)
         return _misfit(hist) + jnp.max(hist["force"][:, 1]) / 1e5
 
-    plain = jax.jit(jax.grad(lambda th: loss(th, it.run_scan)))(TH0)
+    plain = jax.jit(jax.grad(lambda th: loss(th, run_scan)))(TH0)
     ours = jax.jit(jax.grad(lambda th: loss(th, adj.run_adjoint)))(TH0)
     _close(ours, plain)
     pair = (_law(contact, TH0, fam), smooth)
-    want = it.run_scan(pair, vstruct, V, DT, x_imp - 0.2, x_imp, N)
+    want = run_scan(pair, vstruct, V, DT, x_imp - 0.2, x_imp, N)
     got = adj.run_adjoint(pair, vstruct, V, DT, x_imp - 0.2, x_imp, N)
     for k in ("force", "approach", "wheel_disp", "rail_disp"):
         np.testing.assert_array_equal(np.asarray(got[k]), np.asarray(want[k]), err_msg=k)
@@ -134,7 +136,7 @@ def test_two_wheels_on_a_track_whose_supports_vary():
     from wfjax import supports
 
     track, vehicle = supports.void_sleeper(TRACK, 35), Vehicle.bogie()
-    vstruct = it.vehicle_structure(vehicle, [WHEEL, WHEEL], track, CONFIG)
+    vstruct = vehicle_structure(vehicle, [WHEEL, WHEEL], track, CONFIG)
     smooth = laws.prepare("hertz-profile", wf.Flat.none(), WHEEL, track, MAT, CONFIG)
 
     def loss(th, runner):
@@ -142,7 +144,7 @@ def test_two_wheels_on_a_track_whose_supports_vary():
         hist = runner((law, smooth), vstruct, V, DT, 0.7 - 0.2, 0.7, N)
         return _misfit(hist) + jnp.max(hist["force"][:, 1]) / 1e5
 
-    plain = jax.jit(jax.grad(lambda th: loss(th, it.run_scan)))(TH0)
+    plain = jax.jit(jax.grad(lambda th: loss(th, run_scan)))(TH0)
     ours = jax.jit(jax.grad(lambda th: loss(th, adj.run_adjoint)))(TH0)
     _close(ours, plain)
 
@@ -152,7 +154,7 @@ def test_float32(struct):
         law = _law("hertz-trajectory", th)
         return _misfit(runner(law, struct, V, DT, X0, IMPACT, N, precision="float32"))
 
-    plain = jax.jit(jax.grad(lambda th: loss(th, it.run_scan)))(TH0)
+    plain = jax.jit(jax.grad(lambda th: loss(th, run_scan)))(TH0)
     ours = jax.jit(jax.grad(lambda th: loss(th, adj.run_adjoint)))(TH0)
     ref64 = jax.jit(jax.grad(lambda th: _misfit(adj.run_adjoint(
         _law("hertz-trajectory", th), struct, V, DT, X0, IMPACT, N))))(TH0)
@@ -167,13 +169,13 @@ def test_roughness(contact, struct):
     """Rail roughness: a point law's filtered shift (hertz), the bedding's node by node (2d)."""
     x = np.arange(-0.5, 0.6, 2.5e-4)
     rail = rough_mod.Roughness(float(x[0]), 2.5e-4, 5e-6 * np.sin(2 * np.pi * x / 0.04))
-    rough = it.loop_roughness(rail)
+    rough = loop_roughness(rail)
 
     def loss(th, runner):
         return _misfit(runner(_law(contact, th), struct, V, DT, X0, IMPACT, N,
                               roughness=rough))
 
-    plain = jax.jit(jax.grad(lambda th: loss(th, it.run_scan)))(TH0)
+    plain = jax.jit(jax.grad(lambda th: loss(th, run_scan)))(TH0)
     ours = jax.jit(jax.grad(lambda th: loss(th, adj.run_adjoint)))(TH0)
     _close(ours, plain)
 
@@ -200,12 +202,12 @@ def test_under_vmap_and_batched_runs(struct):
         return peak(adj.run_adjoint_runs(_law("hertz-trajectory", th), struct, speeds, dts,
                                          x0s, imps, N))
 
-    plain = jax.jit(jax.grad(vmapped(it.run_scan)))(TH0)
+    plain = jax.jit(jax.grad(vmapped(run_scan)))(TH0)
     _close(jax.jit(jax.grad(vmapped(adj.run_adjoint)))(TH0), plain)
     _close(jax.jit(jax.grad(batched))(TH0), plain)
     law = _law("hertz-trajectory", TH0)
     # every input an argument, not a constant of the program (XLA folds constants)
-    want = jax.jit(lambda lw, st, *runs: jax.vmap(lambda v, d, a, b: it.run_scan(
+    want = jax.jit(lambda lw, st, *runs: jax.vmap(lambda v, d, a, b: run_scan(
         lw, st, v, d, a, b, N))(*runs))(law, struct, speeds, dts, x0s, imps)
     got = adj.run_adjoint_runs(law, struct, speeds, dts, x0s, imps, N)
     for k in ("force", "approach"):

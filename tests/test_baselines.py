@@ -7,10 +7,9 @@ Tolerance: 1e-12 relative to the largest magnitude of each array, plus 1e-12 P a
 
 from __future__ import annotations
 
+import baselines
 import numpy as np
 import pytest
-
-import baselines
 
 P = 65e3 + 1e-9  # N, the default preload
 SLOW = {"default_sweep", "single/3d", "fit3d"}  # 3D tables or a 3D family from empty caches

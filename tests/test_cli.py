@@ -17,7 +17,7 @@ from wfjax import case as C
 from wfjax.cli import build_parser, main
 
 SWEEP = importlib.import_module("wfjax.sweeps")  # the module (wfjax.sweep is the function)
-INTERACTION = importlib.import_module("wfjax.interaction")
+INTERACTION = importlib.import_module("wfjax.api")
 TINY = ["--contact", "hertz-trajectory", "--speeds-kmh", "60,120", "--positions", "1"]
 
 

@@ -18,10 +18,11 @@ import pytest
 
 import wfjax as wf
 from wfjax import fit
-from wfjax import interaction as it
 from wfjax.cli import main
 from wfjax.commands.fit import parse_data
 from wfjax.contact import laws
+from wfjax.loop.run import run_scan
+from wfjax.scenario.windows import simulation_window
 
 COARSE = wf.SimConfig(max_travel_step=1e-3, max_time_step=5e-5)
 SPEEDS = np.array([40.0, 100.0, 140.0]) / 3.6  # m/s; 140 km/h loses contact (asserted)
@@ -53,8 +54,8 @@ def _min_force(model, speed_index, flat, position=0.1):
     law = laws.prepare(setup.contact, flat, setup.wheel, setup.track, setup.material,
                        setup.config)
     v = info["speeds"][speed_index]
-    s0 = it.simulation_window(flat, v, setup.config)[0]
-    hist = it.run_scan(law, setup.struct, v, info["time_steps"][speed_index], position + s0,
+    s0 = simulation_window(flat, v, setup.config)[0]
+    hist = run_scan(law, setup.struct, v, info["time_steps"][speed_index], position + s0,
                        position, info["n_steps"])
     return float(jnp.min(hist["force"][info["n_steps"] // 4:]))
 

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax import interaction as it
 from wfjax.contact import laws
+from wfjax.loop.run import LOOP_BLOCK, run_scan
+from wfjax.loop.structure import node_major_shapes, rail_terms, structure
+from wfjax.scenario.windows import RUN_IN_TIME, n_steps_for, run_windows, simulation_window
 
 ROUNDED = wf.Flat.rounded(0.9e-3, 0.1)
 NEW = wf.Flat.new(0.9e-3)
@@ -56,7 +58,7 @@ def test_loss_of_contact_is_exact():
     drop = -np.asarray(wf.geometry.centre_trajectory(NEW, np.asarray(res.s)))
     assert np.all(np.asarray(res.approach)[lost] - drop[lost] <= 1e-15)  # no compression
     assert float(res.loss_of_contact_duration) == pytest.approx(lost[
-        np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME].sum() * float(res.time_step))
+        np.asarray(res.t) >= 0.5 * RUN_IN_TIME].sum() * float(res.time_step))
     assert np.max(np.asarray(res.residual)) < 1e-12
 
 
@@ -76,33 +78,33 @@ def test_a_loop_that_stops_early_equals_the_full_loop_on_its_steps():
     """time_loop(n_run=k) computes the steps of the blocks up to step k - 1, bit for bit those
     of the full scan, and leaves zeros after them (what a sweep's chunk skips)."""
     speed, cfg = 60 / 3.6, wf.SimConfig()
-    n, dt = it.n_steps_for(ROUNDED, speed, cfg)
-    s0, _ = it.simulation_window(ROUNDED, speed, cfg)
-    struct = it.structure(wf.Wheel(), wf.Track(), cfg)
+    n, dt = n_steps_for(ROUNDED, speed, cfg)
+    s0, _ = simulation_window(ROUNDED, speed, cfg)
+    struct = structure(wf.Wheel(), wf.Track(), cfg)
     law = laws.prepare("hertz-trajectory", ROUNDED, wf.Wheel(), wf.Track(), wf.Material(), cfg)
-    full = it.run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n)
+    full = run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n)
     k = n // 2
-    part = it.run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n, n_run=k)
-    done = 1 + -(-(k - 1) // it.LOOP_BLOCK) * it.LOOP_BLOCK  # steps computed, incl. t = 0
-    assert k <= done < k + it.LOOP_BLOCK
+    part = run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n, n_run=k)
+    done = 1 + -(-(k - 1) // LOOP_BLOCK) * LOOP_BLOCK  # steps computed, incl. t = 0
+    assert k <= done < k + LOOP_BLOCK
     for key in ("force", "approach", "rail_disp", "axle_acc"):
         np.testing.assert_array_equal(np.asarray(part[key])[:done],
                                       np.asarray(full[key])[:done])
         assert not np.any(np.asarray(part[key])[done:])
-    whole = it.run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n, n_run=n)
+    whole = run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n, n_run=n)
     np.testing.assert_array_equal(np.asarray(whole["force"]), np.asarray(full["force"]))
 
 
 def _max_force_fn(contact, speed, position=0.1):
     cfg, wheel, track, mat = wf.SimConfig(), wf.Wheel(), wf.Track.comparison(), wf.Material()
-    n, dt = it.n_steps_for(ROUNDED, speed, cfg)
-    s0, _ = it.simulation_window(ROUNDED, speed, cfg)
-    struct = it.structure(wheel, track, cfg)
+    n, dt = n_steps_for(ROUNDED, speed, cfg)
+    s0, _ = simulation_window(ROUNDED, speed, cfg)
+    struct = structure(wheel, track, cfg)
 
     def max_force(depth):
         flat = wf.Flat("rounded", depth, 0.1, extent_bound=0.05)
         law = laws.prepare(contact, flat, wheel, track, mat, cfg)
-        hist = it.run_scan(law, struct, speed, dt, position + s0, position, n)
+        hist = run_scan(law, struct, speed, dt, position + s0, position, n)
         return jnp.max(hist["force"])
 
     return max_force
@@ -135,7 +137,7 @@ def test_angle_mapping():
     p = wf.impact_position_from_angle(0.1, start_position=-0.5, wheel_radius=0.45)
     assert p == pytest.approx((-0.5 + 0.045) % 0.65)
     res = wf.simulate(ROUNDED, 80 / 3.6, contact="hertz-profile", angle0=0.3)
-    s_start, _ = it.simulation_window(ROUNDED, 80 / 3.6, wf.SimConfig())
+    s_start, _ = simulation_window(ROUNDED, 80 / 3.6, wf.SimConfig())
     expected = wf.impact_position_from_angle(0.3, s_start, 0.45, 0.65)
     assert float(res.impact_position) == pytest.approx(float(expected))
 
@@ -188,9 +190,9 @@ def test_contact_element_convergence_3d():
 
 def test_loop_mode_shapes_equal_track_interpolation():
     model = wf.track.modal_model(wf.Track(), max_frequency=wf.SimConfig().track_max_frequency)
-    node_major = it._node_major_shapes(model)
+    node_major = node_major_shapes(model)
     for x in (-0.9, -0.0001, 0.0, 0.123, 0.325, 1.7):
-        phi, res = it._rail_terms(model, node_major, x)
+        phi, res = rail_terms(model, node_major, x)
         np.testing.assert_allclose(phi, wf.track.mode_shapes_at(model, x), rtol=1e-13,
                                    atol=1e-13 * float(jnp.max(jnp.abs(phi))))
         assert float(res) == float(wf.track.residual_compliance_at(model, x))
@@ -229,12 +231,12 @@ def test_planned_runs_are_sorted_by_steps_and_dealt_to_the_devices():
     from wfjax import sweeps
 
     speeds = np.array([300.0, 40.0, 120.0, 20.0]) / 3.6
-    struct = it.structure(wf.Wheel(), wf.Track(), wf.SimConfig())
+    struct = structure(wf.Wheel(), wf.Track(), wf.SimConfig())
     mesh = sweeps._device_mesh()
     runs = sweeps._plan_runs([ROUNDED], speeds, np.array([0.1, 0.3]), struct, wf.SimConfig(),
                              mesh, chunk_size=4)
     steps = runs.columns[6]
-    own = it.run_windows(ROUNDED, speeds, wf.SimConfig())[0]
+    own = run_windows(ROUNDED, speeds, wf.SimConfig())[0]
     np.testing.assert_array_equal(np.sort(steps), np.sort(np.repeat(own, 2)))
     chunks = [steps[lo:lo + runs.step] for lo in range(0, steps.size, runs.step)]
     assert all(a.max() <= b.min() for a, b in zip(chunks[:-1], chunks[1:], strict=True))

@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax import interaction as it
 from wfjax.contact import laws
+from wfjax.loop.run import run_scan
+from wfjax.loop.structure import structure
 from wfjax.params import _pytree
+from wfjax.scenario.windows import n_steps_for, run_windows, simulation_window
 from wfjax.sweeps import _batched, common_extent, prepare_batch
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
@@ -54,17 +56,17 @@ def test_sweep_over_depths_is_one_program_equal_to_single_runs():
 def test_gradient_reaches_geometry_through_a_batched_law():
     """d(max force)/d(depth) of a vmapped batch of flats equals central finite differences."""
     wheel, track, material, config = MODEL
-    struct = it.structure(wheel, track, config)
+    struct = structure(wheel, track, config)
     v, pos = 100 / 3.6, 0.2
     ref = dataclasses.replace(FLATS[-1], extent_bound=0.07)
-    n, dt = it.n_steps_for(ref, v, config)
-    s0, _ = it.simulation_window(ref, v, config)
+    n, dt = n_steps_for(ref, v, config)
+    s0, _ = simulation_window(ref, v, config)
 
     def max_forces(depths):
         def one(depth):
             flat = wf.Flat("rounded", depth, 0.1, extent_bound=0.07)
             law = laws.prepare("hertz-profile", flat, wheel, track, material, config)
-            return jnp.max(it.run_scan(law, struct, v, dt, pos + s0, pos, n)["force"])
+            return jnp.max(run_scan(law, struct, v, dt, pos + s0, pos, n)["force"])
 
         return jax.vmap(one)(depths)
 
@@ -94,9 +96,9 @@ class LinearSpring(laws.ContactLaw):
 def test_time_loop_takes_any_law():
     """The time loop knows only the protocol: a user-defined law runs and reaches statics."""
     wheel, track, _, config = MODEL
-    struct = it.structure(wheel, track, config)
+    struct = structure(wheel, track, config)
     law = LinearSpring(1.0e9)
-    hist = it.run_scan(law, struct, 20 / 3.6, 1e-4, 0.1, 0.3, 200)
+    hist = run_scan(law, struct, 20 / 3.6, 1e-4, 0.1, 0.3, 200)
     force = np.asarray(hist["force"])
     assert np.allclose(force[0], 118e3)
     # a smooth contact on a discretely supported rail: the force stays near the preload
@@ -225,7 +227,7 @@ def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path, monkeypatch):
     sw = wf.sweep(flats, speeds, [position], contact="3d", track=track, config=config,
                   progress=False, cache_dir=tmp_path)
     assert len(compiled) == 1  # one program (compiled ahead for the tables' predicted shapes)
-    own = [it.run_windows(flat, speeds, config)[0][0] for flat in flats]
+    own = [run_windows(flat, speeds, config)[0][0] for flat in flats]
     assert own[1] < own[0]
     for i, flat in enumerate(flats):
         for j, v in enumerate(speeds):
@@ -275,8 +277,8 @@ def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
         ref = kalker.solve(gap, layout.element_size, layout.element_size, wf.Material(),
                            approach=delta, tol=direct3d.KALKER_TOL, validate=False)
         assert f_w == pytest.approx(float(ref.force), rel=1e-8), (s, c)
-    struct = it.structure(wheel, track, config)
-    runs = [np.asarray(it.run_scan(lw, struct, 80 / 3.6, 1e-4, 0.0, 0.12, 150,
+    struct = structure(wheel, track, config)
+    runs = [np.asarray(run_scan(lw, struct, 80 / 3.6, 1e-4, 0.0, 0.12, 150,
                                    config.newton_iterations)["force"]) for lw in (law, whole)]
     assert runs[0].max() > 1.3 * 118e3  # through the impact
     np.testing.assert_allclose(runs[0], runs[1], rtol=0, atol=1e-8 * runs[1].max())

@@ -9,9 +9,13 @@ import scipy.sparse.linalg
 from fe_reference import newmark_wheels
 
 import wfjax as wf
-from wfjax import interaction as it
 from wfjax import supports
 from wfjax import track as track_mod
+from wfjax.api import vehicle_laws
+from wfjax.contact.laws import prepare
+from wfjax.loop.run import run_scan
+from wfjax.loop.structure import structure, vehicle_structure
+from wfjax.scenario.windows import RUN_IN_TIME
 
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 V = 100 / 3.6
@@ -43,9 +47,9 @@ def _direct_static(track, x_wheel, load):
 
 def _static_start(track, x_wheel):
     config = wf.SimConfig()
-    struct = it.structure(wf.Wheel(), track, config)
-    law = it.prepare("hertz-profile", wf.Flat.none(), wf.Wheel(), track, wf.Material(), config)
-    return it.run_scan(law, struct, V, 2e-5, x_wheel, x_wheel + 1.0, 2)
+    struct = structure(wf.Wheel(), track, config)
+    law = prepare("hertz-profile", wf.Flat.none(), wf.Wheel(), track, wf.Material(), config)
+    return run_scan(law, struct, V, 2e-5, x_wheel, x_wheel + 1.0, 2)
 
 
 @pytest.mark.parametrize("gap_mm, closed", [
@@ -70,11 +74,11 @@ def test_bogie_static_start_over_a_hanging_sleeper_equals_the_direct_solve():
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 0.4e-3)
     config, vehicle = wf.SimConfig(), Vehicle.bogie()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3)]
-    struct = it.vehicle_structure(vehicle, wheels, track, config)
-    laws = it.vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
+    struct = vehicle_structure(vehicle, wheels, track, config)
+    laws = vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
                            wheels, track, wf.Material(), config)
     for x0 in (0.65 + 3 * 0.65 / 32, 3.25):  # the leading, then the trailing wheel near it
-        hist = it.run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
+        hist = run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
         rail, sleeper, force = _direct_static(track, x0 + vehicle.offsets(),
                                               np.array([118e3, 90e3]))
         assert force[0] > 0
@@ -112,7 +116,7 @@ def test_hanging_sleeper_agrees_with_a_direct_fe_time_integration(gap_mm):
     out = []
     forces = newmark_wheels(ROUNDED, V, x[0], x[0] - float(res.s[0]), [0.0],
                             float(res.time_step), x.size, track=track, supports_out=out)
-    after = np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME
+    after = np.asarray(res.t) >= 0.5 * RUN_IN_TIME
     fm, fn = np.asarray(res.force)[after], forces[after, 0]
     assert fn.max() == pytest.approx(fm.max(), rel=0.02)
     assert fn.min() == pytest.approx(fm.min(), abs=0.02 * fm.max())
@@ -126,12 +130,12 @@ def test_hanging_sleeper_gradient_matches_finite_differences():
 
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
     config = wf.SimConfig()
-    struct = it.structure(wf.Wheel(), track, config)
+    struct = structure(wf.Wheel(), track, config)
 
     def peak(depth):
         flat = dataclasses.replace(ROUNDED, depth=depth, extent_bound=0.06)
-        law = it.prepare("hertz-profile", flat, wf.Wheel(), track, wf.Material(), config)
-        hist = it.run_scan(law, struct, V, 2.5e-5, 0.62 - 0.1, 0.62, 1200)
+        law = prepare("hertz-profile", flat, wf.Wheel(), track, wf.Material(), config)
+        hist = run_scan(law, struct, V, 2.5e-5, 0.62 - 0.1, 0.62, 1200)
         return jax.numpy.max(hist["force"])
 
     d0, h = 0.9e-3, 2e-6
@@ -163,7 +167,7 @@ def test_the_adjoint_refuses_hanging_sleepers():
 
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
     config = wf.SimConfig()
-    struct = it.structure(wf.Wheel(), track, config)
-    law = it.prepare("hertz-profile", ROUNDED, wf.Wheel(), track, wf.Material(), config)
+    struct = structure(wf.Wheel(), track, config)
+    law = prepare("hertz-profile", ROUNDED, wf.Wheel(), track, wf.Material(), config)
     with pytest.raises(NotImplementedError, match="hanging sleepers"):
         adjoint.adjoint_loop(law, struct, V, 2.5e-5, 0.5, 0.62, 10)

@@ -11,7 +11,7 @@ from fe_reference import newmark_wheels
 import wfjax as wf
 from wfjax import roughness as rough_mod
 from wfjax import supports
-from wfjax.sweeps import check_impact_positions
+from wfjax.scenario.windows import check_impact_positions
 
 REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
@@ -102,7 +102,7 @@ def test_roughness_response_agrees_with_a_direct_fe_time_integration():
     # point-contact laws see for a sinusoid)
     lam, amp = 0.1, 2e-6
     f, d, res = _fluctuation("hertz-profile", _sine(amp, lam))
-    length = float(wf.interaction.loop_roughness(_sine(amp, lam)).contact_length[0])
+    length = float(wf.api.loop_roughness(_sine(amp, lam)).contact_length[0])
     gain = float(rough_mod.contact_filter_response(lam, length))
     x0, s0, dt = float(res.x[0]), float(res.s[0]), float(res.time_step)
     n = f.size
@@ -150,9 +150,9 @@ def test_impact_positions_are_absolute_on_a_track_whose_supports_vary():
 def test_bad_roughness_inputs_are_refused():
     circ_wheel = rough_mod.generate_wheel(rough_mod.ISO3095_LIMIT, 0)
     with pytest.raises(ValueError, match="must not be periodic"):
-        wf.interaction.loop_roughness(circ_wheel)
+        wf.api.loop_roughness(circ_wheel)
     with pytest.raises(ValueError, match="must be periodic"):
-        wf.interaction.loop_roughness(None, _sine(1e-6))
+        wf.api.loop_roughness(None, _sine(1e-6))
     two = rough_mod.generate(rough_mod.ISO3095_LIMIT, 0, 4.0, n_realisations=2)
     three = rough_mod.generate_wheel(rough_mod.ISO3095_LIMIT, 0, n_realisations=3)
     with pytest.raises(ValueError, match="same number of realisations"):
@@ -171,7 +171,7 @@ def test_a_rail_profile_shorter_than_the_run_is_refused():
 
 
 def test_static_contact_length_is_the_hertz_patch():
-    length = float(wf.interaction.loop_roughness(_sine(1e-6)).contact_length[0])
+    length = float(wf.api.loop_roughness(_sine(1e-6)).contact_length[0])
     assert 10e-3 < length < 14e-3
 
 
@@ -200,14 +200,14 @@ def test_cli_monte_carlo_writes_percentiles_and_the_band(tmp_path, capsys):
 ])
 def test_bad_roughness_and_support_flags_fail_before_work(tmp_path, capsys, monkeypatch, argv,
                                                          words):
-    from wfjax import interaction, sweeps
+    from wfjax import api, sweeps
     from wfjax.cli import main
 
     def boom(*args, **kwargs):
         raise AssertionError("a simulation ran")
 
     monkeypatch.setattr(sweeps, "sweep", boom)
-    monkeypatch.setattr(interaction, "simulate", boom)
+    monkeypatch.setattr(api, "simulate", boom)
     bad = tmp_path / "bad.csv"
     bad.write_text("x_mm,roughness_um\n0,1\n0.25,2\n0.5,5000\n0.75,1\n")  # 5 mm: absurd
     argv = [str(bad) if a == "BAD" else a for a in argv]

@@ -13,7 +13,9 @@ import scipy.sparse.linalg
 import wfjax
 from wfjax import sensors as S
 from wfjax import track as T
-from wfjax.interaction import structure
+from wfjax.loop.observers import DetectorReadings
+from wfjax.loop.run import run_scan
+from wfjax.loop.structure import structure
 
 P = 118e3
 LS = 0.65
@@ -150,7 +152,7 @@ def test_detector_reads_static_load_at_low_speed():
     # detector estimate = difference of the sensors' shear histories at the same bridges
     r2 = wfjax.simulate(wfjax.Flat.none(), 5.0, contact="hertz-trajectory",
                         impact_position=0.3, sensors=[a[1], b[1]],
-                        config=wfjax.interaction.detector_config(det, wfjax.Track(),
+                        config=wfjax.scenario.windows.detector_config(det, wfjax.Track(),
                                                                  wfjax.SimConfig()))
     shear = np.asarray(r2.sensors["shear"])
     np.testing.assert_allclose(shear[:, 0] - shear[:, 1], load[:, 1], rtol=1e-9, atol=1e-6)
@@ -162,19 +164,19 @@ def test_detector_peak_gradient_matches_finite_differences():
 
     tr, wh, mat = wfjax.Track(), wfjax.Wheel(), wfjax.Material()
     det = S.Detector(n_bays=1, first_bay=0)
-    cfg = wfjax.interaction.detector_config(det, tr, wfjax.SimConfig())
+    cfg = wfjax.scenario.windows.detector_config(det, tr, wfjax.SimConfig())
     struct = structure(wh, tr, cfg)
     spec = S.detector_spec(det, tr, struct.track)
     v, x_imp = 20.0, 0.25
     flat0 = wfjax.Flat("rounded", depth=0.9e-3, length=0.1, extent_bound=0.06)
-    n, dt = wfjax.interaction.n_steps_for(flat0, v, cfg)
-    s0, _ = wfjax.interaction.simulation_window(flat0, v, cfg)
+    n, dt = wfjax.scenario.windows.n_steps_for(flat0, v, cfg)
+    s0, _ = wfjax.scenario.windows.simulation_window(flat0, v, cfg)
 
     def reading(depth):
         flat = dataclasses.replace(flat0, depth=depth)
         law = prepare("hertz-trajectory", flat, wh, tr, mat, cfg)
-        out = wfjax.interaction.run_scan(law, struct, v, dt, x_imp + s0, x_imp, n,
-                                         detector=spec, sensor_history=False)
+        out = run_scan(law, struct, v, dt, x_imp + s0, x_imp, n,
+                       observers=(DetectorReadings(spec, history=False),))
         return out["detector_peak"][0]
 
     g = jax.grad(reading)(jnp.asarray(0.9e-3))
@@ -199,7 +201,7 @@ def test_sweep_sensors_equal_simulate():
                                    atol=1e-12)
         np.testing.assert_allclose(r.sensor_min[0, 0, 0, i], s.sensor_min[q], rtol=1e-9,
                                    atol=1e-12)
-        run_in = int(0.5 * wfjax.interaction.RUN_IN_TIME / float(s.time_step))
+        run_in = int(0.5 * wfjax.scenario.windows.RUN_IN_TIME / float(s.time_step))
         hist = np.asarray(s.sensors[q])[run_in:]
         np.testing.assert_allclose(hist.max(axis=0), s.sensor_max[q], rtol=1e-12)
     np.testing.assert_allclose(r.detector_peak[0, 0, 0], s.detector_peak, rtol=1e-9)

@@ -11,10 +11,15 @@ import scipy.sparse.linalg
 from fe_reference import newmark_wheels
 
 import wfjax as wf
-from wfjax import interaction as it
 from wfjax import supports
 from wfjax import track as track_mod
 from wfjax import wheel as wheel_mod
+from wfjax.api import vehicle_laws
+from wfjax.contact.laws import prepare
+from wfjax.loop.observers import Sensors
+from wfjax.loop.run import run_scan
+from wfjax.loop.structure import cross_table, structure, vehicle_structure
+from wfjax.scenario.windows import RUN_IN_TIME
 from wfjax.vehicle import Vehicle, placement, residual_pairs, transfer_receptance
 
 REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
@@ -50,8 +55,8 @@ def test_one_wheel_sensors_reproduce_the_single_wheel_loop():
 
 def _single_run(flat, x_start, impact, n, dt, config, contact="hertz-trajectory"):
     wheel, track = wf.Wheel(), wf.Track()
-    law = it.prepare(contact, flat, wheel, track, wf.Material(), config)
-    return it.run_scan(law, it.structure(wheel, track, config), V, dt, x_start, impact, n)
+    law = prepare(contact, flat, wheel, track, wf.Material(), config)
+    return run_scan(law, structure(wheel, track, config), V, dt, x_start, impact, n)
 
 
 @pytest.mark.slow  # the default run must stay under 10 min (2 cores)
@@ -66,7 +71,7 @@ def test_two_wheels_far_apart_each_match_their_single_wheel_run():
     lead = _single_run(ROUNDED, x[0, 0], x[0, 0] - float(res.s[0]), n, dt, config)
     trail = _single_run(wf.Flat.none(), x[0, 1], x[0, 1] - float(res.s[0]), n, dt, config)
     t, f = np.asarray(res.t), np.asarray(res.wheel_force)
-    after = t >= 0.5 * it.RUN_IN_TIME
+    after = t >= 0.5 * RUN_IN_TIME
     f_lead = np.asarray(lead["force"])
     assert float(res.wheel_max_force[0]) == pytest.approx(f_lead[after].max(), rel=1e-3)
     assert float(res.wheel_min_force[0]) == pytest.approx(f_lead[after].min(),
@@ -89,11 +94,11 @@ def test_static_deflections_under_several_wheels_superpose_the_direct_solves():
     track, config = wf.Track(), wf.SimConfig()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3, 140e3)]
     vehicle = Vehicle((0.0, 1.6, 4.1))
-    struct = it.vehicle_structure(vehicle, wheels, track, config)
-    laws = it.vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
+    struct = vehicle_structure(vehicle, wheels, track, config)
+    laws = vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
                            wheels, track, wf.Material(), config)
     x0 = placement(vehicle, 0.65) + 7 * 0.65 / 32
-    hist = it.run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
+    hist = run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
     x = x0 + vehicle.offsets()
     want = _direct_static(track, x, np.array([118e3, 90e3, 140e3]))
     np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], want, rtol=1e-9)
@@ -113,11 +118,11 @@ def test_static_deflections_under_several_wheels_on_varying_supports(name):
     track, config = VARYING_TRACKS[name](), wf.SimConfig()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3)]
     vehicle = Vehicle.bogie()
-    struct = it.vehicle_structure(vehicle, wheels, track, config)
-    laws = it.vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
+    struct = vehicle_structure(vehicle, wheels, track, config)
+    laws = vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
                            wheels, track, wf.Material(), config)
     for x0 in (placement(vehicle, 0.65) + 1.95 + 7 * 0.65 / 32, 2.6 + 0.65 / 32):
-        hist = it.run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
+        hist = run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
         want = _direct_static(track, x0 + vehicle.offsets(), np.array([118e3, 90e3]))
         np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], want, rtol=1e-9)
 
@@ -131,7 +136,7 @@ def test_cross_table_along_a_varying_track_equals_the_direct_mode_sum():
     def shapes_at(x):
         return track_mod.mode_shapes_at(model, x)
 
-    table = it._cross_table(model, shapes_at, offsets, weight, 0.0)
+    table = cross_table(model, shapes_at, offsets, weight, 0.0)
     for x in (1.3, 2.6 + 5 * 0.65 / 32, -4.0625):  # points of the whole-rail grid
         phi = np.asarray(shapes_at(x + offsets))
         direct = np.real(np.sum(np.asarray(weight) * phi[0] * phi[1]))
@@ -185,15 +190,15 @@ def test_axle_box_acceleration_is_the_second_derivative_of_the_axle_displacement
 def test_bogie_gradient_reaches_the_flat_and_matches_finite_differences():
     wheel, track, config, mat = wf.Wheel(), wf.Track(), wf.SimConfig(), wf.Material()
     vehicle = Vehicle.bogie()
-    struct = it.vehicle_structure(vehicle, [wheel, wheel], track, config)
-    smooth = it.prepare("hertz-profile", wf.Flat.none(), wheel, track, mat, config)
+    struct = vehicle_structure(vehicle, [wheel, wheel], track, config)
+    smooth = prepare("hertz-profile", wf.Flat.none(), wheel, track, mat, config)
     x_imp = placement(vehicle, 0.65) + 0.2
     n, dt = 500, 2.5e-5
 
     def peak(depth):
         flat = wf.Flat("rounded", depth, 0.1)
-        law = it.prepare("hertz-profile", flat, wheel, track, mat, config)
-        hist = it.run_scan((law, smooth), struct, V, dt, x_imp - 0.3, x_imp, n)
+        law = prepare("hertz-profile", flat, wheel, track, mat, config)
+        hist = run_scan((law, smooth), struct, V, dt, x_imp - 0.3, x_imp, n)
         return jnp.max(hist["force"][:, 0]) + 0.5 * jnp.max(hist["force"][:, 1])
 
     d0, h = 0.9e-3, 1e-6
@@ -245,7 +250,7 @@ def test_two_wheels_agree_with_a_direct_fe_time_integration():
     x = np.asarray(res.wheel_x)
     forces = _newmark_two_wheels(ROUNDED, V, x[0, 0], x[0, 0] - float(res.s[0]), -2.5,
                                  float(res.time_step), x.shape[0])
-    after = np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME
+    after = np.asarray(res.t) >= 0.5 * RUN_IN_TIME
     for i in range(2):
         fm, fn = np.asarray(res.wheel_force)[after, i], forces[after, i]
         assert fn.max() == pytest.approx(fm.max(), rel=0.02), i
@@ -262,7 +267,7 @@ def test_two_wheels_on_a_hanging_sleeper_agree_with_a_direct_fe_time_integration
     x = np.asarray(res.wheel_x)
     forces = newmark_wheels(ROUNDED, V, x[0, 0], x[0, 0] - float(res.s[0]), [0.0, -2.5],
                             float(res.time_step), x.shape[0], track=track)
-    after = np.asarray(res.t) >= 0.5 * it.RUN_IN_TIME
+    after = np.asarray(res.t) >= 0.5 * RUN_IN_TIME
     for i in range(2):
         fm, fn = np.asarray(res.wheel_force)[after, i], forces[after, i]
         assert fn.max() == pytest.approx(fm.max(), rel=0.02), i
@@ -276,14 +281,15 @@ def test_sensors_and_detector_see_every_wheel():
 
     track, config, wheel = wf.Track(), wf.SimConfig(), wf.Wheel()
     vehicle = Vehicle.bogie()
-    struct = it.vehicle_structure(vehicle, [wheel, wheel], track, config)
-    smooth = it.prepare("hertz-profile", wf.Flat.none(), wheel, track, wf.Material(), config)
+    struct = vehicle_structure(vehicle, [wheel, wheel], track, config)
+    smooth = prepare("hertz-profile", wf.Flat.none(), wheel, track, wf.Material(), config)
     spec = sensor_mod.sensor_spec([-1.3, 0.0, 0.2], track, struct.track,
                                   ("rail_disp", "shear", "seat_force"))
     x0 = placement(vehicle, 0.65) + 0.1
-    both = it.run_scan((smooth, smooth), struct, V, 2e-5, x0, x0 + 1.0, 2, sensors=spec)
-    alone = [it.run_scan(smooth, it.structure(wheel, track, config), V, 2e-5, x, x + 1.0, 2,
-                         sensors=spec)["sensors"][0] for x in x0 + vehicle.offsets()]
+    both = run_scan((smooth, smooth), struct, V, 2e-5, x0, x0 + 1.0, 2,
+                    observers=(Sensors(spec),))
+    alone = [run_scan(smooth, structure(wheel, track, config), V, 2e-5, x, x + 1.0, 2,
+                      observers=(Sensors(spec),))["sensors"][0] for x in x0 + vehicle.offsets()]
     np.testing.assert_allclose(np.asarray(both["sensors"][0]), np.asarray(sum(alone)),
                                rtol=1e-6, atol=1e-9 * 118e3)
     res = wf.simulate(ROUNDED, V, contact="hertz-trajectory", vehicle=vehicle,

@@ -23,9 +23,8 @@ from . import supports as supports
 from . import track as track
 from . import wheel as wheel
 from ._cache import load_or_build as load_or_build
-from .interaction import SimResult as SimResult
-from .interaction import impact_position_from_angle as impact_position_from_angle
-from .interaction import simulate as simulate
+from .api import SimResult as SimResult
+from .api import simulate as simulate
 from .params import Flat as Flat
 from .params import Material as Material
 from .params import SimConfig as SimConfig
@@ -34,6 +33,7 @@ from .params import Wheel as Wheel
 from .params import kmh as kmh
 from .params import mm as mm
 from .roughness import Roughness as Roughness
+from .scenario.windows import impact_position_from_angle as impact_position_from_angle
 from .sweeps import SweepResult as SweepResult
 from .sweeps import sweep as sweep
 from .track import ModalModel as ModalModel

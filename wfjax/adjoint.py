@@ -1,6 +1,6 @@
 """A hand-written reverse mode (adjoint) of the time loop: :func:`adjoint_loop`.
 
-Plain reverse-mode autodiff through :func:`wfjax.interaction.time_loop` stores, at every step,
+Plain reverse-mode autodiff through :func:`wfjax.loop.run.time_loop` stores, at every step,
 the residuals of every operation of the step (the mode shapes at the contact and the complex
 modal states, [n_modes] each) and transposes every nonlinear operation, the contact law's
 evaluations included. But the step is *linear* in the modal state (q, p, f_prev) except for
@@ -10,7 +10,7 @@ the approach delta_n of every wheel and the rail's own compliance within the ste
 (positions, flat coordinates and the rest of the step's compliance C_n are recomputed from
 the step index; K_n from delta_n). See ``docs/gradients.md``.
 
-Forward (``custom_vjp`` fwd): the unchanged :func:`wfjax.interaction.time_loop` (its results
+Forward (``custom_vjp`` fwd): the unchanged :func:`wfjax.loop.run.time_loop` (its results
 are the ones of ``run_scan``, bit for bit) with its static extra output ``own_compliance``.
 
 Backward: the laws' forces and slopes K_n at every step's approach (vectorised, in chunks of
@@ -36,7 +36,7 @@ do not depend on a differentiated input, and a cotangent on ``wheel_disp``, ``ra
 ``axle_acc`` raises ``NotImplementedError``. The contact law is differentiated, not the
 structure, speed, time step, start or impact position, nor the roughness values:
 differentiating any of them raises ``NotImplementedError`` (``jax.grad`` through
-:func:`wfjax.interaction.run_scan` covers them). Forward mode (``jvp``/``jacfwd``) is not
+:func:`wfjax.loop.run.run_scan` covers them). Forward mode (``jvp``/``jacfwd``) is not
 available through a ``custom_vjp``: use ``run_scan`` there. The direct 3D mode (a law with its
 own step) and sensors/the detector are not supported (``NotImplementedError``).
 """
@@ -48,9 +48,12 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from . import interaction as it
 from .contact.newton import solve_small
-from .interaction import LoopSetup, loop_setup, static_start  # the time loop's own setup
+from .loop.contacts import pointwise, roughness_inputs
+from .loop.observers import OwnCompliance
+from .loop.run import run_scan, time_loop
+from .loop.setup import LoopSetup, cast_precision, loop_setup, static_start
+from .loop.structure import modal_loads, rail_compliance_fn, shapes_fn
 
 __all__ = ["adjoint_loop", "adjoint_runs", "run_adjoint", "run_adjoint_runs", "backward_scan",
            "LoopSetup", "loop_setup", "static_start", "contact_slopes", "forces_and_slopes",
@@ -64,7 +67,7 @@ _NOT_DIFFERENTIATED = ("x", "s", "t", "residual", "own_compliance")
 def _step_forces(laws, roughness, x, s, approach):
     """F [n] N of every wheel at one step (x, s, approach [n] m), and the point evaluated
     there: F_i = law_i.point_force(point_i, approach_i + shift_i), as the loop's solve."""
-    shift, rough = it._roughness_inputs(laws, roughness, x, s)
+    shift, rough = roughness_inputs(laws, roughness, x, s)
     out = []
     for i, law in enumerate(laws):
         point = law.point(s[i]) if rough[i] is None else law.rough_point(s[i], rough[i][0])
@@ -96,7 +99,7 @@ def forces_and_slopes(laws, roughness, x, s, approach):
 
 def _compliance_fn(ls: LoopSetup):
     """(x_ref [m], c_own [n] m/N) -> the step's compliance C [n, n] m/N, as ``time_loop``."""
-    rail_compliance = it.rail_compliance_fn(ls)
+    rail_compliance = rail_compliance_fn(ls)
     return lambda x_ref, c_own: jnp.diag(ls.c_wheel) + rail_compliance(x_ref, c_own)
 
 
@@ -141,7 +144,7 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, c_own, ct_force, ct_approach, 
     w_r, e_r, e_w = model.weights, ls.e_r, ls.e_w
     g_r = ls.ap_r + ls.an_r * e_r  # f_n's weight in q_hat_{n+1}: through q_n and directly
     g_w = ls.ap_w + ls.an_w * e_w
-    shapes_at = it.shapes_fn(model)
+    shapes_at = shapes_fn(model)
     real = ls.preload.dtype
     compliance = _compliance_fn(ls)
 
@@ -155,7 +158,7 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, c_own, ct_force, ct_approach, 
         C = compliance(x_ref(row + 1), c)
         lf = b + gf
         mu = _transposed_contact(C, k, gd + k * lf)
-        lq_hat = lq - w_r * it._loads(mu, phi)
+        lq_hat = lq - w_r * modal_loads(mu, phi)
         lp_hat = lp - ls.wheel_res * mu[:, None]
         phi_prev = shapes_at(x_ref(row) + ls.offsets)
         b_prev = (jnp.real(jnp.sum(phi_prev * (g_r * lq_hat), axis=-1))
@@ -181,16 +184,16 @@ def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughnes
     n_steps, max_iter, precision, batched = statics
 
     def one(v, d, xs, xi):
-        return it.time_loop(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
-                            roughness=roughness, own_compliance=True)
+        return time_loop(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
+                         roughness=roughness, observers=(OwnCompliance(),))
 
     if not batched:  # adjoint_loop: time_loop itself (a batch of one can round apart)
         return {k: v[None] for k, v in one(speed[0], dt[0], x_start[0],
                                             impact_position[0]).items()}
 
     def compiled(v, d, xs, xi):  # as fit._batch_runs: vmap of run_scan, the same rounding
-        return it.run_scan(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
-                           roughness=roughness, own_compliance=True)
+        return run_scan(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
+                        roughness=roughness, observers=(OwnCompliance(),))
 
     return jax.vmap(compiled)(speed, dt, x_start, impact_position)
 
@@ -211,7 +214,7 @@ def _fwd(statics, laws, struct, speed, dt, x_start, impact_position, roughness, 
     if bad:
         raise NotImplementedError(
             f"the adjoint time loop differentiates the contact law only, not {', '.join(bad)}: "
-            "use jax.grad through wfjax.interaction.run_scan for those")
+            "use jax.grad through wfjax.loop.run.run_scan for those")
     values = jax.custom_derivatives.custom_vjp_primal_tree_values
     laws, struct, speed, dt, x_start, impact_position, roughness = values(
         (laws, struct, speed, dt, x_start, impact_position, roughness))
@@ -259,7 +262,7 @@ def _bwd(statics, res, cts):
             continue
         raise NotImplementedError(
             f"the adjoint time loop propagates cotangents of {SUPPORTED_OUTPUTS} only, not "
-            f"of {key!r}: use jax.grad through wfjax.interaction.run_scan for it")
+            f"of {key!r}: use jax.grad through wfjax.loop.run.run_scan for it")
 
     # the laws at every step up to the last one the cotangents reach (chunks of steps)
     leaves, treedef = jax.tree.flatten(laws)
@@ -272,7 +275,7 @@ def _bwd(statics, res, cts):
         full = list(leaves)
         for i, leaf in zip(diff, diff_leaves, strict=True):
             full[i] = leaf
-        cast_laws, cast_rough = it.cast_precision(
+        cast_laws, cast_rough = cast_precision(
             (jax.tree.unflatten(treedef, full), roughness), precision)
         return jax.vmap(lambda *a: forces_and_slopes(cast_laws, cast_rough, *a))(xc, sc, ac)
 
@@ -322,7 +325,7 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
 
     ``speed``, ``dt``, ``x_start``, ``impact_position``: [B] arrays (m/s, s, m, m). Returns
     the dict of :func:`adjoint_loop` with a leading run axis [B, ...] (as ``jax.vmap`` of it),
-    the same values as ``jax.vmap`` of :func:`wfjax.interaction.run_scan` (bit for bit,
+    the same values as ``jax.vmap`` of :func:`wfjax.loop.run.run_scan` (bit for bit,
     also for one run, as ``fit._batch_runs`` computes without the adjoint). Under one
     ``custom_vjp`` for the batch, the backward pass skips the steps after the last one that
     any run's cotangent reaches (a max-force misfit: after the peak), which a ``vmap`` of
@@ -331,7 +334,7 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     single = not isinstance(law, tuple)
     laws = (law,) if single else law
     for lw in laws:
-        if not it._pointwise(lw):
+        if not pointwise(lw):
             raise NotImplementedError(
                 f"the adjoint supports pointwise contact laws only; {type(lw).__name__} "
                 "solves its own step (the direct 3D mode): use run_scan")
@@ -358,7 +361,7 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
 
 def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
                  max_iter: int = 30, precision: str = "float64", roughness=None) -> dict:
-    """:func:`wfjax.interaction.time_loop` with a hand-written reverse mode (pure).
+    """:func:`wfjax.loop.run.time_loop` with a hand-written reverse mode (pure).
 
     The same results as ``time_loop`` (bit for bit: it runs it); ``jax.grad``/``vjp``/
     ``jacrev`` of the ``force`` and ``approach`` histories with respect to the contact law's
@@ -370,8 +373,8 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     Args:
         law: a pointwise contact law (:func:`wfjax.contact.laws.prepare`; not the direct 3D
             mode), or a tuple of them, one per wheel of a vehicle (``struct`` from
-            :func:`wfjax.interaction.vehicle_structure`).
-        struct: :class:`wfjax.interaction.Structure` (not differentiated).
+            :func:`wfjax.loop.structure.vehicle_structure`).
+        struct: :class:`wfjax.loop.structure.Structure` (not differentiated).
         speed: v [m/s]; dt: time step [s]; x_start: rail coordinate of the reference wheel at
             t = 0 [m]; impact_position: where s = 0 [m] (none of them differentiated).
         n_steps: steps incl. t = 0 (static). max_iter: Newton iteration cap (static).
@@ -395,6 +398,6 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
 
 
 run_adjoint = jax.jit(adjoint_loop, static_argnames=("n_steps", "max_iter", "precision"))
-run_adjoint.__doc__ = """:func:`adjoint_loop` compiled (as :func:`wfjax.interaction.run_scan`)."""
+run_adjoint.__doc__ = """:func:`adjoint_loop` compiled (as :func:`wfjax.loop.run.run_scan`)."""
 run_adjoint_runs = jax.jit(adjoint_runs, static_argnames=("n_steps", "max_iter", "precision"))
 run_adjoint_runs.__doc__ = """:func:`adjoint_runs` compiled."""

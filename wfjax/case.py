@@ -782,8 +782,8 @@ class Case:
                             "simulate runs one realisation; allowed: 1 (sweep runs many)")
         pos = self.values.get("run.impact_position")
         if pos is not None and self.command in _MODEL_CMDS_EARLY:
+            from .scenario.windows import check_impact_positions
             from .supports import is_uniform
-            from .sweeps import check_impact_positions
 
             if not is_uniform(track):
                 try:

@@ -1,7 +1,7 @@
 """Gradient-based fitting of a wheel flat's geometry to measured impact forces (optax).
 
 A wheel impact load detector measures forces, not geometry. This module differentiates the
-simulator (:func:`wfjax.interaction.run_scan`) with respect to the flat's depth, length and
+simulator (:func:`wfjax.loop.run.run_scan`) with respect to the flat's depth, length and
 shape parameters and fits them to
 
 (a) the **maximum impact force against speed** (:class:`MaxForceData`): for every speed the
@@ -81,11 +81,14 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from . import interaction as it
 from ._xla import LOOP_COMPILER_OPTIONS, to_device
-from .contact.laws import CONTACT_MODELS, ContactLaw, TableLaw, prepare, prepare_family_range
+from .contact import registry
+from .contact.laws import ContactLaw, TableLaw, prepare, prepare_family_range
+from .loop.observers import DetectorReadings
+from .loop.run import run_scan
+from .loop.structure import structure
 from .params import Flat, Material, SimConfig, Track, Wheel, new_flat_length
-from .sweeps import impact_positions_grid
+from .scenario.windows import batch_windows, detector_config, impact_positions_grid
 
 __all__ = [
     "D_REF",
@@ -440,8 +443,7 @@ def fit_range(reference: Flat, wheel_radius: float, depth_factor: float = FIT_DE
 
 
 def _setup(contact: str, reference: Flat, wheel, track, material, config, cache_dir=None):
-    if contact not in CONTACT_MODELS:
-        raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
+    registry.check(contact)
     wheel = wheel or Wheel()
     track = track or Track()
     material = material or Material()
@@ -457,7 +459,7 @@ def _setup(contact: str, reference: Flat, wheel, track, material, config, cache_
         family = prepare_family_range(reference.kind, depths, factors, wheel, track, material,
                                       config, cache_dir)
     return _Setup(contact, wheel, track, material, config,
-                  it.structure(wheel, track, config, cache_dir), spec3d, family)
+                  structure(wheel, track, config, cache_dir), spec3d, family)
 
 
 def _contact(setup: _Setup, flat: Flat) -> ContactLaw:
@@ -498,9 +500,9 @@ def _batch_runs(setup: _Setup, law, n_steps, speeds, dt, x_start, impact, checkp
     """Force histories [batch, n_steps] of runs batched over (speed, dt, x_start, impact).
 
     ``adjoint``: run :func:`wfjax.adjoint.run_adjoint` (same forces; a hand-written reverse
-    mode, no forward mode) instead of :func:`wfjax.interaction.run_scan`."""
+    mode, no forward mode) instead of :func:`wfjax.loop.run.run_scan`."""
     max_iter = setup.config.newton_iterations
-    runner = it.run_scan
+    runner = run_scan
     args = tuple(jnp.asarray(a, dtype=float) for a in (speeds, dt, x_start, impact))
     if adjoint:
         from . import adjoint as adjoint_mod
@@ -531,7 +533,7 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
 
     For every speed and impact position one simulation is run (all with the step count of the
     slowest, each with its own time step: one rectangular batch,
-    :func:`wfjax.interaction.batch_windows`, finer than :func:`wfjax.simulate`'s time step at
+    :func:`wfjax.scenario.windows.batch_windows`, finer than :func:`wfjax.simulate`'s time step at
     most speeds); its maximum force after the run-in (``smooth_max`` with
     ``time_temperature``, hard by default) is then reduced over the positions with
     ``smooth_max(temperature)`` [N].
@@ -539,7 +541,7 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
     Args:
         speeds: [n] train speeds [m/s].
         reference: a concrete flat of the kind to be evaluated (sizes windows and 3D tables).
-        contact: one of :data:`wfjax.interaction.CONTACT_MODELS`.
+        contact: one of :func:`wfjax.contact.registry.names`.
         impact_positions: number of positions evenly covering a bay, or [m] positions [m].
         temperature, time_temperature: smooth-maximum temperatures [N] (None: hard max).
         extent_bound: static bound [m] of the flat's half extent (default: the reference's).
@@ -562,7 +564,7 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
     spacing = float(setup.track.sleeper_spacing)
     pos = (impact_positions_grid(impact_positions, spacing) if np.ndim(impact_positions) == 0
            else np.asarray(impact_positions, dtype=float))
-    n_steps, dt, s0, run_in = it.batch_windows(ref, v, setup.config)
+    n_steps, dt, s0, run_in = batch_windows(ref, v, setup.config)
     vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
     dd, ss, rr = (np.repeat(a, pos.size) for a in (dt, s0, run_in))
     after = to_device(np.arange(n_steps)[None, :] >= rr[:, None])
@@ -598,7 +600,7 @@ def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False
     detector = detector or sensor_mod.Detector()
     ref = _reference_flat(reference, extent_bound)
     track = track or Track()
-    config = it.detector_config(detector, track, config or SimConfig())
+    config = detector_config(detector, track, config or SimConfig())
     setup = _setup(contact, ref, wheel, track, material, config, cache_dir)
     spec = sensor_mod.detector_spec(detector, setup.track, setup.struct.track)
     v = np.atleast_1d(np.asarray(speeds, dtype=float))
@@ -607,7 +609,7 @@ def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False
            else np.atleast_1d(np.asarray(impact_positions, dtype=float)))
     if per_bay and pos.size != 1:
         raise ValueError(f"per-bay detector data needs one impact position, got {pos!r}")
-    n_steps, dt, s0, _ = it.batch_windows(ref, v, setup.config)
+    n_steps, dt, s0, _ = batch_windows(ref, v, setup.config)
     vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
     dd, ss = (np.repeat(a, pos.size) for a in (dt, s0))
     max_iter = setup.config.newton_iterations
@@ -617,8 +619,8 @@ def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False
 
         def one(args):
             speed, d, xs, xi = args
-            return it.run_scan(law, setup.struct, speed, d, xs, xi, n_steps, max_iter,
-                               detector=spec, sensor_history=False)["detector_peak"]
+            return run_scan(law, setup.struct, speed, d, xs, xi, n_steps, max_iter,
+                            observers=(DetectorReadings(spec, history=False),))["detector_peak"]
 
         args = tuple(jnp.asarray(a, dtype=float) for a in (vv, dd, pp + ss, pp))
         peaks = jax.vmap(one)(args)  # [n * n_pos, n_bays]
@@ -650,7 +652,7 @@ def history_model(t, speed: float, reference: Flat, contact: str = "hertz-trajec
     pos = float(impact_position)
     if not 0 <= pos < spacing:
         raise ValueError(f"impact_position must be in [0, {spacing:g}) m, got {pos!r}")
-    n_steps, dt, s0, _ = it.batch_windows(ref, [speed], setup.config)
+    n_steps, dt, s0, _ = batch_windows(ref, [speed], setup.config)
     t = np.asarray(t, dtype=float)
     t_first, t_last = s0[0] / speed, s0[0] / speed + dt[0] * (n_steps - 1)
     if t.min() < t_first or t.max() > t_last:
@@ -782,8 +784,7 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
         :class:`FitResult`.
     """
     start = time.perf_counter()
-    if contact not in CONTACT_MODELS:
-        raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
+    registry.check(contact)
     if not isinstance(initial, Flat):
         raise ValueError(f"initial must be a Flat, got {type(initial).__name__}")
     if method not in ("lbfgs", "adam"):

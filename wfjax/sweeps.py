@@ -48,8 +48,9 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from . import supports as supports_mod
 from ._parallel import in_background
 from ._xla import LOOP_COMPILER_OPTIONS, to_device
+from .api import loop_roughness, vehicle_laws
+from .contact import registry
 from .contact.laws import (
-    CONTACT_MODELS,
     TableLaw,
     cached_tables_3d,
     prepare,
@@ -58,20 +59,22 @@ from .contact.laws import (
     table_specs_3d,
 )
 from .contact.tables import ContactTable, pad_columns
-from .interaction import (
-    _wheel_positions,
-    check_rail_span,
-    detector_config,
-    run_scan,
-    run_windows,
-    simulation_window,
-    structure,
-    vehicle_laws,
-    vehicle_structure,
-    vehicle_window_flat,
-)
+from .loop.observers import DetectorReadings, Sensors
+from .loop.run import run_scan
+from .loop.structure import structure, vehicle_structure
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import summarise, summarise_vehicle
+from .scenario.windows import (
+    check_impact_positions,
+    check_rail_span,
+    check_speeds,
+    detector_config,
+    impact_positions_grid,
+    run_windows,
+    simulation_window,
+    vehicle_window_flat,
+    wheel_positions,
+)
 from .sensors import QUANTITIES, detector_spec, sensor_spec
 from .vehicle import check_on_track
 from .vehicle import placement as vehicle_placement
@@ -289,13 +292,6 @@ class SweepResult(NamedTuple):
         return json.dumps(self.summary(), indent=2)
 
 
-def impact_positions_grid(n: int, sleeper_spacing: float = 0.65) -> np.ndarray:
-    """``n`` impact positions [m] evenly covering one bay: (k + 0.5) L_S / n."""
-    if int(n) != n or n < 1:
-        raise ValueError(f"impact_positions must be a positive integer or an array, got {n!r}")
-    return (np.arange(int(n)) + 0.5) * sleeper_spacing / int(n)
-
-
 def flat_label(flat: Flat) -> str:
     """A short human label of a flat (mm)."""
     d = float(flat.depth) * 1e3
@@ -320,34 +316,39 @@ def _realisation(rough, index):
 
 
 def _reduce(n_steps, max_iter, precision, laws, struct, extras, n_run, flat_index, speed, dt,
-            x_start, impact_position, run_in_steps, end_steps, realisation):
+            x_start, impact_position, run_in_steps, end_steps, realisation) -> dict:
+    """One run's summaries by name (:data:`SUMMARY_KEYS`; per wheel, sensors and the
+    detector where the sweep has them)."""
     batched, others = laws
     if extras.get("tracks") is not None:  # support realisations: this run's modal model
         struct = struct._replace(track=_pick_model(extras["tracks"], realisation))
     law = jax.tree.map(lambda a: a[flat_index], batched)
     if others is not None:  # a vehicle: the swept flat's law on its wheel, the others fixed
         law = tuple(law if o is None else o for o in others)
+    observers = tuple(o for o in (
+        None if extras["sensors"] is None else Sensors(extras["sensors"], run_in_steps,
+                                                       end_steps, history=False),
+        None if extras["detector"] is None else DetectorReadings(extras["detector"], end_steps,
+                                                                 history=False)) if o is not None)
     hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
-                    sensors=extras["sensors"], detector=extras["detector"],
-                    run_in_steps=run_in_steps, sensor_history=False, precision=precision,
-                    roughness=_realisation(extras.get("roughness"), realisation),
-                    end_steps=end_steps, n_run=n_run)
-    keys = ("t", "x", "s", "force", "approach", "wheel_disp", "rail_disp", "residual",
-            "axle_acc")
+                    observers=observers, precision=precision,
+                    roughness=_realisation(extras.get("roughness"), realisation), n_run=n_run)
+    contact = {k: hist[k] for k in ("t", "x", "s", "force", "approach", "wheel_disp",
+                                    "rail_disp", "residual", "axle_acc")}
+    out = {}
     if others is None:
-        res = summarise({k: hist[k] for k in keys}, speed, impact_position, dt, run_in_steps,
-                        end_steps=end_steps)
-        per_wheel = ()
+        res = summarise(contact, speed, impact_position, dt, run_in_steps, end_steps=end_steps)
     else:
         flat_wheel = [o is None for o in others].index(True)
-        res = summarise_vehicle({k: hist[k] for k in keys}, flat_wheel, speed,
-                                impact_position, dt, run_in_steps, end_steps=end_steps)
-        per_wheel = (res.wheel_max_force, res.wheel_min_force, res.wheel_loss_of_contact,
-                     res.wheel_axle_acc_peak)
-    outs = (res.max_force, res.min_force, res.loss_of_contact, res.loss_of_contact_duration,
-            jnp.max(res.residual), res.axle_acc_peak) + per_wheel
-    return outs + tuple(hist[k] for k in ("sensor_max", "sensor_min", "detector_peak")
-                        if k in hist)
+        res = summarise_vehicle(contact, flat_wheel, speed, impact_position, dt, run_in_steps,
+                                end_steps=end_steps)
+        out = {"w_max": res.wheel_max_force, "w_min": res.wheel_min_force,
+               "w_lost": res.wheel_loss_of_contact, "w_acc": res.wheel_axle_acc_peak}
+    out |= {"max": res.max_force, "min": res.min_force, "lost": res.loss_of_contact,
+            "lost_t": res.loss_of_contact_duration, "res": jnp.max(res.residual),
+            "acc": res.axle_acc_peak}
+    names = {"sensor_max": "s_max", "sensor_min": "s_min", "detector_peak": "det"}
+    return out | {short: hist[k] for k, short in names.items() if k in hist}
 
 
 @functools.cache
@@ -431,14 +432,6 @@ class _Progress:
         print(line.ljust(len(self.label) + 40), end=end, file=self.stream, flush=True)
 
 
-def _check_speeds(speeds) -> np.ndarray:
-    v = np.atleast_1d(np.asarray(speeds, dtype=float))
-    if v.ndim != 1 or v.size == 0 or not np.all(np.isfinite(v)) or np.any(v <= 0) or np.any(
-            v > 150):
-        raise ValueError(f"speeds must be a non-empty 1-D array in (0, 150] m/s, got {speeds!r}")
-    return v
-
-
 def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: str = "3d",
           wheel: Wheel | None = None, track: Track | None = None,
           material: Material | None = None, config: SimConfig | None = None,
@@ -496,7 +489,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     flat_list = [flats] if isinstance(flats, Flat) else list(flats)
     if not flat_list:
         raise ValueError("flats must contain at least one Flat")
-    v = _check_speeds(speeds)
+    v = check_speeds(speeds)
     spacing = float(track.sleeper_spacing)
     if np.ndim(impact_positions) == 0:
         pos = impact_positions_grid(impact_positions, spacing)
@@ -504,11 +497,10 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         pos = check_impact_positions(impact_positions, track)
     if chunk_size is not None and (int(chunk_size) != chunk_size or chunk_size < 1):
         raise ValueError(f"chunk_size must be an integer >= 1 or None, got {chunk_size!r}")
-    if contact not in CONTACT_MODELS:
-        raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
+    registry.check(contact)
     if detector is not None:
         config = detector_config(detector, track, config,
-                                 _wheel_positions(vehicle, float(track.sleeper_spacing)))
+                                 wheel_positions(vehicle, float(track.sleeper_spacing)))
     models = None
     if tracks is not None:
         tracks = list(tracks)
@@ -549,11 +541,6 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
                                        struct_host.track)
                         | {"roughness": rough, "tracks": models}, mesh)
     others = None if vehicle is None else _replicate(fleet.others, mesh)
-    keys = ["max", "min", "lost", "lost_t", "res", "acc"] + [
-        k for k, on in (("w_max", vehicle is not None), ("w_min", vehicle is not None),
-                        ("w_lost", vehicle is not None), ("w_acc", vehicle is not None),
-                        ("s_max", sensors is not None), ("s_min", sensors is not None),
-                        ("det", detector is not None)) if on]
     out = {}
     for group, exact_tables in groups:
         members = [flat_list[i] for i in group]
@@ -592,7 +579,7 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         cols = _run_group((_replicate(laws, mesh), others), struct, extras, runs, config, mesh,
                           _Progress(len(members) * v.size * pos.size * n_real, label,
                                     enabled=progress), program)
-        for key, col in zip(keys, cols, strict=True):
+        for key, col in cols.items():
             batch = rough is not None or models is not None
             if batch and key in ("max", "min"):
                 out.setdefault("r_" + key, np.zeros((len(flat_list),) + col.shape[1:]))[
@@ -876,8 +863,9 @@ def _table_laws_like(flats: Sequence[Flat], wheel: Wheel, track: Track, material
 
 
 def _run_group(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Mesh,
-               bar: _Progress, program=None) -> list[np.ndarray]:
-    """Summaries [n_flats, n_speeds, n_positions, n_real] of one batch of laws, chunked and
+               bar: _Progress, program=None) -> dict[str, np.ndarray]:
+    """Summaries by name, [n_flats, n_speeds, n_positions, n_real, ...], of one batch of
+    laws, chunked and
     sharded (the realisation axis: roughness or support realisations, 1 without), by
     ``program`` (:func:`_compile_runs`; default the jitted :func:`_batched`).
 
@@ -890,7 +878,9 @@ def _run_group(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Mesh,
     bar.work_total = float(sum(work))
 
     def collect(batch, n, chunk_work):
-        results.append([b[:n] for b in _gather(batch)])
+        keys = sorted(batch)
+        results.append(dict(zip(keys, (b[:n] for b in _gather([batch[k] for k in keys])),
+                                strict=True)))
         bar.update(n, chunk_work)
 
     for lo, chunk_work in zip(starts, work, strict=True):
@@ -900,8 +890,8 @@ def _run_group(laws, struct, extras, runs: _Runs, config: SimConfig, mesh: Mesh,
             collect(*in_flight)
         in_flight = (batch, n, chunk_work)
     collect(*in_flight)
-    return [_unsorted(np.concatenate(c), runs.order).reshape(runs.shape + c[0].shape[1:])
-            for c in zip(*results, strict=True)]
+    return {k: _unsorted(np.concatenate([r[k] for r in results]), runs.order).reshape(
+        runs.shape + results[0][k].shape[1:]) for k in results[0]}
 
 
 def _unsorted(planned: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -923,8 +913,6 @@ def _over_realisations(key: str, col: np.ndarray) -> np.ndarray:
 
 def _sweep_roughness(rail, wheel, vehicle, wheel_model, track, material):
     """(the loop roughness with its realisations, R) of a sweep (None, 1 without)."""
-    from .interaction import loop_roughness
-
     if rail is None and wheel is None:
         return None, 1
     counts = {int(np.shape(r.values)[0]) for r in (rail, wheel)
@@ -988,29 +976,6 @@ def _pick_model(models, index):
     """Realisation ``index`` of :func:`padded_models`' stack."""
     return models._replace(**{k: getattr(models, k)[index] for k in _MODEL_BATCHED
                               if getattr(models, k) is not None})
-
-
-def check_impact_positions(positions, track: Track) -> np.ndarray:
-    """``positions`` [n] [m] checked for ``track``: within one bay, ``[0, L_S)``, on a uniform
-    track; absolute rail coordinates (x = 0 above the middle sleeper) within
-    ``|x| <= (n_bays // 2 - 1) L_S`` when the supports vary (:func:`wfjax.supports.is_uniform`:
-    every bay differs, so the impact's bay matters). One-line ``ValueError`` otherwise."""
-    from .supports import is_uniform
-
-    pos = np.asarray(positions, dtype=float)
-    spacing = float(track.sleeper_spacing)
-    if pos.ndim != 1 or pos.size == 0 or not np.all(np.isfinite(pos)):
-        raise ValueError(f"impact_positions must be a 1-D array of finite numbers [m], "
-                         f"got {positions!r}")
-    if is_uniform(track):
-        if np.any(pos < 0) or np.any(pos >= spacing):
-            raise ValueError(f"impact_positions must lie in [0, {spacing}) m, got {pos!r}")
-        return pos
-    reach = (int(track.n_bays) // 2 - 1) * spacing
-    if np.any(np.abs(pos) > reach):
-        raise ValueError(f"impact_positions on a track whose supports vary are absolute rail "
-                         f"coordinates within [-{reach:g}, {reach:g}] m, got {pos!r}")
-    return pos
 
 
 def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64",

@@ -6,7 +6,7 @@ wheel model (Table 1 by default), static load and flat (or a smooth wheel). All 
 at the same speed, so their rail coordinates keep fixed offsets. The track's modal state is
 shared: every wheel loads the modes through the mode shapes at its own position and reads the
 rail through them, so the Green's functions between wheels are exact (the coupled loop of
-:func:`wfjax.interaction.time_loop`); within a step the wheels see an n x n compliance matrix.
+:func:`wfjax.loop.run.time_loop`); within a step the wheels see an n x n compliance matrix.
 
 One wheel is the **reference wheel** (``flat_wheel``): the flat that :func:`wfjax.simulate` and
 :func:`wfjax.sweep` are given goes onto it, and ``impact_position`` places its impact within a

@@ -48,7 +48,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     case = resolve_case(args, "simulate", FLAGS)
-    from ..interaction import simulate
+    from ..api import simulate
     from ..plotting import force_history_figure, vehicle_history_figure
 
     flat = case.flat()

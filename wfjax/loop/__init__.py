@@ -1,0 +1,1 @@
+"""The time loop: its setup, state, contact solve, observers and the scan (``run``)."""

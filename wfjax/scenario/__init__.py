@@ -1,0 +1,1 @@
+"""What runs: descriptions of a run and their checks (no compiled code)."""
