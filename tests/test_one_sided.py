@@ -10,7 +10,7 @@ from fe_reference import newmark_wheels
 
 import wfjax as wf
 from wfjax import interaction as it
-from wfjax import supports
+from wfjax import sleepers, supports
 from wfjax import track as track_mod
 
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
@@ -25,7 +25,7 @@ def _direct_static(track, x_wheel, load):
     fe = track_mod.assemble(track)
     k = scipy.sparse.linalg.splu(fe.stiffness.tocsc())
     idx = supports.hanging_sleepers(track)
-    arrays = supports.support_arrays(track)
+    arrays = sleepers.support_arrays(track)
     gap, k_b = arrays["ballast_gap"][idx], arrays["ballast_stiffness"][idx]
     b = track_mod._load_vector(fe, np.atleast_1d(x_wheel)).toarray()
     e = np.zeros((b.shape[0], idx.size))
