@@ -17,7 +17,7 @@ Run: python benchmarks/bench_contact.py [--quick]
    (the default) and on the table's whole grid, in the same run (times include compilation).
 5. The default sweep's two tables (rounded 0.9 mm x 100 mm and new 0.9 mm, R_R = 0.30 m, 1 mm)
    from an empty cache in a fresh process, as ``wfjax sweep`` builds them
-   (``laws.cached_tables_3d``): wall and CPU time, compilation included (``--cold-only``
+   (``table_law.cached_tables_3d``): wall and CPU time, compilation included (``--cold-only``
    runs just this, ``--repeat N`` N fresh processes).
 
 Compile time is excluded (reported separately); times are medians of repeats, after
@@ -232,10 +232,10 @@ import json, resource, sys, tempfile, time
 import jax
 jax.config.update("jax_enable_x64", True)
 import wfjax as wf
-from wfjax.contact import laws
+from wfjax.contact import table_law
 flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
 t0, r0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
-tabs = laws.cached_tables_3d(flats, 0.45, 0.30, wf.Material(), 1e-3, tempfile.mkdtemp())
+tabs = table_law.cached_tables_3d(flats, 0.45, 0.30, wf.Material(), 1e-3, tempfile.mkdtemp())
 r1 = resource.getrusage(resource.RUSAGE_SELF)
 print(json.dumps(dict(seconds=time.perf_counter() - t0,
                       cpu_seconds=r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime,

@@ -11,7 +11,7 @@ Sections (``--sections``, all by default):
   over the Fig. 8 depths, l = 1.76 l0; 25 speeds 50-290 km/h, 8 positions; ``--large-runs``,
   default 100,000, rounded up to whole depths), Hertz-trajectory and 3D (parametric family);
 * ``table``: one exact 3D table build (rounded 0.9 mm/100 mm, R_R = 0.30 m, 1 mm elements),
-  with the backend's column batch (``laws.table_batch_size``);
+  with the backend's column batch (``table_law.table_batch_size``);
 * ``gradient``: one forward-mode gradient (``jacfwd``, depth and length: what ``fit_flat``
   uses) of a 10-speed max-force misfit, Hertz-trajectory, 1 impact position.
 
@@ -54,7 +54,7 @@ from wfjax import fit
 from wfjax._compile_clock import compile_seconds
 from wfjax.cli import expose_cpu_cores
 from wfjax.commands.figures import fig7_flats
-from wfjax.contact import laws, tables
+from wfjax.contact import table_law, tables
 
 SECTIONS = ("table", "gradient", "default", "fig7", "fig8", "large-hertz", "large-3d")
 # per size: speeds [km/h], positions, Fig. 8 depths [mm], 3D element [m], table element [m],
@@ -143,7 +143,7 @@ def gradient_section(n_speeds: int):
 
 def table_section(element: float):
     flat = wf.Flat.rounded(0.9e-3, 0.1)
-    batch = laws.table_batch_size()
+    batch = table_law.table_batch_size()
     spec = tables.table_spec(flat, 0.45, 0.30, wf.Material(), element)
 
     def run(precision):

@@ -6,7 +6,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 import wfjax as wf
-from wfjax import geometry, supports
+from wfjax import geometry, sleepers, supports
 from wfjax import track as track_mod
 from wfjax import wheel as wheel_mod
 from wfjax.contact.laws import prepare
@@ -49,7 +49,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
         return track_mod._load_vector(fe, x).toarray()
 
     hang = supports.hanging_sleepers(track)
-    arrays = supports.support_arrays(track)
+    arrays = sleepers.support_arrays(track)
     gap, k_s, c_s = (arrays[n][hang] for n in ("ballast_gap", "ballast_stiffness",
                                                 "ballast_damping"))
     e_s = np.zeros((k.shape[0], hang.size))

@@ -24,6 +24,7 @@ from wfjax import fit
 from wfjax import roughness as rough_mod
 from wfjax.api import loop_roughness
 from wfjax.contact import family, laws
+from wfjax.contact.table_law import TableLaw
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure, vehicle_structure
 from wfjax.vehicle import Vehicle, placement
@@ -93,7 +94,7 @@ def test_gradient_matches_plain_autodiff_and_forward_is_bit_identical(contact, s
 @pytest.mark.slow
 def test_table_law_leaves_get_the_plain_cotangents(struct, fam):
     """The exact-table law's arrays (onset, force, slope columns) as the differentiated leaves."""
-    table = laws.TableLaw(laws.parametric_law(fam, TH0[0], TH0[1]).table)
+    table = TableLaw(laws.parametric_law(fam, TH0[0], TH0[1]).table)
 
     def loss(law, runner):
         return _misfit(runner(law, struct, V, DT, X0, IMPACT, N))

@@ -11,7 +11,7 @@ import pytest
 
 import wfjax as wf
 from wfjax import sweeps
-from wfjax.contact import laws, tables
+from wfjax.contact import table_law, tables
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,8 +44,8 @@ def test_chunk_width_follows_device_memory():
 
 
 def test_table_batch_size_by_platform_and_batched_build_agrees():
-    assert laws.table_batch_size("cpu") == 1
-    assert laws.table_batch_size("gpu") == laws.ACCELERATOR_TABLE_BATCH_SIZE > 1
+    assert table_law.table_batch_size("cpu") == 1
+    assert table_law.table_batch_size("gpu") == table_law.ACCELERATOR_TABLE_BATCH_SIZE > 1
     flat = wf.Flat.rounded(0.9e-3, 0.1)
     one, four = (tables.build_table_3d(flat, 0.45, 0.30, element_size=2e-3, batch_size=b)
                  for b in (1, 4))

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax.contact import laws
+from wfjax.contact import laws, table_law, tables
+from wfjax.contact.protocol import ContactLaw
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
 from wfjax.params import _pytree
@@ -81,7 +82,7 @@ def test_gradient_reaches_geometry_through_a_batched_law():
 
 
 @_pytree
-class LinearSpring(laws.ContactLaw):
+class LinearSpring(ContactLaw):
     """A test law outside wfjax.contact: F = k max(delta, 0) (no flat)."""
 
     stiffness: float
@@ -168,11 +169,11 @@ def test_table_cache_key_holds_the_builder_revision(tmp_path, monkeypatch):
     """A builder change within one wfjax version is never served from an older cache file."""
     flat = wf.Flat.rounded(0.5e-3, 0.08)
     args = (flat, 0.45, 0.45, wf.Material(), 2.5e-3, tmp_path)
-    laws.cached_table_3d(*args)
-    laws.cached_table_3d(*args)  # loads
+    table_law.cached_table_3d(*args)
+    table_law.cached_table_3d(*args)  # loads
     assert len(list(tmp_path.glob("table3d-*"))) == 1
-    monkeypatch.setattr(laws, "TABLE_BUILDER_REVISION", laws.TABLE_BUILDER_REVISION + 1)
-    laws.cached_table_3d(*args)  # a new key: built again, not the old file
+    monkeypatch.setattr(table_law, "TABLE_BUILDER_REVISION", table_law.TABLE_BUILDER_REVISION + 1)
+    table_law.cached_table_3d(*args)  # a new key: built again, not the old file
     assert len(list(tmp_path.glob("table3d-*"))) == 2
 
 
@@ -196,18 +197,18 @@ def test_batch_groups_put_every_exact_table_in_one_group():
 
 def test_widened_table_gives_the_same_forces():
     """pad_columns repeats the end columns: the same forces inside and beyond the s range."""
-    table = laws.cached_table_3d(wf.Flat.new(0.9e-3), 0.45, 0.3, wf.Material(), 2e-3)
+    table = table_law.cached_table_3d(wf.Flat.new(0.9e-3), 0.45, 0.3, wf.Material(), 2e-3)
     n = table.onset.shape[0]
-    wide = laws.tables.pad_columns(table, n + 13)
+    wide = tables.pad_columns(table, n + 13)
     assert wide.force.shape == (n + 13, table.force.shape[1])
     s = np.concatenate([np.linspace(-0.09, 0.09, 37), [0.0, 1e-3, -0.0317]])
     for delta in (0.05e-3, 0.2e-3, 0.5e-3):
         for si in s:
-            f = float(laws.tables.table_force(table, delta, si))
-            assert float(laws.tables.table_force(wide, delta, si)) == pytest.approx(
+            f = float(tables.table_force(table, delta, si))
+            assert float(tables.table_force(wide, delta, si)) == pytest.approx(
                 f, rel=1e-12, abs=1e-9)
     with pytest.raises(ValueError, match="n_s"):
-        laws.tables.pad_columns(table, n - 1)
+        tables.pad_columns(table, n - 1)
 
 
 def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path, monkeypatch):
@@ -242,14 +243,14 @@ def test_tables_built_together_equal_tables_built_alone(tmp_path):
     """cached_tables_3d builds the missing tables together (one set of window sizes): each
     equals its table built alone within the solver's tolerance, and lands in the cache."""
     flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
-    together = laws.cached_tables_3d(flats, 0.45, 0.3, wf.Material(), 2e-3, tmp_path)
+    together = table_law.cached_tables_3d(flats, 0.45, 0.3, wf.Material(), 2e-3, tmp_path)
     assert len(list(tmp_path.glob("table3d-*"))) == 2
     for flat, table in zip(flats, together, strict=True):
-        alone = laws.tables.build_table_3d(flat, 0.45, 0.3, wf.Material(), element_size=2e-3)
+        alone = tables.build_table_3d(flat, 0.45, 0.3, wf.Material(), element_size=2e-3)
         assert float(table.converged) == 1.0
         np.testing.assert_allclose(table.force, alone.force, rtol=0,
                                    atol=1e-8 * float(np.max(alone.force)))
-        loaded = laws.cached_table_3d(flat, 0.45, 0.3, wf.Material(), 2e-3, tmp_path)
+        loaded = table_law.cached_table_3d(flat, 0.45, 0.3, wf.Material(), 2e-3, tmp_path)
         np.testing.assert_array_equal(loaded.force, table.force)
 
 
@@ -269,7 +270,7 @@ def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
     whole = law.on_whole_grid()
     layout = law.layout
     for s, c in [(-0.06, 1e-4), (-0.02, 3e-4), (0.0, 2e-4), (0.03, 2 * layout.c_max)]:
-        delta = float(laws.tables.table_onset(law.table, s)) + c
+        delta = float(tables.table_onset(law.table, s)) + c
         p0 = jnp.zeros((layout.nx, layout.ny))
         f_w = float(law._evaluate(s, delta, p0)[0])
         gap = kalker.gap_3d(flat, s, layout.x, layout.y, layout.wheel_radius,

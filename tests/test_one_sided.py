@@ -9,7 +9,7 @@ import scipy.sparse.linalg
 from fe_reference import newmark_wheels
 
 import wfjax as wf
-from wfjax import supports
+from wfjax import sleepers, supports
 from wfjax import track as track_mod
 from wfjax.api import vehicle_laws
 from wfjax.contact.laws import prepare
@@ -29,7 +29,7 @@ def _direct_static(track, x_wheel, load):
     fe = track_mod.assemble(track)
     k = scipy.sparse.linalg.splu(fe.stiffness.tocsc())
     idx = supports.hanging_sleepers(track)
-    arrays = supports.support_arrays(track)
+    arrays = sleepers.support_arrays(track)
     gap, k_b = arrays["ballast_gap"][idx], arrays["ballast_stiffness"][idx]
     b = track_mod._load_vector(fe, np.atleast_1d(x_wheel)).toarray()
     e = np.zeros((b.shape[0], idx.size))

@@ -13,7 +13,7 @@ import pytest
 import scipy.sparse.linalg
 
 import wfjax
-from wfjax import _cache
+from wfjax import _cache, sleepers
 from wfjax import supports as S
 from wfjax import track as T
 
@@ -76,7 +76,7 @@ def test_constant_arrays_are_the_uniform_track(tmp_path):
     """Per-sleeper arrays that are all equal give the scalar track's model and cache entry."""
     tr = wfjax.Track(n_bays=8, elements_per_bay=4)
     same = S.with_supports(tr, pad_stiffness=np.full(7, 120e6), sleeper_mass=np.full(7, 125.0))
-    assert S.is_uniform(same) and S.is_mirror_symmetric(same)
+    assert sleepers.is_uniform(same) and sleepers.is_mirror_symmetric(same)
     a, b = (T._modal_arrays(t, 10e3, 9) for t in (tr, same))
     for k in a:
         np.testing.assert_array_equal(a[k], b[k])
@@ -88,7 +88,7 @@ def test_constant_arrays_are_the_uniform_track(tmp_path):
 # ---------------------------------------------------------------- statics
 def test_static_deflection_over_void_sleeper_equals_direct_solve(void_track):
     model = T.modal_model(void_track, 20e3, use_cache=False)
-    xv = S.sleeper_positions(void_track)[MID + 2]
+    xv = sleepers.sleeper_positions(void_track)[MID + 2]
     assert xv == pytest.approx(2 * LS)
     # above the void, either side of it, and between residual-table points (off the grid)
     x = xv + np.array([0.0, 0.013, -0.2, 0.325, -0.61, 0.8]) - np.array([0, 0, 0, 0, 0, 4.0])
@@ -137,7 +137,7 @@ def test_symmetric_void_uses_mirror_split_and_is_exact():
     """A void under the middle sleeper is mirror symmetric: the split eigenproblem is used and
     agrees with the direct solve."""
     tr = S.void_sleeper(wfjax.Track(n_bays=NB), MID)
-    assert S.is_mirror_symmetric(tr) and not S.is_uniform(tr)
+    assert sleepers.is_mirror_symmetric(tr) and not sleepers.is_uniform(tr)
     model = T.modal_model(tr, 20e3, use_cache=False)
     f = np.geomspace(20.0, 2000.0, 60)
     for x in (0.0, 0.4):
@@ -158,13 +158,14 @@ def test_void_sleeper_shifts_the_receptance():
 # ---------------------------------------------------------------- presets and scatter
 def test_void_sleeper_preset():
     tr = S.void_sleeper(wfjax.Track(n_bays=NB), [3, 4], remaining=0.1)
-    sup = S.support_arrays(tr)
+    sup = sleepers.support_arrays(tr)
     np.testing.assert_allclose(sup["ballast_stiffness"][[3, 4]], 14e6)
     np.testing.assert_allclose(sup["ballast_damping"][[3, 4]], 16.5e3)
     assert np.all(np.delete(sup["ballast_stiffness"], [3, 4]) == 140e6)
     assert np.all(sup["pad_stiffness"] == 120e6) and np.all(sup["sleeper_mass"] == 125.0)
-    assert S.sleeper_index(tr, 0.0) == MID and S.sleeper_index(tr, 2 * LS + 0.1) == MID + 2
-    np.testing.assert_allclose(S.sleeper_positions(tr)[[0, -1]], [-9 * LS, 9 * LS])
+    assert sleepers.sleeper_index(tr, 0.0) == MID
+    assert sleepers.sleeper_index(tr, 2 * LS + 0.1) == MID + 2
+    np.testing.assert_allclose(sleepers.sleeper_positions(tr)[[0, -1]], [-9 * LS, 9 * LS])
 
 
 def test_scatter_is_lognormal_with_the_given_cv_and_reproducible():
@@ -211,7 +212,7 @@ def test_sensor_seat_force_uses_the_pad_under_the_sensor():
     spec = sensors.sensor_spec(np.array([0.0, LS]), tr, model, ("seat_force",))
     fe = T.assemble(tr)
     u = scipy.sparse.linalg.splu(fe.stiffness.tocsc()).solve(T._load_vector(fe, 0.0).toarray())
-    kp = S.support_arrays(tr)["pad_stiffness"][[MID, MID + 1]]
+    kp = sleepers.support_arrays(tr)["pad_stiffness"][[MID, MID + 1]]
     rail = u[[2 * (NB // 2) * 8 - 2, 2 * (NB // 2 + 1) * 8 - 2], 0]
     seat = kp * (rail - u[fe.n_rail_dof + np.array([MID, MID + 1]), 0])
     q = -T.mode_shapes_at(model, 0.0) / model.poles  # modal states at rest under 1 N at 0
@@ -254,7 +255,7 @@ def test_bad_support_shapes_indices_and_cv():
     with pytest.raises(ValueError, match="key must be"):
         S.scatter(tr, 0.5)
     with pytest.raises(ValueError, match=r"x must be within"):
-        S.sleeper_index(tr, 100.0)
+        sleepers.sleeper_index(tr, 100.0)
     # scalar fields keep their old rule (> 0) and message
     with pytest.raises(ValueError, match="ballast_stiffness must be > 0"):
         wfjax.Track(ballast_stiffness=0.0)

@@ -19,6 +19,7 @@ from . import fit as fit
 from . import geometry as geometry
 from . import params as params
 from . import roughness as roughness
+from . import sleepers as sleepers
 from . import supports as supports
 from . import track as track
 from . import wheel as wheel

@@ -783,7 +783,7 @@ class Case:
         pos = self.values.get("run.impact_position")
         if pos is not None and self.command in _MODEL_CMDS_EARLY:
             from .scenario.windows import check_impact_positions
-            from .supports import is_uniform
+            from .sleepers import is_uniform
 
             if not is_uniform(track):
                 try:

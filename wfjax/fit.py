@@ -83,7 +83,9 @@ import optax
 
 from ._xla import LOOP_COMPILER_OPTIONS, to_device
 from .contact import registry
-from .contact.laws import ContactLaw, TableLaw, prepare, prepare_family_range
+from .contact.laws import prepare, prepare_family_range
+from .contact.protocol import ContactLaw
+from .contact.table_law import TableLaw
 from .loop.observers import DetectorReadings
 from .loop.run import run_scan
 from .loop.structure import structure

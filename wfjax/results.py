@@ -57,7 +57,7 @@ class SimResult(NamedTuple):
         support_force: on a track with hanging sleepers (``Track.ballast_gap > 0``), the
             one-sided ballast's force on each of them, upwards [n_steps, n_s] [N], else None.
         sleeper_disp: their displacement, downwards [n_steps, n_s] [m], or None.
-        hanging_sleepers: their indices [n_s] (:func:`wfjax.supports.sleeper_positions`).
+        hanging_sleepers: their indices [n_s] (:func:`wfjax.sleepers.sleeper_positions`).
     """
 
     t: Any

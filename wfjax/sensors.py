@@ -51,7 +51,7 @@ import scipy.sparse.linalg
 
 from . import track as track_mod
 from .params import Track, _pytree
-from .supports import support_arrays
+from .sleepers import support_arrays
 
 __all__ = ["QUANTITIES", "END_BAYS", "SensorSpec", "sensor_spec", "evaluate", "check_positions",
            "Detector", "DetectorSpec", "detector_spec", "detector_load"]

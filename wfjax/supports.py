@@ -4,12 +4,14 @@ A :class:`wfjax.Track` carries its five support properties (:data:`SUPPORT_FIELD
 stiffness and damping, half-sleeper mass, ballast stiffness and damping) either as scalars
 (every sleeper alike: Table 2, the default) or as float arrays ``[n_bays - 1]``, one value per
 interior sleeper of the finite model, left to right. Sleeper ``i`` (0-based) sits at rail
-position ``x = (i + 1 - n_bays // 2) L_S`` (:func:`sleeper_positions`), the same numbering as
+position ``x = (i + 1 - n_bays // 2) L_S`` (:func:`wfjax.sleepers.sleeper_positions`), the
+same numbering as
 ``ModalModel.sleeper_shapes``; the end sleepers under the clamped rail ends are not modelled.
 
 This module builds such tracks: :func:`with_supports` (explicit arrays), :func:`void_sleeper`
 (hanging sleepers) and :func:`scatter` (random lognormal scatter from a ``jax.random`` key);
-:func:`support_arrays`, :func:`is_uniform` and :func:`is_mirror_symmetric` read them. The FE
+:mod:`wfjax.sleepers` reads them (:func:`~wfjax.sleepers.support_arrays`,
+:func:`~wfjax.sleepers.is_uniform`, :func:`~wfjax.sleepers.is_mirror_symmetric`). The FE
 assembly (:func:`wfjax.track.assemble`) and the modal model (:func:`wfjax.track.modal_model`,
 cached per track with the arrays in its key) take the per-sleeper values directly.
 
@@ -28,16 +30,12 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
+from . import track as track_mod
 from .params import SUPPORT_FIELDS, Track
+from .sleepers import check_track, n_sleepers, support_arrays
 
 __all__ = [
     "SUPPORT_FIELDS",
-    "n_sleepers",
-    "sleeper_positions",
-    "sleeper_index",
-    "support_arrays",
-    "is_uniform",
-    "is_mirror_symmetric",
     "with_supports",
     "void_sleeper",
     "hanging_sleeper",
@@ -57,73 +55,6 @@ SCATTER_FIELDS = ("pad_stiffness", "ballast_stiffness")
 """Fields :func:`scatter` varies by default: the two stiffnesses that age and settle."""
 
 
-def _check_track(track) -> Track:
-    if not isinstance(track, Track):
-        raise ValueError(f"track must be a wfjax.Track, got {type(track).__name__}")
-    return track
-
-
-def n_sleepers(track: Track) -> int:
-    """Number of modelled (interior) sleepers, ``n_bays - 1``."""
-    return int(_check_track(track).n_bays) - 1
-
-
-def sleeper_positions(track: Track) -> np.ndarray:
-    """Rail positions [m] of the modelled sleepers, float ``[n_bays - 1]``, left to right."""
-    nb = int(_check_track(track).n_bays)
-    return (np.arange(nb - 1) + 1 - nb // 2) * float(track.sleeper_spacing)
-
-
-def sleeper_index(track: Track, x: float) -> int:
-    """Index of the modelled sleeper nearest to rail position ``x`` [m].
-
-    Raises ``ValueError`` if ``x`` is not finite or no modelled sleeper is within half a bay.
-    """
-    pos = sleeper_positions(track)
-    ls = float(track.sleeper_spacing)
-    try:
-        xv = float(x)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"x must be a rail position in m, got {x!r}") from exc
-    if not math.isfinite(xv) or xv < pos[0] - ls / 2 or xv > pos[-1] + ls / 2:
-        raise ValueError(f"x must be within [{pos[0] - ls / 2:g}, {pos[-1] + ls / 2:g}] m "
-                         f"(the modelled sleepers), got {x!r}")
-    return int(np.argmin(np.abs(pos - xv)))
-
-
-def support_arrays(track: Track) -> dict[str, np.ndarray]:
-    """The five support properties per sleeper: ``{field: float [n_bays - 1]}`` (SI units).
-
-    Scalars are broadcast; the values are concrete numbers (checked when the track was made).
-    """
-    n = n_sleepers(track)
-    out = {}
-    for name in SUPPORT_FIELDS:
-        raw = getattr(track, name)
-        try:
-            arr = np.asarray(raw, dtype=float)
-        except (TypeError, jax.errors.ConcretizationTypeError) as exc:
-            raise ValueError(f"Track.{name} must be concrete numbers here, got {raw!r}") from exc
-        out[name] = np.array(np.broadcast_to(arr, (n,)))
-    return out
-
-
-def is_uniform(track: Track) -> bool:
-    """True when every sleeper has the same supports (scalars, or constant arrays)."""
-    return all(np.all(a == a[0]) for a in support_arrays(track).values())
-
-
-def is_mirror_symmetric(track: Track) -> bool:
-    """True when the supports are mirror symmetric about the middle sleeper (``x = 0``).
-
-    Needs an even ``n_bays`` (then the middle sleeper is a modelled one and the clamped track
-    is symmetric); the modal model then splits into symmetric and antisymmetric halves.
-    """
-    if int(_check_track(track).n_bays) % 2:
-        return False
-    return all(np.array_equal(a, a[::-1]) for a in support_arrays(track).values())
-
-
 def with_supports(track: Track, **fields) -> Track:
     """A copy of ``track`` with the given support fields replaced (scalar or ``[n_bays - 1]``).
 
@@ -131,7 +62,7 @@ def with_supports(track: Track, **fields) -> Track:
     Validated as :class:`wfjax.Track` validates (one-line ``ValueError`` naming the field,
     the sleeper index, the value and the allowed range).
     """
-    _check_track(track)
+    check_track(track)
     bad = [k for k in fields if k not in SUPPORT_FIELDS]
     if bad:
         raise ValueError(f"support fields must be among {SUPPORT_FIELDS}, got {bad!r}")
@@ -153,7 +84,7 @@ def void_sleeper(track: Track, index: int | Sequence[int], remaining: float = 0.
     """A track with hanging (void) sleepers at ``index``: the ballast support is removed.
 
     What changes: the ballast stiffness and damping under the sleeper(s) ``index`` (0-based,
-    see :func:`sleeper_positions`; the middle sleeper, above ``x = 0``, is
+    see :func:`wfjax.sleepers.sleeper_positions`; the middle sleeper, above ``x = 0``, is
     ``n_bays // 2 - 1``) are multiplied by ``remaining`` (default 0: no support at all).
     Why these: a hanging sleeper is one whose ballast has settled away from it, leaving a
     gap under it; it stays fastened to the rail, so its pad and its mass are kept and the
@@ -199,8 +130,8 @@ def hanging_sleeper(track: Track, index: int | Sequence[int], gap: float) -> Tra
 
     Args:
         track: the track to start from. index: sleeper index or indices in
-            ``[0, n_bays - 2]`` (:func:`sleeper_positions`). gap: g [m] in [0, 0.05] (one value
-            for all, or one per index).
+            ``[0, n_bays - 2]`` (:func:`wfjax.sleepers.sleeper_positions`). gap: g [m] in
+            [0, 0.05] (one value for all, or one per index).
 
     Returns:
         a new :class:`wfjax.Track` with a per-sleeper ``ballast_gap`` array.
@@ -254,8 +185,6 @@ class OneSidedSupports(NamedTuple):
 def one_sided_spec(track: Track, model, offsets=(0.0,)) -> OneSidedSupports | None:
     """:class:`OneSidedSupports` of ``track`` for wheels at ``offsets`` [n_w] [m] behind the
     reference wheel, from its modal model ``model`` (None when no sleeper hangs)."""
-    from . import track as track_mod
-
     idx = hanging_sleepers(track)
     if idx.size == 0:
         return None
@@ -308,7 +237,7 @@ def scatter(track: Track, key, cv: float | Mapping[str, float] = 0.3,
     Returns:
         a new :class:`wfjax.Track` with per-sleeper arrays for the scattered fields.
     """
-    _check_track(track)
+    check_track(track)
     cvs = dict(cv) if isinstance(cv, Mapping) else {f: cv for f in fields}
     bad = [k for k in cvs if k not in SCATTERABLE]
     if bad or not cvs:

@@ -50,14 +50,8 @@ from ._parallel import in_background
 from ._xla import LOOP_COMPILER_OPTIONS, to_device
 from .api import loop_roughness, vehicle_laws
 from .contact import registry
-from .contact.laws import (
-    TableLaw,
-    cached_tables_3d,
-    prepare,
-    prepare_family,
-    resolve_mode_3d,
-    table_specs_3d,
-)
+from .contact.laws import prepare, prepare_family, resolve_mode_3d
+from .contact.table_law import TableLaw, cached_tables_3d, table_specs_3d
 from .contact.tables import ContactTable, pad_columns
 from .loop.observers import DetectorReadings, Sensors
 from .loop.run import run_scan
@@ -851,7 +845,7 @@ def _table_laws(tables) -> TableLaw:
 def _table_laws_like(flats: Sequence[Flat], wheel: Wheel, track: Track, material: Material,
                      config: SimConfig):
     """Zeros shaped as :func:`_table_laws` of the flats' tables (for compiling ahead: the
-    tables' layouts, :func:`wfjax.contact.laws.table_specs_3d`, are known before they are
+    tables' layouts, :func:`wfjax.contact.table_law.table_specs_3d`, are known before they are
     built)."""
     specs = table_specs_3d(flats, float(wheel.radius), float(track.rail_head_radius), material,
                            config.contact_element)

@@ -40,10 +40,10 @@ import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
 from . import _cache
-from . import supports as _supports
 from ._modal import complex_modes, discrete_step_coefficients, real_times_complex
 from ._xla import to_device
 from .params import SUPPORT_FIELDS, Track, concrete_positive_numbers
+from .sleepers import is_mirror_symmetric, is_uniform, support_arrays
 
 __all__ = [
     "ModalModel",
@@ -79,8 +79,8 @@ def _track_numbers(track: Track) -> dict[str, float | np.ndarray]:
     if not isinstance(track, Track):
         raise ValueError(f"track must be a wfjax.Track, got {type(track).__name__}")
     out: dict[str, float | np.ndarray] = dict(concrete_positive_numbers(track, _RAIL_FIELDS))
-    arrays = _supports.support_arrays(track)
-    uniform = _supports.is_uniform(track)
+    arrays = support_arrays(track)
+    uniform = is_uniform(track)
     for name in SUPPORT_FIELDS:
         if name == "ballast_gap" and not np.any(arrays[name]):
             continue  # no hanging sleeper: the numbers and cache keys of before
@@ -537,7 +537,7 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     nb = int(track.n_bays)
     # the mirror split needs supports symmetric about x = 0 (always so for a uniform track;
     # a uniform track with odd n_bays gets the identity basis, as it always has)
-    symmetric = _supports.is_uniform(track) or _supports.is_mirror_symmetric(track)
+    symmetric = is_uniform(track) or is_mirror_symmetric(track)
     parts = []
     # supports that vary: the full problem (the identity basis). Every mode by divide and
     # conquer, then the kept ones: 2.5x faster here than the kept modes alone by MRRR
@@ -565,7 +565,7 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     # static correction of the truncated modes: across the central bay (uniform track,
     # periodic), else along the whole rail in absolute coordinates
     ls = float(track.sleeper_spacing)
-    if _supports.is_uniform(track):
+    if is_uniform(track):
         res_x = np.linspace(0.0, ls, n_residual)
     else:
         res_x = np.linspace(fe.node_x[0], fe.node_x[-1], (n_residual - 1) * nb + 1)
@@ -621,7 +621,7 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
     if use_cache:
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
                "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 2}
-        if not _supports.is_uniform(track):
+        if not is_uniform(track):
             key["supports"] = "per-sleeper arrays; residual along the rail"
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
     else:

@@ -31,8 +31,8 @@ import numpy as np
 from .._xla import to_device
 from ..params import Flat, Material, SimConfig, Track, Wheel, _pytree
 from . import tables
-from .laws import TableLaw, cached_table_3d
 from .newton import bracketed_newton
+from .table_law import TableLaw, cached_table_3d
 
 __all__ = ["Direct3DLaw", "prepare_direct"]
 

@@ -1,34 +1,26 @@
-"""Contact laws behind one interface: what the time loop needs from a contact model.
+"""The built-in contact laws and their prepare functions: ``prepare(contact, ...)`` -> a law.
 
-Every contact model is a pytree built once by :func:`prepare` (the concrete work: node sets,
-trajectory grids, 3D tables) and evaluated inside the compiled time step through one small
-protocol (:class:`ContactLaw`):
-
-* ``law.point(s)``: the work that depends only on the flat position s [m] (a gap at the
-  bedding nodes, an interpolated 3D table column, the trajectory's drop), done once per step;
-* ``law.point_force(point, delta)``: the force F [N] at approach delta [m], evaluated at every
-  Newton iterate of the step;
-* ``law.force(delta, s)``: both at once (static equilibrium, plots, tests);
-* ``law.init_state()`` and ``law.step(delta_free, compliance, s, state, max_iter)``: the
-  step's scalar contact equation (:mod:`wfjax.contact.newton`); only the per-step direct 3D
-  solve, which warm-starts Kalker's solver from the previous pressures, overrides them.
+Every contact model is a pytree implementing :class:`wfjax.contact.protocol.ContactLaw`,
+built once by its prepare function (the concrete work: node sets, trajectory grids, 3D tables)
+and evaluated inside the compiled time step. :func:`prepare` looks the model's prepare function
+up by name in :mod:`wfjax.contact.registry`, where user-defined laws join the built-ins.
 
 The flat's geometry enters every law as traced leaves (the flat itself, or arrays computed
 from it by traced code), never as static Python values: the same compiled program serves a
 batch of flats (``jax.vmap`` over :func:`prepare`'s traced part) and ``jax.grad`` reaches depth,
-length and profile samples. The law's class and its static fields (grid shapes) select the
-compiled program; the time loop never sees a model's name.
+length and profile samples.
 
-Models (``contact=``): ``"hertz-profile"`` (:class:`HertzProfileLaw`), ``"hertz-trajectory"``
-(:class:`HertzTrajectoryLaw`), ``"2d"`` (:class:`WinklerLaw`) and ``"3d"``: the exact table
-of one flat (:class:`TableLaw`), the parametric family over depth and length
+Models (``contact=``): ``"hertz-profile"`` (:class:`HertzProfileLaw`,
+:func:`prepare_hertz_profile`), ``"hertz-trajectory"`` (:class:`HertzTrajectoryLaw`,
+:func:`prepare_hertz_trajectory`), ``"2d"`` (:class:`WinklerLaw`, :func:`prepare_2d`) and
+``"3d"`` (:func:`prepare_3d`): the exact table of one flat
+(:class:`wfjax.contact.table_law.TableLaw`), the parametric family over depth and length
 (:class:`ParametricLaw`, :mod:`wfjax.contact.family`) or a Kalker solve every step
 (:class:`wfjax.contact.direct3d.Direct3DLaw`), chosen by ``SimConfig.contact_mode_3d``.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
@@ -37,7 +29,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import geometry
-from .._xla import to_device
 from ..params import (
     MAX_FLAT_DEPTH,
     Flat,
@@ -48,93 +39,30 @@ from ..params import (
     _is_concrete,
     _pytree,
 )
-from . import hertz, tables, winkler
-from .newton import solve_contact_step
+from . import hertz, registry, tables, winkler
+from .direct3d import prepare_direct
+from .protocol import ContactLaw
+from .table_law import TableLaw, cached_table_3d
 
 __all__ = [
-    "CONTACT_MODELS",
     "FLAT_MARGIN",
-    "ContactLaw",
     "HertzProfileLaw",
     "HertzTrajectoryLaw",
     "WinklerLaw",
-    "TableLaw",
     "ParametricLaw",
     "prepare",
+    "prepare_3d",
+    "prepare_2d",
+    "prepare_hertz_trajectory",
+    "prepare_hertz_profile",
     "prepare_family",
     "prepare_family_range",
     "resolve_mode_3d",
-    "cached_table_3d",
-    "cached_tables_3d",
-    "table_specs_3d",
-    "table_batch_size",
+    "hertz_radius",
 ]
 
-CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
 FLAT_MARGIN = 0.02  # m added to the flat's half extent on either side of its window
 TRAJECTORY_SPACING = 2e-5  # m between the samples of the tabulated wheel-centre trajectory
-# Part of every 3D table's cache key, so a change of the builder's results within one wfjax
-# version is never served from an old cache: 2 = new-flat onsets include the chord ends;
-# 3 = issue 20's faster CG and shared window sizes (forces within 1e-9 of revision 2's).
-TABLE_BUILDER_REVISION = 3
-# Columns of a 3D table solved together (``tables.build_table_3d(batch_size=...)``), by JAX
-# platform: one at a time on CPUs (a vmap over the columns was 4.5x slower on 2 cores: every
-# batched Kalker while-loop runs until its slowest column); GPUs/TPUs fill their lanes.
-TABLE_BATCH_SIZE = {"cpu": 1}
-ACCELERATOR_TABLE_BATCH_SIZE = 32
-
-
-class ContactLaw:
-    """The protocol every contact law implements (see the module docstring)."""
-
-    def point(self, s):
-        """The s-dependent part of the law at flat position ``s`` [m] (a pytree)."""
-        raise NotImplementedError
-
-    def point_force(self, point, delta):
-        """Contact force F [N] at approach ``delta`` [m] for a :meth:`point` result."""
-        raise NotImplementedError
-
-    def force(self, delta, s):
-        """Contact force F [N] at approach ``delta`` [m] and flat position ``s`` [m]."""
-        return self.point_force(self.point(s), delta)
-
-    def init_state(self):
-        """Initial per-step solver state carried by the time loop (``None``: stateless)."""
-        return None
-
-    def rough_nodes(self):
-        """[n] offsets x' [m] from the nominal contact point (travel direction) where the law
-        reads rail and wheel roughness element by element, or None: a point-contact law,
-        to whose approach the time loop adds the contact-filtered roughness instead."""
-        return None
-
-    def rough_point(self, s, roughness):
-        """:meth:`point` with ``roughness`` [n] [m] (positive = surface raised) at
-        :meth:`rough_nodes` taken off the gap (laws with :meth:`rough_nodes` only)."""
-        raise NotImplementedError
-
-    def step(self, delta_free, compliance, s, state, max_iter: int = 30, roughness=None):
-        """Solve the step's contact equation delta = delta_free - compliance F(delta, s).
-
-        Args:
-            delta_free: approach if F were zero [m]. compliance: structure's c > 0 [m/N].
-            s: flat position [m]. state: solver state (:meth:`init_state`).
-            max_iter: Newton iteration cap (static).
-            roughness: None, or for a law with :meth:`rough_nodes` the pair (roughness at
-                the nodes [n] m, its contact-filtered value [m]).
-
-        Returns:
-            (delta [m], F [N], |r| [m], state); differentiable by the implicit function
-            theorem (:func:`wfjax.contact.newton.solve_contact_step`).
-        """
-        frozen = jax.lax.stop_gradient(self)
-        point = self.point(s) if roughness is None else self.rough_point(s, roughness[0])
-        point_ng = jax.lax.stop_gradient(point)
-        delta, f, r = solve_contact_step(
-            lambda d: self.point_force(point, d), delta_free, compliance, max_iter,
-            loop_force_fn=lambda d: frozen.point_force(point_ng, d))
-        return delta, f, r, state
 
 
 def _hertz_law(c_h, compression):
@@ -211,22 +139,6 @@ class WinklerLaw(ContactLaw):
 
 
 @_pytree
-class TableLaw(ContactLaw):
-    """3D contact through the exact table F3D(delta, s) of one flat (:mod:`.tables`).
-
-    Attributes: table: :class:`wfjax.contact.tables.ContactTable`.
-    """
-
-    table: Any
-
-    def point(self, s):
-        return tables.table_column(self.table, s)
-
-    def point_force(self, point, delta):
-        return tables.column_force(point, delta)
-
-
-@_pytree
 class ParametricLaw(TableLaw):
     """3D contact through the parametric family F3D(delta, s; depth, length) (:mod:`.family`).
 
@@ -294,7 +206,8 @@ def prepare(contact: str, flat: Flat, wheel: Wheel, track: Track, material: Mate
     """Build the contact law of ``flat`` (concrete grids and tables; traced geometry leaves).
 
     Args:
-        contact: one of :data:`CONTACT_MODELS`.
+        contact: a model name of :mod:`wfjax.contact.registry` (the built-ins ``"3d"``,
+            ``"2d"``, ``"hertz-trajectory"``, ``"hertz-profile"`` or a registered law).
         flat: the flat; its depth, length and profile may be traced (``vmap``/``grad``) for
             every model except the exact 3D table and the direct 3D mode, which need a
             concrete flat (their grids depend on it). Traced flats need ``extent_bound``.
@@ -306,32 +219,85 @@ def prepare(contact: str, flat: Flat, wheel: Wheel, track: Track, material: Mate
             (default: the flat's depth, or :data:`wfjax.params.MAX_FLAT_DEPTH` if traced).
 
     Returns:
-        A :class:`ContactLaw` pytree.
+        A :class:`wfjax.contact.protocol.ContactLaw` pytree, from the model's prepare function
+        (given ``family`` and ``max_depth`` as keywords when they are not None).
+
+    Raises:
+        ValueError: ``contact`` is not a registered model (one line naming it).
     """
-    if contact not in CONTACT_MODELS:
-        raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {contact!r}")
-    if contact == "hertz-profile":
-        return HertzProfileLaw(hertz.hertz_constant(material, hertz_radius(wheel, track)), flat)
-    if contact == "hertz-trajectory":
-        half = flat.half_extent + FLAT_MARGIN
-        grid = jnp.linspace(-half, half, int(2 * half / TRAJECTORY_SPACING) + 1)
-        return HertzTrajectoryLaw(hertz.hertz_constant(material, hertz_radius(wheel, track)),
-                                  grid, -geometry.centre_trajectory(flat, grid), flat)
-    if contact == "2d":
-        if max_depth is None and not _is_concrete(flat.depth):
-            max_depth = MAX_FLAT_DEPTH
-        deepest = None if max_depth is None else max_depth + winkler.DEFAULT_APPROACH_MARGIN
-        half = winkler.default_half_window(flat, float(wheel.radius), deepest)
-        nodes = jnp.asarray(winkler.bedding_nodes(half, config.contact_element))
-        return WinklerLaw(flat, material, wheel.radius, nodes)
+    prepare_fn = registry.get(registry.check(contact))
+    options = {k: v for k, v in (("family", family), ("max_depth", max_depth))
+               if v is not None}
+    return prepare_fn(flat, wheel, track, material, config, cache_dir, **options)
+
+
+_OPTIONS = ("family", "max_depth")  # the keywords prepare() may pass to a prepare function
+
+
+def _check_options(contact: str, options: dict) -> None:
+    """One-line ``ValueError`` for keywords that no built-in prepare function takes; the
+    known ones (:data:`_OPTIONS`) that ``contact`` does not use are ignored."""
+    unknown = sorted(set(options) - set(_OPTIONS))
+    if unknown:
+        raise ValueError(f"contact {contact!r}: unknown options {unknown}, known: "
+                         f"{', '.join(_OPTIONS)}")
+
+
+def prepare_hertz_profile(flat: Flat, wheel: Wheel, track: Track, material: Material,
+                          config: SimConfig, cache_dir=None, **options) -> HertzProfileLaw:
+    """``"hertz-profile"``: :class:`HertzProfileLaw` of ``flat`` with C_H [N/m^1.5] from
+    ``material`` and the radius :func:`hertz_radius` [m]. ``config``, ``cache_dir`` and the
+    options (``family``, ``max_depth``) are unused."""
+    _check_options("hertz-profile", options)
+    return HertzProfileLaw(hertz.hertz_constant(material, hertz_radius(wheel, track)), flat)
+
+
+def prepare_hertz_trajectory(flat: Flat, wheel: Wheel, track: Track, material: Material,
+                             config: SimConfig, cache_dir=None,
+                             **options) -> HertzTrajectoryLaw:
+    """``"hertz-trajectory"``: :class:`HertzTrajectoryLaw` of ``flat``: the rigid wheel
+    centre's drop [m] tabulated every :data:`TRAJECTORY_SPACING` m over the flat's half extent
+    plus :data:`FLAT_MARGIN` on either side (traced: differentiable in the geometry).
+    ``config``, ``cache_dir`` and the options (``family``, ``max_depth``) are unused."""
+    _check_options("hertz-trajectory", options)
+    half = flat.half_extent + FLAT_MARGIN
+    grid = jnp.linspace(-half, half, int(2 * half / TRAJECTORY_SPACING) + 1)
+    return HertzTrajectoryLaw(hertz.hertz_constant(material, hertz_radius(wheel, track)),
+                              grid, -geometry.centre_trajectory(flat, grid), flat)
+
+
+def prepare_2d(flat: Flat, wheel: Wheel, track: Track, material: Material, config: SimConfig,
+               cache_dir=None, max_depth: float | None = None, **options) -> WinklerLaw:
+    """``"2d"``: :class:`WinklerLaw` of ``flat`` on bedding nodes ``config.contact_element``
+    [m] apart over a window sized for approaches up to ``max_depth`` [m] (default: the flat's
+    depth, or :data:`wfjax.params.MAX_FLAT_DEPTH` if traced) plus the bedding's margin.
+    ``cache_dir`` and ``family`` are unused."""
+    _check_options("2d", options)
+    if max_depth is None and not _is_concrete(flat.depth):
+        max_depth = MAX_FLAT_DEPTH
+    deepest = None if max_depth is None else max_depth + winkler.DEFAULT_APPROACH_MARGIN
+    half = winkler.default_half_window(flat, float(wheel.radius), deepest)
+    nodes = jnp.asarray(winkler.bedding_nodes(half, config.contact_element))
+    return WinklerLaw(flat, material, wheel.radius, nodes)
+
+
+def prepare_3d(flat: Flat, wheel: Wheel, track: Track, material: Material, config: SimConfig,
+               cache_dir=None, family=None, **options) -> TableLaw:
+    """``"3d"``: the 3D law of ``flat`` (Kalker, elastic half-space).
+
+    With ``family`` (a built :class:`wfjax.contact.family.FlatFamily`; required for a traced
+    flat) the parametric law read off it; else by ``config.contact_mode_3d``
+    (:func:`resolve_mode_3d` for one flat): the exact table through the on-disk cache
+    ``cache_dir``, the family of this flat alone, or the direct mode (a Kalker solve every
+    step). ``max_depth`` is unused.
+    """
+    _check_options("3d", options)
     mode = "parametric" if family is not None else resolve_mode_3d(config, batched=False)
     if mode == "parametric":
         if family is None:
             family = prepare_family([flat], wheel, track, material, config, cache_dir)
         return parametric_law(family, flat.depth, flat.length)
     if mode == "direct":
-        from .direct3d import prepare_direct
-
         return prepare_direct(flat, wheel, track, material, config, cache_dir)
     return TableLaw(cached_table_3d(flat, float(wheel.radius), float(track.rail_head_radius),
                                     material, config.contact_element, cache_dir))
@@ -376,74 +342,3 @@ def prepare_family_range(kind: str, depths, length_factors, wheel: Wheel, track:
                                   rail_head_radius=float(track.rail_head_radius),
                                   material=material, element_size=config.contact_element)
     return family_mod.build_family(spec, material, cache_dir=cache_dir, progress=progress)
-
-
-def table_batch_size(platform: str | None = None) -> int:
-    """Columns of a 3D table built at once on ``platform`` (default: JAX's default backend):
-    ``TABLE_BATCH_SIZE`` (1 on CPU), else ``ACCELERATOR_TABLE_BATCH_SIZE``. The table is the
-    same to the solver's tolerance either way (batch 4 against 1: 6e-3 N of up to 950 kN), so
-    the disk cache does not key on it."""
-    platform = platform or jax.default_backend()
-    return TABLE_BATCH_SIZE.get(platform, ACCELERATOR_TABLE_BATCH_SIZE)
-
-
-def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
-                    material: Material, element_size: float, cache_dir=None):
-    """:func:`wfjax.contact.tables.build_table_3d` through the on-disk cache.
-
-    The key holds every input of the table (flat kind and geometry, radii, material, element
-    size, and the builder's defaults through the wfjax version). Flats with traced geometry
-    (``grad``, ``vmap``) are built directly, so gradients flow through the solves.
-    """
-    leaves = jax.tree_util.tree_leaves((flat, material))
-    if not all(_is_concrete(leaf) for leaf in leaves):
-        return tables.build_table_3d(flat, wheel_radius, rail_head_radius, material,
-                                     element_size=element_size, batch_size=table_batch_size())
-    return cached_tables_3d([flat], wheel_radius, rail_head_radius, material, element_size,
-                            cache_dir)[0]
-
-
-def _own_extent(flats) -> list:
-    """``flats`` without their window bounds: a concrete flat's table spans its own extent (a
-    window bound, ``extent_bound``, sizes the simulation windows of batches) and must neither
-    change the table nor alias its cache key."""
-    return [dataclasses.replace(f, extent_bound=None) for f in flats]
-
-
-def table_specs_3d(flats, wheel_radius: float, rail_head_radius: float, material: Material,
-                   element_size: float) -> list:
-    """The layouts (:class:`wfjax.contact.tables.TableSpec`) of the tables
-    :func:`cached_tables_3d` builds for ``flats`` (concrete; R_W, R_R [m], element size [m]),
-    known before they are built: a sweep compiles its program for their shapes meanwhile."""
-    return [tables.table_spec(f, wheel_radius, rail_head_radius, material, element_size)
-            for f in _own_extent(flats)]
-
-
-def cached_tables_3d(flats, wheel_radius: float, rail_head_radius: float,
-                     material: Material, element_size: float, cache_dir=None) -> list:
-    """:func:`cached_table_3d` of several concrete flats: the tables missing from the cache
-    are built together (:func:`wfjax.contact.tables.build_tables_3d`: one set of window
-    sizes, compiled once, and every column spread over the CPU cores)."""
-    from .. import _cache
-
-    flats = _own_extent(flats)
-    paths = [_cache.cache_path("table3d", {
-        "flat_kind": f.kind, "flat": [np.asarray(v) for v in jax.tree_util.tree_leaves(
-            (f, material))],
-        "wheel_radius": wheel_radius, "rail_head_radius": rail_head_radius,
-        "element_size": element_size, "builder_revision": TABLE_BUILDER_REVISION},
-        cache_dir) for f in flats]
-    arrays = [_cache._read(path) for path in paths]
-    missing = [i for i, a in enumerate(arrays) if a is None]
-    if missing:
-        if table_batch_size() == 1:
-            built = tables.build_tables_3d([flats[i] for i in missing], wheel_radius,
-                                           rail_head_radius, material, element_size)
-        else:
-            built = [tables.build_table_3d(flats[i], wheel_radius, rail_head_radius, material,
-                                           element_size=element_size,
-                                           batch_size=table_batch_size()) for i in missing]
-        for i, table in zip(missing, built, strict=True):
-            arrays[i] = {k: np.asarray(v) for k, v in table._asdict().items()}
-            _cache.store(paths[i], arrays[i])
-    return [tables.ContactTable(**{k: to_device(v) for k, v in a.items()}) for a in arrays]

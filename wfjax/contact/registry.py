@@ -2,7 +2,7 @@
 
 A model is a name, a one-line description and a *prepare* function
 ``prepare(flat, wheel, track, material, config, cache_dir=None, **options) -> ContactLaw``
-(:class:`wfjax.contact.laws.ContactLaw`: the protocol the time loop calls). The built-in
+(:class:`wfjax.contact.protocol.ContactLaw`: the protocol the time loop calls). The built-in
 models are named here and resolved lazily (``"module:function"``), so this module imports
 nothing of the package and every module may import it. A user-defined law joins with
 :func:`register`; it then runs in :func:`wfjax.simulate`, :func:`wfjax.sweep` and the fits
@@ -15,7 +15,7 @@ import importlib
 from collections.abc import Callable
 from typing import NamedTuple
 
-__all__ = ["ContactModel", "register", "names", "check", "get", "describe"]
+__all__ = ["ContactModel", "register", "unregister", "names", "check", "get", "describe"]
 
 
 class ContactModel(NamedTuple):
@@ -42,6 +42,18 @@ def register(name: str, prepare: Callable | str, description: str,
     if name in _MODELS and not replace:
         raise ValueError(f"contact model {name!r} is already registered")
     _MODELS[name] = ContactModel(name, description, prepare)
+
+
+def unregister(name: str) -> None:
+    """Remove user-registered model ``name`` (a test's clean-up, a plugin that unloads).
+
+    Raises ``ValueError`` (one line) for a name not registered and for the built-in models,
+    which every entry point relies on.
+    """
+    check(name)
+    if name in _BUILT_IN:
+        raise ValueError(f"contact model {name!r} is built in and cannot be unregistered")
+    del _MODELS[name]
 
 
 def names() -> tuple[str, ...]:
@@ -79,3 +91,5 @@ register("hertz-trajectory", "wfjax.contact.laws:prepare_hertz_trajectory",
          "Hertz spring driven by the rigid wheel-centre trajectory (Wu & Thompson)")
 register("hertz-profile", "wfjax.contact.laws:prepare_hertz_profile",
          "Hertz spring driven by the flat's profile deviation")
+
+_BUILT_IN = frozenset(_MODELS)

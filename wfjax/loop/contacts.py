@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import roughness as rough_mod
-from ..contact.laws import ContactLaw
 from ..contact.newton import solve_contact_system, solve_small
+from ..contact.protocol import ContactLaw
 
 
 def pointwise(law: ContactLaw) -> bool:
