@@ -641,5 +641,5 @@ def markdown_table() -> str:
         if len(shown) > 1:
             default += " (differs by subcommand)"
         lines.append(f"| `{path}` | {key.unit or '-'} | {key.allowed().replace('|', '/')} | "
-                     f"{default} | {', '.join(key.commands)} | {key.doc} |")
+                     f"{default} | {', '.join(key.commands)} | {key.doc.replace('|', '/')} |")
     return "\n".join(lines) + "\n"
