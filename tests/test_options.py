@@ -172,3 +172,19 @@ def test_help_shows_units_and_the_subcommands_defaults(capsys):
     text = re.sub(r"\s+", " ", capsys.readouterr().out)
     assert "--depth-mm" in text and "[mm] (default: 1.2)" in text
     assert "(default: hertz-trajectory)" in text and "--impact-positions" in text
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["detector", "--gauge-offset-m", "0.4"],
+     ["detector.gauge_offset = 0.4 m", "(0, 0.325) m", "track.sleeper_spacing"]),
+    (["simulate", "--vehicle", "single", "--flat-wheel", "1"], ["[vehicle]", "flat_wheel"]),
+    (["sweep", "--wheel-positions-m", "0,0.5"], ["[vehicle]", "0.5 m apart"]),
+])
+def test_errors_between_options_name_the_keys_not_python_objects(tmp_path, capsys, argv,
+                                                                  words):
+    out = tmp_path / "o"
+    assert main([*argv, "--out", str(out)]) == 2
+    line = capsys.readouterr().err.strip()
+    assert "\n" not in line and "(" + "n_bays=" not in line and not out.exists()
+    for w in words:
+        assert w in line, (w, line)

@@ -347,7 +347,7 @@ class Case:
                 vehicle = Vehicle.wagon(self.values["vehicle.axle_spacing"],
                                         self.values["vehicle.bogie_distance"], flat_wheel)
         except ValueError as exc:
-            raise CaseError(str(exc)) from None
+            raise CaseError(f"[vehicle]: {exc}") from None
         return None if vehicle.n_wheels == 1 else vehicle
 
     def support_realisations(self, track: P.Track) -> list[P.Track] | None:
@@ -424,6 +424,8 @@ class Case:
         wheel, track, *_ = self.model()
         if self.command in _FLAT_CMDS:
             self.flats()
+        if self.command == "detector":
+            self._check_gauge_offset(track)
         if self.command in _MODEL_CMDS_EARLY:
             track = self.supports(track)
         if self.command == "simulate" and int(self.values.get("roughness.realisations", 1)) > 1:
@@ -443,6 +445,13 @@ class Case:
         if pos is not None and (pos >= float(track.sleeper_spacing) or pos < 0):
             raise CaseError(f"run.impact_position = {pos:.6g} m: out of range; allowed: [0, "
                             f"{float(track.sleeper_spacing):g}) m (track.sleeper_spacing)")
+
+    def _check_gauge_offset(self, track: P.Track) -> None:
+        """The detector's bridges must lie within half a bay of their sleepers."""
+        offset, half = self.values["detector.gauge_offset"], float(track.sleeper_spacing) / 2
+        if not offset < half:
+            raise CaseError(f"detector.gauge_offset = {offset:g} m: out of range for this "
+                            f"track; allowed: (0, {half:g}) m (half of track.sleeper_spacing)")
 
     # output
     def to_dict(self) -> dict:

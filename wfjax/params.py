@@ -81,26 +81,20 @@ def option(default: Any = dataclasses.MISSING, *, unit: str = "", doc: str = "",
         low, high, low_open, high_open: the range a case file or flag may give (None:
             unbounded): wide enough for any real wheel and track, narrow enough that a value
             in the wrong unit (kN for N, mm for m) fails instead of running.
-        positive: the constructor itself refuses values <= 0 (the physical limit, checked
-            also in the Python API, where the plausible range above is not imposed).
+        positive: the constructor refuses values <= 0 (the physical limit; the Python API
+            does not impose the plausible range above).
         choices: allowed strings.
         flag: the command-line flag (``--rail-head-radius-m``); ``aliases``: other spellings.
         factor, flag_unit: the flag's value x ``factor`` is SI; its unit (default ``unit``).
         flag_commands: subcommands that offer the flag (None: every one that reads the key).
 
-    Read by :mod:`wfjax.options`, which derives the case-file keys, the command-line flags,
-    their checks and the documentation from it.
+    :mod:`wfjax.options` derives the case keys, flags, checks and docs from it.
     """
     meta = {"unit": unit, "doc": doc, "low": low, "high": high, "low_open": low_open,
             "high_open": high_open, "positive": positive, "choices": choices, "flag": flag,
             "aliases": aliases, "factor": factor, "flag_unit": flag_unit,
             "flag_commands": flag_commands}
     return dataclasses.field(default=default, metadata=types.MappingProxyType(meta))
-
-
-def _unit(obj, name: str) -> str:
-    """The unit of field ``name`` of dataclass ``obj`` from its description."""
-    return {f.name: f.metadata.get("unit", "") for f in dataclasses.fields(obj)}[name]
 
 
 def concrete_positive_numbers(obj, fields: tuple[str, ...]) -> dict[str, float]:

@@ -45,7 +45,10 @@ def case_vehicle(case: case_mod.Case, wheel):
     """The case's vehicle (None: one wheel) with its wheel spacing checked."""
     vehicle = case.vehicle()
     if vehicle is not None:
-        vehicle.check_spacing(vehicle.wheel_list(wheel))
+        try:
+            vehicle.check_spacing(vehicle.wheel_list(wheel))
+        except ValueError as exc:
+            raise case_mod.CaseError(f"[vehicle]: {exc}") from None
     return vehicle
 
 
