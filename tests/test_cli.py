@@ -192,9 +192,8 @@ def test_config_check_shows_environment_precision_and_flag_wins(tmp_path, capsys
 def test_fit_accepts_3d_contact_and_the_comparison_track(tmp_path):
     args = build_parser().parse_args(["fit", "--example", "--contact", "3d"])
     from wfjax.commands._common import resolve_case
-    from wfjax.commands.fit import FLAGS
 
-    case = resolve_case(args, "fit", FLAGS)
+    case = resolve_case(args, "fit")
     assert case["run.contact"] == "3d" and case["fit.example"] is True
     assert case.model()[1] == wf.Track.comparison()  # fit_flat's default track, stated
 

@@ -63,7 +63,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
 
     Args:
         flat: the wheel flat (:class:`wfjax.Flat`); ``Flat.none()`` for a smooth wheel.
-        speed: train speed v [m/s] in (0, 150].
+        speed: train speed v [m/s] in (0, :data:`wfjax.params.MAX_SPEED`].
         contact: ``"3d"``, ``"2d"``, ``"hertz-trajectory"`` or ``"hertz-profile"``.
         impact_position: rail coordinate [m] in [0, L_S) measured from a sleeper centre where
             the flat centre meets the nominal contact point.

@@ -35,287 +35,29 @@ from typing import Any
 import numpy as np
 
 from . import params as P
+from .contact import registry
+from .options import (
+    _FLAT_CMDS,
+    _MODEL_CMDS_EARLY,
+    _VEHICLE_CMDS,
+    COMMANDS,
+    KEYS,
+    MODEL_SECTIONS,
+    SECTIONS,
+    CaseError,
+    check_value,
+    parse_number_list,
+)
+from .options import Option as Key
+from .options import fmt as _fmt
 
-__all__ = ["Case", "CaseError", "Key", "KEYS", "resolve", "load_layer", "read_profile_csv",
-           "default_case", "markdown_table"]
+__all__ = ["Case", "CaseError", "Key", "KEYS", "COMMANDS", "resolve", "load_layer",
+           "read_profile_csv", "default_case", "markdown_table", "check_value",
+           "parse_number_list"]
 
-MODEL_SECTIONS = {"wheel": P.Wheel, "track": P.Track, "material": P.Material,
-                  "config": P.SimConfig}
-COMMANDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "geometry",
-            "detector")
-CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
-PRECISIONS = P.PRECISIONS
-MAX_SPEED_KMH = 540.0  # = 150 m/s, the API's limit
 MAX_FLAT_LENGTH = P.MAX_FLAT_LENGTH  # m; about a tenth of a 0.45 m wheel's circumference
 PROFILE_STEP = 0.1e-3  # m; measured profiles are resampled on this uniform grid
-PATH_KEYS = ("profile_csv", "data", "rail_csv", "wheel_csv")  # file names, relative to a case
 
-
-class CaseError(ValueError):
-    """A bad case file, flag or environment value: one line naming key, value and range."""
-
-
-# -- the keys -------------------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True)
-class Key:
-    """One key of a case file.
-
-    Attributes:
-        section, name: ``[section] name = ...``.
-        kind: ``"float"``, ``"int"``, ``"str"``, ``"bool"``, ``"floats"`` (a number, a list of
-            numbers, or a ``"start:stop:step"``/``"a,b,c"`` string), ``"strs"`` (a list of
-            strings or an ``"a,b"`` string) or ``"float|auto"`` (a number or ``"auto"``).
-        unit: unit of the value ("" when dimensionless or not a number).
-        low, high: allowed range (None: unbounded); ``low_open``/``high_open``: excluded ends.
-        choices: allowed strings.
-        doc: one-line meaning.
-        commands: subcommands that read the key.
-    """
-
-    section: str
-    name: str
-    kind: str
-    unit: str = ""
-    low: float | None = None
-    high: float | None = None
-    low_open: bool = False
-    high_open: bool = False
-    choices: tuple[str, ...] | None = None
-    doc: str = ""
-    commands: tuple[str, ...] = COMMANDS
-
-    @property
-    def path(self) -> str:
-        return f"{self.section}.{self.name}"
-
-    def allowed(self, factor: float = 1.0, unit: str | None = None) -> str:
-        """The allowed values in words, optionally in another unit (value = SI / factor)."""
-        unit = self.unit if unit is None else unit
-        if self.choices is not None:
-            text = " | ".join(self.choices)
-            return text + (" (or a list of them)" if self.kind == "strs" else "")
-        if self.kind == "bool":
-            return "true | false"
-        if self.kind == "str":
-            return "a string"
-        lo = "-inf" if self.low is None else f"{self.low / factor:g}"
-        hi = "inf" if self.high is None else f"{self.high / factor:g}"
-        left = "(" if self.low_open or self.low is None else "["
-        right = ")" if self.high_open or self.high is None else "]"
-        text = f"{left}{lo}, {hi}{right}" + (f" {unit}" if unit else "")
-        if self.kind == "int":
-            text = "an integer in " + text
-        if self.kind == "float|auto":
-            text = '"auto" or ' + text
-        return text
-
-
-# Ranges of the model parameters: wide enough for any real wheel and track, narrow enough that
-# a value in the wrong unit (kN for N, mm for m, MN/m for N/m) fails instead of running.
-_RANGES: dict[tuple[str, str], tuple[float | None, float | None, str]] = {
-    ("wheel", "wheelset_mass"): (50.0, 5e3, "half the wheelset mass M_W"),
-    ("wheel", "suspension_stiffness"): (1e4, 1e9, "primary suspension stiffness k_S"),
-    ("wheel", "suspension_damping"): (1e1, 1e7, "primary suspension damping c_S"),
-    ("wheel", "small_mass"): (1e-2, 100.0, "small mass m_W at the contact"),
-    ("wheel", "contact_stiffness"): (1e6, 1e12, "stiffness k_W between m_W and M_W"),
-    ("wheel", "contact_damping"): (1e1, 1e8, "damping c_W between m_W and M_W"),
-    ("wheel", "radius"): (0.15, 1.0, "wheel radius R_W (also the flat's wheel)"),
-    ("wheel", "preload"): (1e3, 1e6, "static wheel load P (axle load x g / 2)"),
-    ("track", "bending_stiffness"): (1e5, 1e8, "rail bending stiffness EI"),
-    ("track", "shear_stiffness"): (1e6, 1e10, "rail shear stiffness kGA"),
-    ("track", "rail_mass"): (10.0, 200.0, "rail mass per length m'"),
-    ("track", "rail_rotary_inertia"): (1e-3, 10.0, "rail rotary inertia rho I"),
-    ("track", "rail_head_radius"): (0.05, 10.0, "transverse rail head radius R_R"),
-    ("track", "sleeper_spacing"): (0.3, 1.5, "sleeper spacing L_S"),
-    ("track", "pad_stiffness"): (1e6, 1e10, "rail pad stiffness k_P"),
-    ("track", "pad_damping"): (1e1, 1e7, "rail pad damping c_P"),
-    ("track", "sleeper_mass"): (10.0, 1e3, "half sleeper mass m_SL"),
-    ("track", "ballast_stiffness"): (1e6, 1e10, "ballast stiffness k_B"),
-    ("track", "ballast_damping"): (1e1, 1e8, "ballast damping c_B"),
-    ("track", "ballast_gap"): (0.0, P.MAX_BALLAST_GAP, "gap between sleeper and ballast at "
-                               "rest (0: bonded; one per sleeper: supports.void_gap)"),
-    ("track", "n_bays"): (4, 1000, "sleeper bays of the finite track model"),
-    ("track", "elements_per_bay"): (1, 64, "rail beam elements per sleeper bay"),
-    ("material", "youngs_modulus"): (1e9, 1e12, "Young's modulus E of wheel and rail"),
-    ("material", "poisson_ratio"): (0.0, 0.5, "Poisson's ratio nu"),
-    ("config", "time_step"): (0.0, 1e-3, "time step; auto: min(max_time_step, "
-                                         "max_travel_step / v)"),
-    ("config", "max_time_step"): (0.0, 1e-3, "upper bound of the automatic time step"),
-    ("config", "max_travel_step"): (0.0, 1e-2, "upper bound of the travel per time step"),
-    ("config", "run_in"): (0.0, 10.0, "travel before the flat reaches the contact"),
-    ("config", "run_out"): (0.0, 10.0, "travel after the flat centre passed the contact"),
-    ("config", "contact_element"): (1e-4, 1e-2, "side of the 3D/2D contact elements"),
-    ("config", "contact_mode_3d"): (None, None, "how the 3D contact law is evaluated"),
-    ("config", "track_max_frequency"): (100.0, 1e6, "track modes above this enter "
-                                                    "statically"),
-    ("config", "newton_iterations"): (1, 1000, "iterations of the per-step contact "
-                                               "equation"),
-    ("config", "precision"): (None, None, "dtype of the time loop; setup stays float64 "
-                                          "(environment: WFJAX_PRECISION)"),
-}
-_OPEN = {("material", "poisson_ratio"): (False, True), ("config", "time_step"): (True, False),
-         ("config", "max_time_step"): (True, False), ("config", "max_travel_step"): (True, False)}
-_UNITS = {("material", "poisson_ratio"): "", ("config", "time_step"): "s",
-          ("config", "max_time_step"): "s", ("config", "max_travel_step"): "m",
-          ("config", "run_in"): "m", ("config", "run_out"): "m",
-          ("config", "contact_element"): "m", ("config", "track_max_frequency"): "Hz",
-          ("config", "newton_iterations"): "", ("config", "contact_mode_3d"): "",
-          ("config", "precision"): "", ("track", "ballast_gap"): "m",
-          ("track", "n_bays"): "", ("track", "elements_per_bay"): ""}
-_CHOICES = {("config", "contact_mode_3d"): tuple(getattr(P, "CONTACT_MODES_3D",
-                                                         ("table", "direct"))),
-            ("config", "precision"): PRECISIONS}
-
-
-def _model_keys() -> list[Key]:
-    """Keys of the dataclass sections, from the dataclasses themselves (cannot drift)."""
-    keys = []
-    for section, cls in MODEL_SECTIONS.items():
-        positive = getattr(cls, "_positive", {})
-        for f in dataclasses.fields(cls):
-            if f.name.startswith("_"):
-                continue
-            default = f.default
-            if default is None:
-                kind = "float|auto"
-            elif isinstance(default, bool):
-                kind = "bool"
-            elif isinstance(default, int):
-                kind = "int"
-            elif isinstance(default, str):
-                kind = "str"
-            else:
-                kind = "float"
-            low, high, doc = _RANGES.get((section, f.name), (0.0, None, ""))
-            if (section, f.name) not in _RANGES and f.name not in positive:
-                low = None
-            lo_open, hi_open = _OPEN.get((section, f.name), (False, False))
-            unit = _UNITS.get((section, f.name), positive.get(f.name, ""))
-            keys.append(Key(section, f.name, kind, unit, low, high, lo_open, hi_open,
-                            _CHOICES.get((section, f.name)), doc))
-    return keys
-
-
-_FLAT_CMDS = ("sweep", "simulate", "fit", "geometry", "detector")
-_MODEL_CMDS_EARLY = ("sweep", "simulate")
-_VEHICLE_CMDS = ("sweep", "simulate")
-_OTHER_KEYS = [
-    Key("run", "contact", "str", choices=CONTACT_MODELS, doc="contact model",
-        commands=("sweep", "simulate", "fit", "detector")),
-    Key("run", "speeds_kmh", "floats", "km/h", 0.0, MAX_SPEED_KMH, low_open=True,
-        doc='train speeds: a list, or "start:stop:step" (inclusive) or "v1,v2,..."',
-        commands=("sweep", "compare", "detector")),
-    Key("run", "impact_positions", "int", "", 1, 1000,
-        doc="impact positions evenly covering one sleeper bay",
-        commands=("sweep", "fit", "compare", "detector")),
-    Key("run", "sensors", "floats", "m", -500.0, 500.0,
-        doc="fixed rail sensor positions (x = 0 at the middle sleeper; docs/detector.md)",
-        commands=("detector", "simulate")),
-    Key("detector", "n_bays", "int", "", 1, 60,
-        doc="instrumented consecutive sleeper bays of the detector", commands=("detector",)),
-    Key("detector", "first_bay", "int", "", -30, 30,
-        doc="index of the first bay (bay 0 spans [0, L_S), where impacts are placed)",
-        commands=("detector",)),
-    Key("detector", "gauge_offset", "float", "m", 0.0, 0.75, low_open=True, high_open=True,
-        doc="shear bridges' distance from the sleeper centres, < L_S / 2",
-        commands=("detector",)),
-    Key("detector", "calibration", "float", "", 0.0, 10.0, low_open=True,
-        doc="factor on the shear difference (1: static theory; docs/detector.md)",
-        commands=("detector",)),
-    Key("run", "speed_kmh", "float", "km/h", 0.0, MAX_SPEED_KMH, low_open=True,
-        doc="train speed of one run (fit: of a force-history dataset)",
-        commands=("simulate", "fit")),
-    Key("run", "impact_position", "float", "m", -50.0, 50.0,
-        doc="impact position from a sleeper centre, in [0, track.sleeper_spacing); on a "
-            "track whose supports vary an absolute rail coordinate (docs/real_track.md)",
-        commands=("simulate", "fit")),
-    Key("flat", "kind", "str", choices=("both", "rounded", "new", "profile"),
-        doc="flat kind; both = a rounded and a new flat (sweep); profile = flat.profile_csv",
-        commands=_FLAT_CMDS),
-    Key("flat", "depth", "floats", "m", 0.0, P.MAX_FLAT_DEPTH, low_open=True,
-        doc="flat depth d; sweep: a list of depths too", commands=_FLAT_CMDS),
-    Key("flat", "length", "floats", "m", 0.0, MAX_FLAT_LENGTH, low_open=True,
-        doc="rounded flat length l (>= pi/2 l0); sweep: one per depth or one for all",
-        commands=_FLAT_CMDS),
-    Key("flat", "length_factor", "float", "", math.pi / 2, 10.0,
-        doc="rounded flat length as a multiple of l0 = sqrt(8 R d) (Fig. 8: 1.76); "
-            "replaces flat.length", commands=_FLAT_CMDS),
-    Key("flat", "profile_csv", "str",
-        doc="measured profile, columns x_mm,z_mm (docs/case_files.md); relative to the case "
-            "file", commands=_FLAT_CMDS),
-    Key("flat", "profile_smoothing_mm", "float", "mm", 0.0, 20.0,
-        doc="Gaussian smoothing (standard deviation) of the measured profile; 0: none",
-        commands=_FLAT_CMDS),
-    Key("vehicle", "preset", "str", choices=("single", "bogie", "wagon"),
-        doc="wheels on the rail: the paper's single wheel, a two-axle bogie or a four-axle "
-            "wagon (docs/vehicle.md)", commands=_VEHICLE_CMDS),
-    Key("vehicle", "axle_spacing", "float", "m", 0.3, 10.0,
-        doc="distance between a bogie's axles", commands=_VEHICLE_CMDS),
-    Key("vehicle", "bogie_distance", "float", "m", 1.0, 30.0,
-        doc="distance between the wagon's bogie centres", commands=_VEHICLE_CMDS),
-    Key("vehicle", "positions", "floats", "m", 0.0, 60.0,
-        doc="any layout: every wheel's distance behind the leading wheel (0 first, "
-            "increasing); replaces vehicle.preset", commands=_VEHICLE_CMDS),
-    Key("vehicle", "flat_wheel", "int", "", 0, 31,
-        doc="the wheel that carries the flat (0 = the leading wheel)", commands=_VEHICLE_CMDS),
-    Key("roughness", "rail_csv", "str",
-        doc="rail roughness CSV, columns x_m|x_mm, roughness_m|roughness_mm|roughness_um "
-            "(docs/real_track.md); relative to the case file", commands=_VEHICLE_CMDS),
-    Key("roughness", "wheel_csv", "str",
-        doc="wheel roughness CSV over one circumference 2 pi R (same columns)",
-        commands=_VEHICLE_CMDS),
-    Key("roughness", "preset", "str", choices=("none", "iso3095"),
-        doc="random rail roughness: iso3095 = the ISO 3095 limit spectrum (replaces "
-            "roughness.rail_csv)", commands=_VEHICLE_CMDS),
-    Key("roughness", "realisations", "int", "", 1, 100000,
-        doc="random rail roughness realisations (sweep: Monte Carlo percentiles; simulate: 1)",
-        commands=_VEHICLE_CMDS),
-    Key("roughness", "seed", "int", "", 0, 2**31 - 1,
-        doc="seed of the random roughness", commands=_VEHICLE_CMDS),
-    Key("roughness", "length", "float", "m", 0.5, 200.0,
-        doc="length of the random rail profile, centred on x = 0", commands=_VEHICLE_CMDS),
-    Key("supports", "void_sleepers", "floats", "", 0, 10000,
-        doc="indices of hanging sleepers (0 = leftmost modelled; n_bays // 2 - 1 above x = 0)",
-        commands=_MODEL_CMDS_EARLY),
-    Key("supports", "void_remaining", "float", "", 0.0, 1.0,
-        doc="fraction of the ballast stiffness and damping left under a void sleeper",
-        commands=_MODEL_CMDS_EARLY),
-    Key("supports", "void_gap", "float", "m", 0.0, P.MAX_BALLAST_GAP,
-        doc="gap under the void sleepers: > 0 makes their ballast one-sided (it carries load "
-            "once the gap has closed; void_remaining unused), 0 = no ballast at all",
-        commands=_MODEL_CMDS_EARLY),
-    Key("supports", "scatter_cv", "float", "", 0.0, 2.0,
-        doc="lognormal scatter of pad and ballast stiffness, coefficient of variation "
-            "(0: none)", commands=_MODEL_CMDS_EARLY),
-    Key("supports", "scatter_seed", "int", "", 0, 2**31 - 1,
-        doc="seed of the support scatter", commands=_MODEL_CMDS_EARLY),
-    Key("supports", "realisations", "int", "", 1, 10000,
-        doc="support scatter realisations (sweep: Monte Carlo, seeds scatter_seed + k, one "
-            "modal model each; with random roughness: as many)", commands=("sweep",)),
-    Key("fit", "data", "str", doc="measured CSV (speed_kmh,max_force_kN or t_s,force_kN); "
-        "relative to the case file", commands=("fit",)),
-    Key("fit", "example", "bool", doc="fit the embedded synthetic dataset instead of data",
-        commands=("fit",)),
-    Key("fit", "profile_basis", "int", "", 0, 64,
-        doc="fit a profile of this many smooth bumps (0: the flat's depth/length)",
-        commands=("fit",)),
-    Key("fit", "temperature_kN", "float", "kN", 0.0, 1e3,
-        doc="smooth-max temperature over impact positions (0: hard max)", commands=("fit",)),
-    Key("fit", "method", "str", choices=("lbfgs", "adam"), doc="optimiser",
-        commands=("fit",)),
-    Key("fit", "max_iter", "int", "", 1, 10000, doc="iteration cap", commands=("fit",)),
-    Key("compare", "depths_mm", "floats", "mm", 0.0, P.MAX_FLAT_DEPTH * 1e3, low_open=True,
-        doc="depths of the compared flats (a rounded and a new flat each)",
-        commands=("compare",)),
-    Key("compare", "models", "strs", choices=CONTACT_MODELS,
-        doc="contact models to compare (must include 3d)", commands=("compare",)),
-]
-_MODEL_CMDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "detector")
-KEYS: dict[str, Key] = {k.path: k for k in _OTHER_KEYS}
-for _k in _model_keys():
-    _cmds = _MODEL_CMDS + ("geometry",) if _k.path == "wheel.radius" else _MODEL_CMDS
-    KEYS[_k.path] = dataclasses.replace(_k, commands=_cmds)
-SECTIONS = tuple(dict.fromkeys(k.section for k in KEYS.values()))
 
 # unit-suffixed spellings: suffix -> (SI unit it replaces, factor to SI)
 _SUFFIXES = {"mm": ("m", 1e-3), "kN": ("N", 1e3), "MN_per_m": ("N/m", 1e6),
@@ -356,99 +98,6 @@ def canonical_key(path: str, source: str) -> tuple[Key, float, str]:
                     f"{', '.join(names)}")
 
 
-# -- checking values ------------------------------------------------------------------------
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _fmt(value) -> str:
-    return json.dumps(value) if isinstance(value, (str, list, bool)) or value is None \
-        else repr(value)
-
-
-def parse_number_list(text: str) -> list[float]:
-    """Numbers from ``"start:stop:step"`` (inclusive) or ``"a,b,c"``; ValueError otherwise."""
-    if ":" in text:
-        start, stop, step = (float(p) for p in text.split(":"))
-        if not (step > 0 and stop >= start and math.isfinite(stop)):
-            raise ValueError(text)
-        n = int(math.floor((stop - start) / step + 0.5)) + 1
-        if n > 100000:
-            raise ValueError(text)
-        return [float(v) for v in start + step * np.arange(n)]
-    return [float(p) for p in text.split(",")]
-
-
-def check_value(key: Key, value, source: str, factor: float = 1.0, unit: str | None = None,
-                name: str | None = None):
-    """``value`` (written in ``unit`` = SI / ``factor``) checked and converted to SI.
-
-    Raises:
-        CaseError: one line naming ``name`` (default the key's path), the value and the range.
-    """
-    name = name or key.path
-    shown = f"{source}: {name} = {_fmt(value)}" if source else f"{name} {_fmt(value)}"
-
-    def fail(why: str):
-        raise CaseError(f"{shown}: {why}; allowed: {key.allowed(factor, unit)}")
-
-    def number(v):
-        if not _is_number(v):
-            fail(f"wrong type ({type(v).__name__}), expected a number")
-        v = float(v) * factor
-        if not math.isfinite(v):
-            fail("not finite")
-        lo_bad = key.low is not None and (v < key.low or (key.low_open and v == key.low))
-        hi_bad = key.high is not None and (v > key.high or (key.high_open and v == key.high))
-        if lo_bad or hi_bad:
-            fail("out of range")
-        return v
-
-    if key.kind == "bool":
-        if not isinstance(value, bool):
-            fail(f"wrong type ({type(value).__name__}), expected true or false")
-        return value
-    if key.kind == "str":
-        if not isinstance(value, str):
-            fail(f"wrong type ({type(value).__name__}), expected a string")
-        if key.choices is not None and value not in key.choices:
-            fail("not one of the choices")
-        return value
-    if key.kind == "strs":
-        items = [s.strip() for s in value.split(",")] if isinstance(value, str) else value
-        if not isinstance(items, list) or not items or not all(
-                isinstance(s, str) and s for s in items):
-            fail("expected a list of strings or a comma-separated string")
-        if key.choices is not None and any(s not in key.choices for s in items):
-            fail("not one of the choices")
-        return list(items)
-    if key.kind == "int":
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        if not isinstance(value, int) or isinstance(value, bool):
-            fail(f"wrong type ({type(value).__name__}), expected an integer")
-        return int(number(value))
-    if key.kind == "float|auto":
-        return value if value == "auto" else number(value)
-    if key.kind == "floats":
-        if isinstance(value, str):
-            try:
-                items = parse_number_list(value)
-            except ValueError:
-                fail('expected numbers: a list, "start:stop:step" or "a,b,c"')
-            if key.section == "run":  # keep the text: it re-parses to the same numbers
-                for v in items:
-                    number(v)
-                return value
-            value = items[0] if len(items) == 1 else items
-        if isinstance(value, list):
-            if not value:
-                fail("empty list")
-            return [number(v) for v in value]
-        return number(value)
-    return number(value)
-
-
 # -- layers ---------------------------------------------------------------------------------
 def _flatten(data: Mapping, source: str) -> dict[str, Any]:
     out = {}
@@ -472,7 +121,7 @@ def layer_from_mapping(data: Mapping, source: str, base_dir: Path | None = None)
             raise CaseError(f"{source}: {key.path} given twice (as {path} and another "
                             "spelling)")
         value = check_value(key, value, source, factor, unit, name=path)
-        if key.name in PATH_KEYS and base_dir is not None:
+        if key.kind == "path" and base_dir is not None:
             value = str((base_dir / value).resolve()) if not os.path.isabs(value) else value
         layer[key.path] = value
     return layer
@@ -559,7 +208,7 @@ def default_layer(command: str) -> dict:
         layer["track.rail_head_radius"] = float(P.Track.comparison().rail_head_radius)
     if command == "compare":
         layer.update({"compare.depths_mm": [0.5, 0.9, 1.75],
-                      "compare.models": list(CONTACT_MODELS)})
+                      "compare.models": list(registry.names())})
     return {k: v for k, v in layer.items() if command in KEYS[k].commands}
 
 
@@ -698,7 +347,7 @@ class Case:
                 vehicle = Vehicle.wagon(self.values["vehicle.axle_spacing"],
                                         self.values["vehicle.bogie_distance"], flat_wheel)
         except ValueError as exc:
-            raise CaseError(str(exc)) from None
+            raise CaseError(f"[vehicle]: {exc}") from None
         return None if vehicle.n_wheels == 1 else vehicle
 
     def support_realisations(self, track: P.Track) -> list[P.Track] | None:
@@ -775,6 +424,8 @@ class Case:
         wheel, track, *_ = self.model()
         if self.command in _FLAT_CMDS:
             self.flats()
+        if self.command == "detector":
+            self._check_gauge_offset(track)
         if self.command in _MODEL_CMDS_EARLY:
             track = self.supports(track)
         if self.command == "simulate" and int(self.values.get("roughness.realisations", 1)) > 1:
@@ -794,6 +445,13 @@ class Case:
         if pos is not None and (pos >= float(track.sleeper_spacing) or pos < 0):
             raise CaseError(f"run.impact_position = {pos:.6g} m: out of range; allowed: [0, "
                             f"{float(track.sleeper_spacing):g}) m (track.sleeper_spacing)")
+
+    def _check_gauge_offset(self, track: P.Track) -> None:
+        """The detector's bridges must lie within half a bay of their sleepers."""
+        offset, half = self.values["detector.gauge_offset"], float(track.sleeper_spacing) / 2
+        if not offset < half:
+            raise CaseError(f"detector.gauge_offset = {offset:g} m: out of range for this "
+                            f"track; allowed: (0, {half:g}) m (half of track.sleeper_spacing)")
 
     # output
     def to_dict(self) -> dict:
@@ -992,5 +650,5 @@ def markdown_table() -> str:
         if len(shown) > 1:
             default += " (differs by subcommand)"
         lines.append(f"| `{path}` | {key.unit or '-'} | {key.allowed().replace('|', '/')} | "
-                     f"{default} | {', '.join(key.commands)} | {key.doc} |")
+                     f"{default} | {', '.join(key.commands)} | {key.doc.replace('|', '/')} |")
     return "\n".join(lines) + "\n"

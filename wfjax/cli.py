@@ -1,8 +1,9 @@
 """The ``wfjax`` command: one entry point, one module per subcommand in ``wfjax.commands``.
 
-Each subcommand module defines ``HELP`` (one line), ``add_arguments(parser)`` and
-``run(args) -> int``. Bad input (flags, case files, data files) exits with status 2 and a
-one-line reason on stderr, before any computation; a file that cannot be written exits 1.
+Each subcommand module defines ``HELP`` (one line) and ``run(args) -> int``; its flags come
+from the option descriptions of :mod:`wfjax.options` (:func:`add_options`). Bad input (flags,
+case files, data files) exits with status 2 and a one-line reason on stderr, before any
+computation; a file that cannot be written exits 1.
 """
 
 from __future__ import annotations
@@ -33,6 +34,55 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+class _Typed(argparse.Action):
+    """Store a flag's text and the spelling typed (``--depths-mm``), which errors name."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        namespace._typed = {**getattr(namespace, "_typed", {}), self.dest: option_string}
+
+
+def _in_flag_unit(value, option) -> str:
+    """An SI ``value`` as the flag writes it (``0.0009`` m -> ``0.9`` for ``--depth-mm``)."""
+    if isinstance(value, list):
+        return ",".join(_in_flag_unit(v, option) for v in value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return f"{value / option.factor:g}"
+    return str(value)
+
+
+def flag_help(option, command: str, defaults: dict) -> str:
+    """The ``--help`` line of ``option`` in ``wfjax command``: meaning, unit, default."""
+    unit = option.flag_unit or option.unit
+    text = option.doc + (f" [{unit}]" if unit and option.kind not in ("str", "path") else "")
+    default = defaults.get(option.path) if option.case else option.default_for(command)
+    if option.kind == "bool" or default in (None, [], ""):
+        return text
+    return f"{text} (default: {_in_flag_unit(default, option)})"
+
+
+def add_options(parser: argparse.ArgumentParser, command: str) -> None:
+    """Every flag of ``wfjax command``, generated from :mod:`wfjax.options` (the one place
+    that calls ``add_argument``). Flags of case keys default to None (the case file, the
+    environment or the subcommand's default decide); their text is checked and converted by
+    :func:`wfjax.commands._common.flag_layer`."""
+    from .case import default_layer
+    from .options import flags_of
+
+    defaults = default_layer(command)
+    for option in flags_of(command):
+        kw = {"dest": option.flag_dest, "default": option.default_for(command),
+              "help": flag_help(option, command, defaults).replace("%", "%%")}
+        if option.action == "store_true":
+            kw["action"] = option.action
+        elif option.action:
+            kw.update(action=option.action, metavar=option.metavar)
+        else:
+            kw.update(action=_Typed, metavar=option.metavar,
+                      choices=option.choice_list if option.kind == "str" else None)
+        parser.add_argument(option.flag, *option.aliases, **kw)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``wfjax`` command with every available subcommand."""
     parser = _Parser(
@@ -41,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for name, module in _available():
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
-        module.add_arguments(p)
+        add_options(p, name)
         p.set_defaults(_run=module.run)
     return parser
 

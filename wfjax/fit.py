@@ -90,7 +90,13 @@ from .loop.observers import DetectorReadings
 from .loop.run import run_scan
 from .loop.structure import structure
 from .params import Flat, Material, SimConfig, Track, Wheel, new_flat_length
-from .scenario.windows import batch_windows, detector_config, impact_positions_grid
+from .scenario.windows import (
+    batch_windows,
+    check_speed,
+    check_speeds,
+    detector_config,
+    impact_positions_grid,
+)
 
 __all__ = [
     "D_REF",
@@ -173,13 +179,13 @@ def _finite_1d(name: str, value) -> np.ndarray:
 
 
 def _check_data_speeds(v: np.ndarray, n_params: int, what: str) -> None:
-    """Enough speeds [m/s] in (0, 150] for ``n_params`` parameters of ``what`` data."""
+    """Enough speeds [m/s], checked by :func:`check_speeds`, for ``n_params`` parameters of
+    ``what`` data."""
     need = max(MIN_POINTS_MAX_FORCE, n_params + 1)
     if v.size < need:
         raise ValueError(f"{what} data needs at least {need} speeds to fit {n_params} "
                          f"parameter(s), got {v.size}")
-    if np.any(v <= 0) or np.any(v > 150):
-        raise ValueError(f"speeds must be in (0, 150] m/s, got {v!r}")
+    check_speeds(v)
 
 
 def _validate_data(measured, n_params: int):
@@ -233,9 +239,7 @@ def _validate_data(measured, n_params: int):
             raise ValueError("t must be strictly increasing")
         if np.any(f < 0):
             raise ValueError(f"force must be >= 0 N, got min {f.min():.6g} N")
-        speed = float(measured.speed)
-        if not math.isfinite(speed) or speed <= 0 or speed > 150:
-            raise ValueError(f"speed must be in (0, 150] m/s, got {measured.speed!r}")
+        speed = check_speed(measured.speed)
         pos = float(measured.impact_position)
         if not math.isfinite(pos):
             raise ValueError(f"impact_position must be finite, got {measured.impact_position!r}")

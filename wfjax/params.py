@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, ClassVar
+import types
+from typing import Any
 
 import jax
 import numpy as np
@@ -30,6 +31,7 @@ FLAT_KINDS = ("new", "rounded", "profile", "none")
 CONTACT_MODES_3D = ("auto", "table", "parametric", "direct")
 PRECISIONS = ("float64", "float32")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
+MAX_SPEED = 150.0  # m/s (540 km/h): the speed range of every entry point, (0, MAX_SPEED]
 
 
 def kmh(speed_kmh: float) -> float:
@@ -63,6 +65,37 @@ def _check_positive(cls_name: str, name: str, value: Any, unit: str) -> None:
         raise ValueError(
             f"{cls_name}.{name} must be > 0 {unit}, got {value!r} (allowed range: (0, inf) {unit})"
         )
+
+
+def option(default: Any = dataclasses.MISSING, *, unit: str = "", doc: str = "",
+           low: float | None = None, high: float | None = None,
+           low_open: bool = False, high_open: bool = False, positive: bool = False,
+           choices: tuple[str, ...] | None = None, flag: str | None = None,
+           aliases: tuple[str, ...] = (), factor: float = 1.0, flag_unit: str | None = None,
+           flag_commands: tuple[str, ...] | None = None) -> Any:
+    """A dataclass field carrying the one description of a parameter in its metadata.
+
+    Args:
+        default: the field's default (SI units).
+        unit: SI unit of the value ("" when dimensionless).
+        doc: one-line meaning (case-file comments, ``--help``, ``docs/case_files.md``).
+        low, high, low_open, high_open: the range a case file or flag may give (None:
+            unbounded): wide enough for any real wheel and track, narrow enough that a value
+            in the wrong unit (kN for N, mm for m) fails instead of running.
+        positive: the constructor refuses values <= 0 (the physical limit; the Python API
+            does not impose the plausible range above).
+        choices: allowed strings.
+        flag: the command-line flag (``--rail-head-radius-m``); ``aliases``: other spellings.
+        factor, flag_unit: the flag's value x ``factor`` is SI; its unit (default ``unit``).
+        flag_commands: subcommands that offer the flag (None: every one that reads the key).
+
+    :mod:`wfjax.options` derives the case keys, flags, checks and docs from it.
+    """
+    meta = {"unit": unit, "doc": doc, "low": low, "high": high, "low_open": low_open,
+            "high_open": high_open, "positive": positive, "choices": choices, "flag": flag,
+            "aliases": aliases, "factor": factor, "flag_unit": flag_unit,
+            "flag_commands": flag_commands}
+    return dataclasses.field(default=default, metadata=types.MappingProxyType(meta))
 
 
 def concrete_positive_numbers(obj, fields: tuple[str, ...]) -> dict[str, float]:
@@ -117,15 +150,19 @@ def _pytree(cls=None, *, static: tuple[str, ...] = ()):
 
 
 class _Validated:
-    """Mixin: check positive leaves on construction when they are concrete numbers."""
-
-    _positive: ClassVar[dict[str, str]] = {}
+    """Mixin: check the leaves described ``positive`` on construction when concrete."""
 
     def __post_init__(self):
-        for name, unit in self._positive.items():
+        for name, unit in _positive_fields(self).items():
             value = getattr(self, name)
             if _is_concrete(value):
                 _check_positive(type(self).__name__, name, value, unit)
+
+
+def _positive_fields(obj) -> dict[str, str]:
+    """``{name: unit}`` of the fields of ``obj`` whose description says ``positive``."""
+    return {f.name: f.metadata["unit"] for f in dataclasses.fields(obj)
+            if f.metadata.get("positive")}
 
 
 @_pytree
@@ -137,10 +174,10 @@ class Material(_Validated):
         poisson_ratio: nu, dimensionless, in (0, 0.5) (default 0.3).
     """
 
-    youngs_modulus: Any = 210e9
-    poisson_ratio: Any = 0.3
-
-    _positive: ClassVar[dict[str, str]] = {"youngs_modulus": "Pa"}
+    youngs_modulus: Any = option(210e9, unit="Pa", low=1e9, high=1e12, positive=True,
+                                 doc="Young's modulus E of wheel and rail")
+    poisson_ratio: Any = option(0.3, low=0.0, high=0.5, high_open=True,
+                                doc="Poisson's ratio nu")
 
     def __post_init__(self):
         super().__post_init__()
@@ -173,25 +210,23 @@ class Wheel(_Validated):
     contact_damping [N s/m], radius [m], preload [N].
     """
 
-    wheelset_mass: Any = 593.0
-    suspension_stiffness: Any = 1.12e6
-    suspension_damping: Any = 13.2e3
-    small_mass: Any = 3.0
-    contact_stiffness: Any = 2.4e9
-    contact_damping: Any = 155e3
-    radius: Any = 0.45
-    preload: Any = 118e3
-
-    _positive: ClassVar[dict[str, str]] = {
-        "wheelset_mass": "kg",
-        "suspension_stiffness": "N/m",
-        "suspension_damping": "N s/m",
-        "small_mass": "kg",
-        "contact_stiffness": "N/m",
-        "contact_damping": "N s/m",
-        "radius": "m",
-        "preload": "N",
-    }
+    wheelset_mass: Any = option(593.0, unit="kg", low=50.0, high=5e3, positive=True,
+                                doc="half the wheelset mass M_W")
+    suspension_stiffness: Any = option(1.12e6, unit="N/m", low=1e4, high=1e9, positive=True,
+                                       doc="primary suspension stiffness k_S")
+    suspension_damping: Any = option(13.2e3, unit="N s/m", low=1e1, high=1e7, positive=True,
+                                     doc="primary suspension damping c_S")
+    small_mass: Any = option(3.0, unit="kg", low=1e-2, high=100.0, positive=True,
+                             doc="small mass m_W at the contact")
+    contact_stiffness: Any = option(2.4e9, unit="N/m", low=1e6, high=1e12, positive=True,
+                                    doc="stiffness k_W between m_W and M_W")
+    contact_damping: Any = option(155e3, unit="N s/m", low=1e1, high=1e8, positive=True,
+                                  doc="damping c_W between m_W and M_W")
+    radius: Any = option(0.45, unit="m", low=0.15, high=1.0, positive=True,
+                         doc="wheel radius R_W (also the flat's wheel)", flag="--wheel-radius-m",
+                         flag_commands=("sweep", "simulate", "fit", "geometry", "detector"))
+    preload: Any = option(118e3, unit="N", low=1e3, high=1e6, positive=True,
+                          doc="static wheel load P (axle load x g / 2)")
 
 
 SUPPORT_FIELDS = ("pad_stiffness", "pad_damping", "sleeper_mass", "ballast_stiffness",
@@ -255,43 +290,46 @@ class Track(_Validated):
     Presets and random scatter: :mod:`wfjax.supports`.
     """
 
-    bending_stiffness: Any = 6.4e6
-    shear_stiffness: Any = 250e6
-    rail_mass: Any = 60.0
-    rail_rotary_inertia: Any = 7850.0 * 3.05e-5
-    rail_head_radius: Any = 0.30
-    sleeper_spacing: Any = 0.65
-    pad_stiffness: Any = 120e6
-    pad_damping: Any = 16e3
-    sleeper_mass: Any = 125.0
-    ballast_stiffness: Any = 140e6
-    ballast_damping: Any = 165e3
-    ballast_gap: Any = 0.0
-    n_bays: int = 70
-    elements_per_bay: int = 8
-
-    _positive: ClassVar[dict[str, str]] = {
-        "bending_stiffness": "N m^2",
-        "shear_stiffness": "N",
-        "rail_mass": "kg/m",
-        "rail_rotary_inertia": "kg m",
-        "rail_head_radius": "m",
-        "sleeper_spacing": "m",
-        "pad_stiffness": "N/m",
-        "pad_damping": "N s/m",
-        "sleeper_mass": "kg",
-        "ballast_stiffness": "N/m",
-        "ballast_damping": "N s/m",
-    }
+    bending_stiffness: Any = option(6.4e6, unit="N m^2", low=1e5, high=1e8, positive=True,
+                                    doc="rail bending stiffness EI")
+    shear_stiffness: Any = option(250e6, unit="N", low=1e6, high=1e10, positive=True,
+                                  doc="rail shear stiffness kGA")
+    rail_mass: Any = option(60.0, unit="kg/m", low=10.0, high=200.0, positive=True,
+                            doc="rail mass per length m'")
+    rail_rotary_inertia: Any = option(7850.0 * 3.05e-5, unit="kg m", low=1e-3, high=10.0,
+                                      positive=True, doc="rail rotary inertia rho I")
+    rail_head_radius: Any = option(0.30, unit="m", low=0.05, high=10.0, positive=True,
+                                   doc="transverse rail head radius R_R",
+                                   flag="--rail-head-radius-m",
+                                   flag_commands=("sweep", "simulate", "fit", "detector"))
+    sleeper_spacing: Any = option(0.65, unit="m", low=0.3, high=1.5, positive=True,
+                                  doc="sleeper spacing L_S")
+    pad_stiffness: Any = option(120e6, unit="N/m", low=1e6, high=1e10, positive=True,
+                                doc="rail pad stiffness k_P")
+    pad_damping: Any = option(16e3, unit="N s/m", low=1e1, high=1e7, positive=True,
+                              doc="rail pad damping c_P")
+    sleeper_mass: Any = option(125.0, unit="kg", low=10.0, high=1e3, positive=True,
+                               doc="half sleeper mass m_SL")
+    ballast_stiffness: Any = option(140e6, unit="N/m", low=1e6, high=1e10, positive=True,
+                                    doc="ballast stiffness k_B")
+    ballast_damping: Any = option(165e3, unit="N s/m", low=1e1, high=1e8, positive=True,
+                                  doc="ballast damping c_B")
+    ballast_gap: Any = option(0.0, unit="m", low=0.0, high=MAX_BALLAST_GAP,
+                              doc="gap between sleeper and ballast at rest (0: bonded; one per "
+                                  "sleeper: supports.void_gap)")
+    n_bays: int = option(70, low=4, high=1000, doc="sleeper bays of the finite track model")
+    elements_per_bay: int = option(8, low=1, high=64, doc="rail beam elements per sleeper bay",
+                                   flag="--elements-per-bay", flag_commands=("receptance",))
 
     def __post_init__(self):
-        for name, low in (("n_bays", 4), ("elements_per_bay", 1)):
-            value = getattr(self, name)
+        lows = {f.name: f.metadata["low"] for f in dataclasses.fields(self)}
+        for name in ("n_bays", "elements_per_bay"):
+            value, low = getattr(self, name), lows[name]
             if not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(
                     f"Track.{name} must be an integer >= {low}, got {value!r}"
                 )
-        for name, unit in self._positive.items():
+        for name, unit in _positive_fields(self).items():
             value = getattr(self, name)
             if not _is_concrete(value):
                 continue
@@ -332,13 +370,18 @@ class Flat:
             ``None`` uses the concrete values, or :data:`DEFAULT_EXTENT_BOUND` under tracing.
     """
 
-    kind: str
-    depth: Any
-    length: Any
-    wheel_radius: Any = 0.45
-    profile_x: Any = None
-    profile_z: Any = None
-    extent_bound: float | None = None
+    kind: str = option(choices=FLAT_KINDS, doc="flat kind")
+    depth: Any = option(unit="m", low=0.0, high=MAX_FLAT_DEPTH, low_open=True,
+                        doc="flat depth d; sweep: a list of depths too", flag="--depth-mm",
+                        aliases=("--depths-mm",), factor=1e-3, flag_unit="mm")
+    length: Any = option(unit="m", low=0.0, high=MAX_FLAT_LENGTH, low_open=True,
+                         doc="rounded flat length l (>= pi/2 l0); sweep: one per depth or one "
+                             "for all", flag="--length-mm", aliases=("--lengths-mm",),
+                         factor=1e-3, flag_unit="mm")
+    wheel_radius: Any = option(0.45, unit="m", doc="radius R_W of the wheel with the flat")
+    profile_x: Any = option(None, unit="m", doc="circumferential coordinates of a profile")
+    profile_z: Any = option(None, unit="m", doc="profile deviation at profile_x")
+    extent_bound: float | None = option(None, unit="m", doc="bound of the half extent")
 
     def __post_init__(self):
         if self.kind not in FLAT_KINDS:
@@ -496,21 +539,34 @@ class SimConfig:
             (its Kalker solves converge to 1e-10, below float32's resolution).
     """
 
-    time_step: float | None = None
-    max_time_step: float = 2.5e-5
-    max_travel_step: float = 1e-3
-    run_in: float = 0.2
-    run_out: float = 0.2
-    contact_element: float = 1e-3
-    contact_mode_3d: str = "auto"
-    track_max_frequency: float = 10e3
-    newton_iterations: int = 30
-    precision: str = "float64"
+    time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
+                                     doc="time step; auto: min(max_time_step, "
+                                         "max_travel_step / v)")
+    max_time_step: float = option(2.5e-5, unit="s", low=0.0, high=1e-3, low_open=True,
+                                  positive=True, doc="upper bound of the automatic time step")
+    max_travel_step: float = option(1e-3, unit="m", low=0.0, high=1e-2, low_open=True,
+                                    positive=True,
+                                    doc="upper bound of the travel per time step")
+    run_in: float = option(0.2, unit="m", low=0.0, high=10.0,
+                           doc="travel before the flat reaches the contact")
+    run_out: float = option(0.2, unit="m", low=0.0, high=10.0,
+                            doc="travel after the flat centre passed the contact")
+    contact_element: float = option(1e-3, unit="m", low=1e-4, high=1e-2, positive=True,
+                                    doc="side of the 3D/2D contact elements")
+    contact_mode_3d: str = option("auto", choices=CONTACT_MODES_3D,
+                                  doc="how the 3D contact law is evaluated")
+    track_max_frequency: float = option(10e3, unit="Hz", low=100.0, high=1e6, positive=True,
+                                        doc="track modes above this enter statically")
+    newton_iterations: int = option(30, low=1, high=1000,
+                                    doc="iterations of the per-step contact equation")
+    precision: str = option("float64", choices=PRECISIONS, flag="--precision",
+                            flag_commands=("sweep", "simulate", "fit", "detector"),
+                            doc="dtype of the time loop; setup stays float64 (environment: "
+                                "WFJAX_PRECISION)")
 
     def __post_init__(self):
-        for name in ("max_time_step", "max_travel_step", "contact_element",
-                     "track_max_frequency"):
-            _check_positive("SimConfig", name, getattr(self, name), "")
+        for name, unit in _positive_fields(self).items():
+            _check_positive("SimConfig", name, getattr(self, name), unit)
         if self.time_step is not None:
             _check_positive("SimConfig", "time_step", self.time_step, "s")
         for name in ("run_in", "run_out"):

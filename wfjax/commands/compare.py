@@ -21,11 +21,9 @@ import time
 
 import numpy as np
 
+from ..contact import registry
 from ..params import Flat, Track
 from ._common import (
-    add_case_arguments,
-    add_out_argument,
-    add_speed_arguments,
     prepare_out,
     resolve_case,
     save_figure,
@@ -35,7 +33,6 @@ from ._common import (
 
 HELP = "four contact models for rounded and new flats (Figs. 9 and 10: CSV, JSON, PNGs)"
 
-CONTACT_MODELS = ("3d", "2d", "hertz-trajectory", "hertz-profile")
 COMPARISON_DEPTHS_MM = (0.5, 0.9, 1.75)
 FIG7_LENGTH_MM = 100.0  # the field-test flat of Figs. 6 and 7
 LENGTH_FACTOR = 1.76  # l = 1.76 l0 of Fig. 8
@@ -65,7 +62,7 @@ def comparison_flats(depths_mm=COMPARISON_DEPTHS_MM, wheel_radius: float = 0.45)
     return [comparison_flat(k, d, wheel_radius) for d in depths for k in ("rounded", "new")]
 
 
-def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=CONTACT_MODELS,
+def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=None,
                    track: Track | None = None, progress: bool = True, wheel=None,
                    material=None, config=None) -> dict:
     """Sweep every contact model over the same flats, speeds [m/s] and impact positions.
@@ -74,7 +71,8 @@ def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=CONTACT
         flats: the flats (one panel each).
         speeds: [n_speeds] train speeds [m/s].
         positions: number of impact positions evenly covering one bay.
-        models: contact models; ``"3d"`` must be among them (the reference).
+        models: contact models; ``"3d"`` must be among them (the reference). Default: every
+            registered model (:func:`wfjax.contact.registry.names`).
         track: default :meth:`Track.comparison` (R_R = 0.45 m).
         wheel, material, config: model parameters (defaults as in :func:`wfjax.sweep`).
         progress: print per-model headers and the sweep's progress to stderr.
@@ -84,6 +82,7 @@ def run_comparison(flats: list[Flat], speeds, positions: int = 8, models=CONTACT
     """
     from ..sweeps import sweep
 
+    models = registry.names() if models is None else models
     if "3d" not in models:
         raise ValueError("the comparison needs the 3d model as reference")
     track = track or Track.comparison()
@@ -205,42 +204,19 @@ def print_summary(summary: dict, stream=None) -> None:
         print(f"  3D peak max force, {label}: {f:.1f} kN", file=stream)
 
 
-FLAGS = {"speeds_kmh": ("run.speeds_kmh", 1.0), "positions": ("run.impact_positions", 1.0),
-         "depths_mm": ("compare.depths_mm", 1.0), "models": ("compare.models", 1.0)}
-
-
-def add_arguments(parser) -> None:
-    add_speed_arguments(parser, "20:300:10", 8)
-    parser.add_argument("--depths-mm",
-                        help="flat depths in mm, comma separated (default 0.5,0.9,1.75); a "
-                             "rounded and a new flat each")
-    parser.add_argument("--models",
-                        help="contact models, comma separated, must include 3d (default: all)")
-    add_case_arguments(parser)
-    add_out_argument(parser, "out/compare")
-
-
-def parse_depths_mm(text: str) -> list[float]:
-    """Depths [mm] from ``"d1,d2,..."``."""
-    try:
-        return [float(p) for p in text.split(",")]
-    except ValueError:
-        raise ValueError(
-            f"--depths-mm must be comma-separated numbers in mm, got {text!r}") from None
-
-
 def parse_models(text: str) -> tuple[str, ...]:
     """Contact models from ``"3d,2d,..."`` (3d must be included)."""
     models = tuple(m.strip() for m in text.split(",") if m.strip())
-    bad = [m for m in models if m not in CONTACT_MODELS]
+    names = registry.names()
+    bad = [m for m in models if m not in names]
     if bad or "3d" not in models:
-        raise ValueError(f"--models must be a comma-separated subset of {CONTACT_MODELS} "
-                         f"including 3d, got {text!r}")
+        raise ValueError(f"--models {text!r}: must be a comma-separated subset of "
+                         f"{', '.join(names)} including 3d")
     return models
 
 
 def run(args) -> int:
-    case = resolve_case(args, "compare", FLAGS)
+    case = resolve_case(args, "compare")
     speeds = case.speeds()
     positions = case["run.impact_positions"]
     depths = case["compare.depths_mm"]

@@ -12,7 +12,6 @@ from __future__ import annotations
 import sys
 
 from .. import case as case_mod
-from ._common import add_case_arguments
 
 HELP = "print the default case file (--print-defaults) or check and resolve one (--config)"
 
@@ -20,19 +19,6 @@ HEADER = """wfjax case file: every parameter of `wfjax {command}`{what}.
 Units: SI unless the key names its unit (speeds_kmh, depth_mm, preload_kN also accepted).
 Precedence: command-line flags > this file > WFJAX_PRECISION > defaults.
 Every key, unit and range: docs/case_files.md.  Run: wfjax {command} --config case.toml"""
-
-
-def add_arguments(parser) -> None:
-    parser.add_argument("--print-defaults", action="store_true",
-                        help="write the complete commented default case to stdout")
-    parser.add_argument("--print-table", action="store_true",
-                        help="write the Markdown table of every key (docs/case_files.md)")
-    parser.add_argument("--command", choices=case_mod.COMMANDS, default="sweep",
-                        dest="case_command",
-                        help="the subcommand whose case is printed or checked (default sweep)")
-    parser.add_argument("--no-comments", action="store_true",
-                        help="omit the unit/range comment after every key")
-    add_case_arguments(parser)
 
 
 def run(args) -> int:
@@ -49,7 +35,7 @@ def run(args) -> int:
     elif args.config or args.set_values:
         from ._common import resolve_case
 
-        case = resolve_case(args, args.case_command, {})
+        case = resolve_case(args, args.case_command)
         what = f", resolved from {args.config or '--set'}"
     else:
         raise ValueError("give --print-defaults, --print-table or --config FILE")

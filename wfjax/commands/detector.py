@@ -15,9 +15,6 @@ import time
 import numpy as np
 
 from ._common import (
-    add_case_arguments,
-    add_out_argument,
-    add_speed_arguments,
     check_finite,
     prepare_out,
     resolve_case,
@@ -26,37 +23,8 @@ from ._common import (
     write_atomic,
     write_summary,
 )
-from .geometry import add_flat_arguments
-from .sweep import FLAT_FLAGS, MODEL_FLAGS, add_model_arguments, add_profile_arguments
 
 HELP = "detector readings (crib shear over N bays) vs true peak contact force (CSV, JSON, PNG)"
-
-FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "speeds_kmh": ("run.speeds_kmh", 1.0),
-         "positions": ("run.impact_positions", 1.0), "sensors_m": ("run.sensors", 1.0),
-         "bays": ("detector.n_bays", 1.0), "first_bay": ("detector.first_bay", 1.0),
-         "gauge_offset_m": ("detector.gauge_offset", 1.0),
-         "calibration": ("detector.calibration", 1.0)}
-
-
-def add_arguments(parser) -> None:
-    add_flat_arguments(parser)
-    add_profile_arguments(parser)
-    add_speed_arguments(parser, "20:200:20", 5)
-    parser.add_argument("--sensors-m",
-                        help="rail sensor positions in m, 'x1,x2,...' (x = 0 at a sleeper; "
-                             "default 0,0.325)")
-    parser.add_argument("--bays", type=int, help="instrumented consecutive bays N (default 3)")
-    parser.add_argument("--first-bay", type=int,
-                        help="index of the first bay; bay 0 holds the impacts (default -1)")
-    parser.add_argument("--gauge-offset-m", type=float,
-                        help="shear bridges' distance from the sleeper centres in m "
-                             "(default 0.1)")
-    parser.add_argument("--calibration", type=float,
-                        help="factor on the shear difference (default 1)")
-    add_model_arguments(parser)
-    add_case_arguments(parser)
-    add_out_argument(parser, "out/detector")
-
 
 def _csv(result) -> str:
     buf = io.StringIO()
@@ -74,7 +42,7 @@ def _csv(result) -> str:
 
 
 def run(args) -> int:
-    case = resolve_case(args, "detector", FLAGS)
+    case = resolve_case(args, "detector")
     from ..plotting import detector_figure
     from ..sensors import Detector
     from ..sweeps import sweep

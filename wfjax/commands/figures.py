@@ -25,10 +25,9 @@ import time
 
 import numpy as np
 
+from ..case import parse_number_list
 from ..params import Flat
 from ._common import (
-    add_case_arguments,
-    add_out_argument,
     prepare_out,
     resolve_case,
     save_figure,
@@ -42,7 +41,6 @@ from .compare import (
     run_comparison,
     write_comparison,
 )
-from .sweep import parse_range_kmh
 
 HELP = "regenerate the paper's Figs. 5, 7, 8, 9 and 10 (PNG, CSV, NPZ, JSON)"
 
@@ -82,30 +80,18 @@ def parse_figures(text: str) -> tuple[str, ...]:
     return tuple(f for f in FIGURES if f in wanted or (f == "9" and "10" in wanted))
 
 
-def add_arguments(parser) -> None:
-    parser.add_argument("--fast", action="store_true",
-                        help="tiny sweeps (3 speeds, 2 positions, fewer depths) for smoke tests")
-    parser.add_argument("--speeds-kmh", default=None,
-                        help="speeds in km/h, 'start:stop:step' or 'v1,v2' (default 20:300:10; "
-                             "--fast: 40,100,160)")
-    parser.add_argument("--only", default=",".join(FIGURES),
-                        help="figures to make, comma separated (default 5,7,8,9; 9 = Figs. 9+10)")
-    add_case_arguments(parser)
-    add_out_argument(parser, "out/figures")
-
-
 def run(args) -> int:
     from ..plotting import default_fig5_flats, flat_inputs_figure, sweep_figure
     from ..plotting_paper import depth_family_figure
     from ..sweeps import sweep
 
     wanted = parse_figures(args.only)
-    case = resolve_case(args, "figures", {})
+    case = resolve_case(args, "figures")
     wheel, track, material, config = case.model()
     model = dict(wheel=wheel, track=track, material=material, config=config)
     rr = f"R_R = {float(track.rail_head_radius):g} m"
-    speeds = parse_range_kmh(args.speeds_kmh or (FAST["speeds_kmh"] if args.fast
-                                                 else "20:300:10"))
+    speeds = np.asarray(parse_number_list(args.speeds_kmh or (
+        FAST["speeds_kmh"] if args.fast else "20:300:10"))) / 3.6
     pos7, pos8 = (FAST["positions"],) * 2 if args.fast else (10, 8)
     depths8 = FAST["fig8_depths_mm"] if args.fast else FIG8_DEPTHS_MM
     depths9 = FAST["compare_depths_mm"] if args.fast else COMPARISON_DEPTHS_MM

@@ -24,17 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..options import MAX_SPEED_KMH
 from ._common import (
-    add_case_arguments,
-    add_out_argument,
     prepare_out,
     resolve_case,
     save_figure,
     write_atomic,
     write_summary,
 )
-from .geometry import add_flat_arguments
-from .sweep import FLAT_FLAGS, MODEL_FLAGS, add_model_arguments, add_profile_arguments
 
 HELP = "fit a flat's geometry to measured max forces vs speed or a force history (JSON, PNG)"
 
@@ -52,43 +49,6 @@ EXAMPLE_CSV = """speed_kmh,max_force_kN
 125.7,260.43
 140.0,282.47
 """
-
-
-FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "data": ("fit.data", 1.0),
-         "example": ("fit.example", 1.0), "profile_basis": ("fit.profile_basis", 1.0),
-         "speed_kmh": ("run.speed_kmh", 1.0),
-         "impact_position_mm": ("run.impact_position", 1e-3),
-         "impact_positions": ("run.impact_positions", 1.0),
-         "temperature_kN": ("fit.temperature_kN", 1.0), "method": ("fit.method", 1.0),
-         "max_iter": ("fit.max_iter", 1.0)}
-
-
-def add_arguments(parser) -> None:
-    parser.add_argument("--data", help="measured CSV: columns speed_kmh,max_force_kN or "
-                        "t_s,force_kN (with --speed-kmh)")
-    parser.add_argument("--example", action="store_true", default=None,
-                        help="fit the embedded synthetic dataset (no --data needed)")
-    add_flat_arguments(parser, default_kind="rounded", default_depth_mm=1.2,
-                       default_length_mm=130.0)
-    add_profile_arguments(parser)
-    parser.add_argument("--profile-basis", type=int,
-                        help="fit a measured-like profile of this many smooth non-negative "
-                        "bumps, started from --flat or --profile-csv (default 0: fit --flat's "
-                        "depth/length; 8 with --profile-csv)")
-    add_model_arguments(parser, contact_default="hertz-trajectory", rail_head_default=0.45)
-    parser.add_argument("--speed-kmh", type=float,
-                        help="train speed in km/h of a force-history dataset")
-    parser.add_argument("--impact-position-mm", type=float,
-                        help="impact position in mm from a sleeper (history data; default 0)")
-    parser.add_argument("--impact-positions", type=int,
-                        help="impact positions per speed, max-force data (default 3)")
-    parser.add_argument("--temperature-kN", type=float,
-                        help="smooth-max temperature over impact positions in kN (default 1; "
-                             "0: hard max)")
-    parser.add_argument("--method", choices=("lbfgs", "adam"), help="optimiser (default lbfgs)")
-    parser.add_argument("--max-iter", type=int, help="iteration cap (default 40)")
-    add_case_arguments(parser)
-    add_out_argument(parser, "out/fit")
 
 
 def _read_columns(text: str, source: str) -> dict[str, np.ndarray]:
@@ -126,8 +86,8 @@ def parse_data(text: str, source: str = "data", speed_kmh: float | None = None,
     if all(c in cols for c in MAX_FORCE_COLUMNS):
         v, f = cols["speed_kmh"], cols["max_force_kN"]
         _check_kn(f, "max_force_kN", source)
-        if np.any(v <= 0) or np.any(v > 540):
-            raise ValueError(f"{source}: speed_kmh must be in (0, 540] km/h, got "
+        if np.any(v <= 0) or np.any(v > MAX_SPEED_KMH):
+            raise ValueError(f"{source}: speed_kmh must be in (0, {MAX_SPEED_KMH:g}] km/h, got "
                              f"[{v.min():g}, {v.max():g}]")
         if v.size < 3:
             raise ValueError(f"{source}: need at least 3 rows of speed_kmh,max_force_kN, got "
@@ -182,7 +142,7 @@ def _profile_start(flat):
 
 
 def run(args) -> int:
-    case = resolve_case(args, "fit", FLAGS)
+    case = resolve_case(args, "fit")
     if case["fit.example"]:
         text, source = EXAMPLE_CSV, "example"
     elif case.get("fit.data"):

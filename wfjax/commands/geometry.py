@@ -5,8 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import (
-    add_case_arguments,
-    add_out_argument,
     prepare_out,
     resolve_case,
     save_figure,
@@ -16,46 +14,12 @@ from ._common import (
 
 HELP = "profile deviation and wheel-centre trajectory of a flat (CSV, JSON, Fig. 5 PNG)"
 
-MM = 1e-3
-GEOMETRY_FLAGS = {"flat": ("flat.kind", 1.0), "depth_mm": ("flat.depth", MM),
-                  "length_mm": ("flat.length", MM), "wheel_radius_m": ("wheel.radius", 1.0),
-                  "profile_csv": ("flat.profile_csv", 1.0),
-                  "profile_smoothing_mm": ("flat.profile_smoothing_mm", 1.0)}
-
-
-def add_flat_arguments(parser, default_kind="rounded", default_depth_mm=0.9,
-                       default_length_mm=100.0) -> None:
-    """``--flat``, ``--depth-mm``, ``--length-mm``, ``--wheel-radius-m`` shared by subcommands.
-
-    The defaults shown are the subcommand's case defaults (``wfjax.case.default_layer``);
-    a flag not given is ``None`` so that a case file can set it.
-    """
-    parser.add_argument("--flat", choices=["new", "rounded", "profile"],
-                        help=f"flat kind (default: {default_kind}; profile: --profile-csv)")
-    parser.add_argument("--depth-mm", type=float,
-                        help=f"flat depth d in mm (default: {default_depth_mm})")
-    parser.add_argument("--length-mm", type=float,
-                        help=f"rounded flat length l in mm (default: {default_length_mm}; "
-                             "ignored for new)")
-    parser.add_argument("--wheel-radius-m", type=float,
-                        help="wheel radius R_W in m (default: 0.45)")
-
-
-def add_arguments(parser) -> None:
-    from .sweep import add_profile_arguments
-
-    add_flat_arguments(parser)
-    add_profile_arguments(parser)
-    add_case_arguments(parser)
-    add_out_argument(parser, "out/geometry")
-
-
 def run(args) -> int:
     from .. import geometry
     from ..params import new_flat_length
     from ..plotting import flat_inputs_figure
 
-    case = resolve_case(args, "geometry", GEOMETRY_FLAGS)
+    case = resolve_case(args, "geometry")
     flat = case.flat()
     out = prepare_out(args.out)
     half = 1.2 * flat.half_extent

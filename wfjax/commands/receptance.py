@@ -11,18 +11,6 @@ from . import _common
 HELP = "Wheel and track receptances (dB re 1 m/N, phase) above a sleeper and at midspan."
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options: output directory, frequency range and resolution, elements per bay."""
-    _common.add_out_argument(parser, "results/receptance")
-    parser.add_argument("--fmin-hz", type=float, default=20.0, help="lowest frequency [Hz]")
-    parser.add_argument("--fmax-hz", type=float, default=5000.0, help="highest frequency [Hz]")
-    parser.add_argument("--points", type=int, default=400,
-                        help="log-spaced frequencies (default 400)")
-    parser.add_argument("--elements-per-bay", type=int, default=None,
-                        help="rail elements per sleeper bay (default: Track's default)")
-    _common.add_case_arguments(parser)
-
-
 def _db(h):
     return 20 * np.log10(np.abs(h))
 
@@ -32,14 +20,10 @@ def run(args: argparse.Namespace) -> int:
     from wfjax import track as T
     from wfjax import wheel as W
 
-    if not (np.isfinite(args.fmin_hz) and args.fmin_hz > 0):
-        raise ValueError(f"--fmin-hz must be > 0 Hz, got {args.fmin_hz}")
-    if not (np.isfinite(args.fmax_hz) and args.fmax_hz > args.fmin_hz):
-        raise ValueError(f"--fmax-hz must be > --fmin-hz ({args.fmin_hz} Hz), got {args.fmax_hz}")
-    if args.points < 2:
-        raise ValueError(f"--points must be >= 2, got {args.points}")
-    case = _common.resolve_case(args, "receptance",
-                                {"elements_per_bay": ("track.elements_per_bay", 1.0)})
+    case = _common.resolve_case(args, "receptance")  # checks --fmin-hz, --fmax-hz, --points
+    if not args.fmax_hz > args.fmin_hz:
+        raise ValueError(f"--fmax-hz {args.fmax_hz:g}: must be > --fmin-hz ({args.fmin_hz:g} "
+                         "Hz)")
     wheel, track, _, _ = case.model()
     preload = float(wheel.preload)
     out = _common.prepare_out(args.out)

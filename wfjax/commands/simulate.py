@@ -3,12 +3,6 @@
 from __future__ import annotations
 
 from ._common import (
-    ROUGHNESS_FLAGS,
-    VEHICLE_FLAGS,
-    add_case_arguments,
-    add_out_argument,
-    add_roughness_arguments,
-    add_vehicle_arguments,
     case_vehicle,
     check_finite,
     prepare_out,
@@ -18,36 +12,11 @@ from ._common import (
     write_atomic,
     write_summary,
 )
-from .geometry import add_flat_arguments
-from .sweep import FLAT_FLAGS, MODEL_FLAGS, add_model_arguments, add_profile_arguments
 
 HELP = "contact force history of one wheel-flat passage (CSV, JSON, PNG)"
 
-FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "speed_kmh": ("run.speed_kmh", 1.0),
-         "impact_position_mm": ("run.impact_position", 1e-3), "sensors_m": ("run.sensors", 1.0),
-         **VEHICLE_FLAGS, **ROUGHNESS_FLAGS}
-
-
-def add_arguments(parser) -> None:
-    add_flat_arguments(parser)
-    add_profile_arguments(parser)
-    parser.add_argument("--speed-kmh", type=float, help="train speed (default 100)")
-    parser.add_argument("--impact-position-mm", type=float,
-                        help="impact position from a sleeper centre in mm, [0, 650) (default 0); "
-                             "on a track whose supports vary an absolute rail coordinate "
-                             "(x = 0 above the middle sleeper)")
-    parser.add_argument("--sensors-m",
-                        help="rail sensor positions in m, 'x1,x2,...' (x = 0 at a sleeper): "
-                             "their histories go to sensors.csv (docs/detector.md)")
-    add_vehicle_arguments(parser)
-    add_roughness_arguments(parser, monte_carlo=False)
-    add_model_arguments(parser)
-    add_case_arguments(parser)
-    add_out_argument(parser, "out/simulate")
-
-
 def run(args) -> int:
-    case = resolve_case(args, "simulate", FLAGS)
+    case = resolve_case(args, "simulate")
     from ..api import simulate
     from ..plotting import force_history_figure, vehicle_history_figure
 

@@ -14,13 +14,6 @@ import time
 import numpy as np
 
 from ._common import (
-    ROUGHNESS_FLAGS,
-    VEHICLE_FLAGS,
-    add_case_arguments,
-    add_out_argument,
-    add_roughness_arguments,
-    add_speed_arguments,
-    add_vehicle_arguments,
     case_vehicle,
     check_finite,
     prepare_out,
@@ -32,92 +25,6 @@ from ._common import (
 
 HELP = "speed sweep of max/min contact force over impact positions (default: Fig. 7, 3D contact)"
 
-MM = 1e-3
-MODEL_FLAGS = {"contact": ("run.contact", 1.0),
-               "rail_head_radius_m": ("track.rail_head_radius", 1.0),
-               "wheel_radius_m": ("wheel.radius", 1.0),
-               "precision": ("config.precision", 1.0)}
-FLAT_FLAGS = {"flat": ("flat.kind", 1.0), "depth_mm": ("flat.depth", MM),
-              "length_mm": ("flat.length", MM), "profile_csv": ("flat.profile_csv", 1.0),
-              "profile_smoothing_mm": ("flat.profile_smoothing_mm", 1.0)}
-FLAGS = {**MODEL_FLAGS, **FLAT_FLAGS, "length_factor": ("flat.length_factor", 1.0),
-         "speeds_kmh": ("run.speeds_kmh", 1.0), "positions": ("run.impact_positions", 1.0),
-         **VEHICLE_FLAGS, **ROUGHNESS_FLAGS}
-
-
-def parse_range_kmh(text: str) -> np.ndarray:
-    """Speeds [m/s] from ``"start:stop:step"`` (inclusive, km/h) or ``"v1,v2,..."`` (km/h)."""
-    try:
-        if ":" in text:
-            start, stop, step = (float(p) for p in text.split(":"))
-            if step <= 0 or stop < start:
-                raise ValueError
-            values = np.arange(start, stop + 0.5 * step, step)
-        else:
-            values = np.array([float(p) for p in text.split(",")])
-    except ValueError:
-        raise ValueError(
-            f"--speeds-kmh must be 'start:stop:step' or 'v1,v2,...' in km/h, got {text!r}"
-        ) from None
-    if values.size == 0 or np.any(values <= 0) or np.any(values > 540) or not np.all(
-            np.isfinite(values)):
-        raise ValueError(f"--speeds-kmh must lie in (0, 540] km/h, got {text!r}")
-    return values / 3.6
-
-
-def add_model_arguments(parser, contact_default: str = "3d", rail_head_default: float = 0.30,
-                        choices=("3d", "2d", "hertz-trajectory", "hertz-profile")) -> None:
-    """Contact model, rail head radius and precision (sweep, simulate, fit)."""
-    parser.add_argument("--contact", choices=choices,
-                        help=f"contact model (default: {contact_default})")
-    parser.add_argument("--rail-head-radius-m", type=float,
-                        help=f"transverse rail head radius R_R in m (default "
-                             f"{rail_head_default:g}; the paper's model comparison uses 0.45)")
-    parser.add_argument("--precision", choices=["float64", "float32"],
-                        help="dtype of the time loop, SimConfig.precision (default: "
-                             "WFJAX_PRECISION, else float64; float32 for GPUs, see "
-                             "benchmarks/README.md)")
-
-
-def add_profile_arguments(parser) -> None:
-    """``--profile-csv`` and ``--profile-smoothing-mm`` (sweep, simulate, fit, geometry)."""
-    parser.add_argument("--profile-csv", metavar="FILE",
-                        help="measured flat profile, columns x_mm,z_mm (circumferential "
-                             "coordinate and radial deviation in mm; docs/case_files.md); "
-                             "implies --flat profile")
-    parser.add_argument("--profile-smoothing-mm", type=float,
-                        help="Gaussian smoothing of the profile, standard deviation in mm "
-                             "(default 0: none)")
-
-
-def add_arguments(parser) -> None:
-    parser.add_argument("--flat", choices=["both", "new", "rounded", "profile"],
-                        help="flat kind(s) (default: both, as in Fig. 7)")
-    parser.add_argument("--depth-mm", "--depths-mm", dest="depth_mm", metavar="MM",
-                        help="flat depth(s) d in mm: 0.9, 'a,b,c' or 'start:stop:step' "
-                             "(default 0.9)")
-    parser.add_argument("--length-mm", "--lengths-mm", dest="length_mm", metavar="MM",
-                        help="rounded flat length(s) l in mm: one for all depths or one per "
-                             "depth (default 100)")
-    parser.add_argument("--length-factor", type=float,
-                        help="rounded flat length l = factor x l0, l0 = sqrt(8 R d) (Fig. 8: "
-                             "1.76); replaces --length-mm")
-    add_profile_arguments(parser)
-    parser.add_argument("--wheel-radius-m", type=float, help=argparse_hide())
-    add_speed_arguments(parser, "20:300:10", 10)
-    add_vehicle_arguments(parser)
-    add_roughness_arguments(parser, monte_carlo=True)
-    add_model_arguments(parser)
-    add_case_arguments(parser)
-    add_out_argument(parser, "out/sweep")
-
-
-def argparse_hide():
-    import argparse
-
-    return argparse.SUPPRESS
-
-
 def run(args) -> int:
     import importlib
 
@@ -126,7 +33,7 @@ def run(args) -> int:
 
     # matplotlib (0.3 s) imports while the sweep runs: only the figures at the end need it
     plotting_ahead = in_background(importlib.import_module, "wfjax.plotting")
-    case = resolve_case(args, "sweep", FLAGS)
+    case = resolve_case(args, "sweep")
 
     speeds = case.speeds()
     positions = case["run.impact_positions"]

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from ..contact.laws import FLAT_MARGIN
-from ..params import Flat, SimConfig, Track
+from ..params import MAX_SPEED, Flat, SimConfig, Track
 from ..sleepers import is_uniform
 from ..vehicle import placement
 
@@ -65,9 +65,6 @@ def simulation_window(flat: Flat, speed: float, config: SimConfig) -> tuple[floa
     run_in = max(config.run_in, RUN_IN_TIME * speed)
     run_out = max(config.run_out, RUN_OUT_TIME * speed)
     return -(half + run_in), half + run_out
-
-
-MAX_SPEED = 150.0  # m/s (540 km/h): beyond any railway's speeds, the model's stated range
 
 
 def check_speeds(speeds, name: str = "speeds") -> np.ndarray:
