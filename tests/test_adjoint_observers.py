@@ -148,6 +148,7 @@ def test_detector_model_adjoint_option():
 
     g_plain = np.asarray(jax.jit(jax.grad(misfit(plain)))(th0))
     g_ours = np.asarray(jax.jit(jax.grad(misfit(ours)))(th0))
-    print("detector_model gradient: plain", g_plain, "adjoint", g_ours)
+    print("detector_model gradient: plain", g_plain, "adjoint", g_ours, "rel",
+          np.abs(g_ours - g_plain) / np.abs(g_plain))
     assert np.all(np.abs(g_plain) > 0)
     np.testing.assert_allclose(g_ours, g_plain, rtol=1e-9)
