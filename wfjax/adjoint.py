@@ -11,7 +11,9 @@ the approach delta_n of every wheel and the rail's own compliance within the ste
 the step index; K_n from delta_n). See ``docs/gradients.md``.
 
 Forward (``custom_vjp`` fwd): the unchanged :func:`wfjax.loop.run.time_loop` (its results
-are the ones of ``run_scan``, bit for bit) with its static extra output ``own_compliance``.
+are the ones of ``run_scan``, bit for bit) with its static extra output ``own_compliance``
+and, for every instrument observer, its per-step readouts (small: [n_steps, n_quantities,
+n_s] or [n_steps, n_bays]; recorded whether or not the observer keeps histories).
 
 Backward: the laws' forces and slopes K_n at every step's approach (vectorised, in chunks of
 steps), then a reverse loop over the transposed linear step (:func:`backward_scan`),
@@ -24,21 +26,36 @@ last nonzero output cotangent have an exactly zero adjoint and are skipped (the 
 at the last such step; the law's chunks by ``lax.cond``). The static start (delta_0, q_0,
 xi_W,ref) is computed outside the ``custom_vjp`` and differentiated by JAX as usual.
 
+Instruments (:class:`wfjax.loop.observers.Sensors`, ``DetectorReadings``): an observer's
+readout at step n is linear in (q_n, F_n) at the fixed positions x_n; its outputs (histories
+and running extremes) are a reduction of the readouts. The backward pass first replays each
+reduction over the recorded readouts under ``jax.vjp`` (so a running max/min sends its
+cotangent to the step where the extreme was attained, ties split evenly as plain autodiff's
+``jnp.maximum``), then, in the reverse loop, adds ``jax.linear_transpose`` of the readout at
+step n to the adjoints of q_hat_n and F_n (the force's path through q_n = q_hat_n +
+an_r sum_i F_i phi_i included); step 0's goes to q_0.
+
 Conventions: complex cotangents pair with their variable as Re(sum lambda z) (no conjugate;
 JAX's convention for ``vjp`` of complex values), so the transpose of z -> a z is
 lambda -> a lambda and of z -> Re(a z) is lambda_y -> a lambda_y.
 
 Scope: every pointwise contact law (Hertz profile and trajectory, 2D bedding, 3D table, 3D
 parametric family), one wheel or a vehicle's tuple of laws, rail/wheel roughness
-(:class:`wfjax.roughness.LoopRoughness`, not differentiated), float64 and float32. Outputs
-with cotangents: ``force`` and ``approach``; the others (``x``, ``s``, ``t``, ``residual``)
+(:class:`wfjax.roughness.LoopRoughness`, not differentiated), float64 and float32,
+``observers=`` instruments (``Sensors``, ``DetectorReadings``; history on or off). Outputs
+with cotangents: ``force``, ``approach``, ``sensors``, ``sensor_max``, ``sensor_min``,
+``detector_load`` and ``detector_peak``; the others (``x``, ``s``, ``t``, ``residual``)
 do not depend on a differentiated input, and a cotangent on ``wheel_disp``, ``rail_disp`` or
 ``axle_acc`` raises ``NotImplementedError``. The contact law is differentiated, not the
 structure, speed, time step, start or impact position, nor the roughness values:
 differentiating any of them raises ``NotImplementedError`` (``jax.grad`` through
 :func:`wfjax.loop.run.run_scan` covers them). Forward mode (``jvp``/``jacfwd``) is not
-available through a ``custom_vjp``: use ``run_scan`` there. The direct 3D mode (a law with its
-own step) and sensors/the detector are not supported (``NotImplementedError``).
+available through a ``custom_vjp``: use ``run_scan`` there. Not supported
+(``NotImplementedError``): the direct 3D mode (a law with its own step: its step solves a
+nonlinear gap system per element, not a pointwise F(delta) whose slope K_n linearises the
+contact); hanging sleepers (their one-sided ballast is a second contact system in the solve
+whose linearisation the backward step does not carry); observers without ``readout``/
+``reduce`` (their outputs are not known to be linear read-outs of the state).
 """
 
 from __future__ import annotations
