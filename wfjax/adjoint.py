@@ -11,7 +11,9 @@ the approach delta_n of every wheel and the rail's own compliance within the ste
 the step index; K_n from delta_n). See ``docs/gradients.md``.
 
 Forward (``custom_vjp`` fwd): the unchanged :func:`wfjax.loop.run.time_loop` (its results
-are the ones of ``run_scan``, bit for bit) with its static extra output ``own_compliance``.
+are the ones of ``run_scan``, bit for bit) with its static extra output ``own_compliance``
+and, for every instrument observer, its per-step readouts (small: [n_steps, n_quantities,
+n_s] or [n_steps, n_bays]; recorded whether or not the observer keeps histories).
 
 Backward: the laws' forces and slopes K_n at every step's approach (vectorised, in chunks of
 steps), then a reverse loop over the transposed linear step (:func:`backward_scan`),
@@ -24,44 +26,142 @@ last nonzero output cotangent have an exactly zero adjoint and are skipped (the 
 at the last such step; the law's chunks by ``lax.cond``). The static start (delta_0, q_0,
 xi_W,ref) is computed outside the ``custom_vjp`` and differentiated by JAX as usual.
 
+Instruments (:class:`wfjax.loop.observers.Sensors`, ``DetectorReadings``): an observer's
+readout at step n is linear in (q_n, F_n) at the fixed positions x_n; its outputs (histories
+and running extremes) are a reduction of the readouts. The backward pass first replays each
+reduction over the recorded readouts under ``jax.vjp`` (so a running max/min sends its
+cotangent to the step where the extreme was attained, ties split evenly as plain autodiff's
+``jnp.maximum``), then, in the reverse loop, adds ``jax.linear_transpose`` of the readout at
+step n to the adjoints of q_hat_n and F_n (the force's path through q_n = q_hat_n +
+an_r sum_i F_i phi_i included); step 0's goes to q_0.
+
 Conventions: complex cotangents pair with their variable as Re(sum lambda z) (no conjugate;
 JAX's convention for ``vjp`` of complex values), so the transpose of z -> a z is
 lambda -> a lambda and of z -> Re(a z) is lambda_y -> a lambda_y.
 
 Scope: every pointwise contact law (Hertz profile and trajectory, 2D bedding, 3D table, 3D
 parametric family), one wheel or a vehicle's tuple of laws, rail/wheel roughness
-(:class:`wfjax.roughness.LoopRoughness`, not differentiated), float64 and float32. Outputs
-with cotangents: ``force`` and ``approach``; the others (``x``, ``s``, ``t``, ``residual``)
+(:class:`wfjax.roughness.LoopRoughness`, not differentiated), float64 and float32,
+``observers=`` instruments (``Sensors``, ``DetectorReadings``; history on or off). Outputs
+with cotangents: ``force``, ``approach``, ``sensors``, ``sensor_max``, ``sensor_min``,
+``detector_load`` and ``detector_peak``; the others (``x``, ``s``, ``t``, ``residual``)
 do not depend on a differentiated input, and a cotangent on ``wheel_disp``, ``rail_disp`` or
 ``axle_acc`` raises ``NotImplementedError``. The contact law is differentiated, not the
 structure, speed, time step, start or impact position, nor the roughness values:
 differentiating any of them raises ``NotImplementedError`` (``jax.grad`` through
 :func:`wfjax.loop.run.run_scan` covers them). Forward mode (``jvp``/``jacfwd``) is not
-available through a ``custom_vjp``: use ``run_scan`` there. The direct 3D mode (a law with its
-own step) and sensors/the detector are not supported (``NotImplementedError``).
+available through a ``custom_vjp``: use ``run_scan`` there. Not supported
+(``NotImplementedError``): the direct 3D mode (a law with its own step: its step solves a
+nonlinear gap system per element, not a pointwise F(delta) whose slope K_n linearises the
+contact); hanging sleepers (their one-sided ballast is a second contact system in the solve
+whose linearisation the backward step does not carry); observers without ``readout``/
+``reduce`` (their outputs are not known to be linear read-outs of the state).
 """
 
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from .contact.newton import solve_small
 from .loop.contacts import pointwise, roughness_inputs
-from .loop.observers import OwnCompliance
-from .loop.run import run_scan, time_loop
+from .loop.observers import LoopContext, OwnCompliance, Reading
+from .loop.run import StepOutput, run_scan, time_loop
 from .loop.setup import LoopSetup, cast_precision, loop_setup, static_start
 from .loop.structure import modal_loads, rail_compliance_fn, shapes_fn
+from .params import _pytree
 
 __all__ = ["adjoint_loop", "adjoint_runs", "run_adjoint", "run_adjoint_runs", "backward_scan",
            "LoopSetup", "loop_setup", "static_start", "contact_slopes", "forces_and_slopes",
            "SUPPORTED_OUTPUTS"]
 
-SUPPORTED_OUTPUTS = ("force", "approach")  # outputs whose cotangents the adjoint propagates
-# no differentiated input reaches them
-_NOT_DIFFERENTIATED = ("x", "s", "t", "residual", "own_compliance")
+# outputs whose cotangents the adjoint propagates (the last five: sensors and the detector)
+SUPPORTED_OUTPUTS = ("force", "approach", "sensors", "sensor_max", "sensor_min",
+                     "detector_load", "detector_peak")
+_UNSUPPORTED = ("wheel_disp", "rail_disp", "axle_acc")
+_READ = "_adjoint_readout{}"  # observer i's recorded readouts: a residual, not an output
+_LOOP_KEYS = StepOutput._fields + ("t", "own_compliance")  # the rest are observers' outputs
+
+
+@_pytree(static=("key",))
+class _Recorded:
+    """An instrument observer (``readout``/``reduce``, :mod:`wfjax.loop.observers`) that also
+    saves its per-step readout under ``key`` (for the backward pass); its own values and
+    summaries are the observer's, computed the same way."""
+
+    observer: Any
+    key: str = ""
+
+    def init(self, ctx):
+        return self.observer.init(ctx)
+
+    def update(self, state, r, ctx):
+        value = self.observer.readout(r, ctx)
+        state, saved = self.observer.reduce(state, value, r, ctx)
+        return state, saved | {self.key: value}
+
+    def finalize(self, state, ctx):
+        return self.observer.finalize(state, ctx)
+
+
+def _context(ls: LoopSetup) -> LoopContext:
+    """What the observers read of a run (as ``time_loop``'s; no hanging sleepers here)."""
+    return LoopContext(ls.struct.track, len(ls.laws), ls.preload.dtype, None)
+
+
+def _readout_transpose(ls: LoopSetup, observers):
+    """(x [n] m, phi [n, M] or None, cts) -> (ct_q [M] complex, ct_f [n]): the transpose of
+    every observer's readout at one step, ``cts`` a list of cotangents of its values.
+
+    With ``phi`` (the step's mode shapes) the readout is taken as a function of the
+    propagated state q_hat and the forces, q = q_hat + an_r sum_i f_i phi_i, so ct_f holds
+    the force's path through q as well (``backward_scan``'s modal adjoint is q_hat's); without
+    (the static start) of the state q itself."""
+    ctx = _context(ls)
+
+    def transpose(x, phi, cts):
+        def read(q, f):
+            q = q if phi is None else q + ls.an_r * modal_loads(f, phi)
+            return [obs.readout(Reading(None, q, f, x, None, ()), ctx) for obs in observers]
+
+        return jax.linear_transpose(read, ls.e_r, ls.preload)(cts)
+
+    return transpose
+
+
+def _readout_cotangents(ls: LoopSetup, observers, x, values, cts):
+    """Cotangents [N, ...] of every observer's recorded readouts ``values`` [N, ...] (steps
+    0..N-1, wheels at ``x`` [N, n] m) from its outputs' cotangents ``cts`` (by name): the
+    ``vjp`` of its reduction replayed over the recorded values, so a running extreme's
+    cotangent reaches the step(s) where it was attained exactly as in plain autodiff (ties
+    split evenly, as ``jnp.maximum``'s gradient)."""
+    ctx = _context(ls)
+    q_zero = jnp.zeros_like(ls.e_r)  # a reduction reads a step's index and positions only
+
+    def replay(obs, vals):
+        def body(state, inp):
+            n, value, xn = inp
+            return obs.reduce(state, value, Reading(n, q_zero, jnp.zeros_like(xn), xn, None,
+                                                    ()), ctx)
+
+        state, saved = jax.lax.scan(body, obs.init(ctx), (jnp.arange(x.shape[0]), vals, x))
+        return saved | obs.finalize(state, ctx)
+
+    out = []
+    for obs, vals in zip(observers, values, strict=True):
+        primal, vjp = jax.vjp(functools.partial(replay, obs), vals)
+        out.append(vjp({k: cts[k] for k in primal})[0])
+    return out
+
+
+def _dense(ct):
+    """``ct``, or its zeros for a symbolic zero."""
+    if isinstance(ct, jax.custom_derivatives.SymbolicZero):
+        return jnp.zeros(ct.shape, ct.dtype)
+    return ct
 
 
 def _step_forces(laws, roughness, x, s, approach):
@@ -111,7 +211,7 @@ def _transposed_contact(C, K, rhs):
 
 
 def backward_scan(ls: LoopSetup, n_steps: int, K, c_own, ct_force, ct_approach, n_top=None,
-                  unroll: int = 1):
+                  unroll: int = 1, readout=None):
     """The reverse pass over the transposed linear step, from step ``n_top`` down to step 1.
 
     A ``fori_loop`` over the steps that carry an adjoint only (steps after ``n_top`` have an
@@ -135,6 +235,10 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, c_own, ct_force, ct_approach, 
             there (under ``vmap`` with a batched ``n_top`` it runs to the largest, the other
             runs' extra steps selected away).
         unroll: the loop's unroll (static).
+        readout: None, or (transpose, x [N - 1, n] m, cts): observers' readouts of steps
+            1..N-1 with cotangents ``cts`` (a list of [N - 1, ...] arrays) and
+            ``transpose`` of :func:`_readout_transpose`; each step adds them to the adjoints
+            of its modal state and forces.
 
     Returns:
         (ct_F_expl [N - 1, n]: cotangents of the laws' explicit forces; ct_q0 [M] complex;
@@ -155,6 +259,10 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, c_own, ct_force, ct_approach, 
         lq, lp, b, phi, l_expl, mu_all = carry  # adjoints of q_n, p_n; f_n's from later steps
         row = n_top - 1 - i
         k, gf, gd, c = (a[row] for a in (K, ct_force, ct_approach, c_own))
+        if readout is not None:
+            transpose, xs, cts = readout
+            read_q, read_f = transpose(xs[row], phi, [a[row] for a in cts])
+            lq, gf = lq + read_q, gf + read_f
         C = compliance(x_ref(row + 1), c)
         lf = b + gf
         mu = _transposed_contact(C, k, gd + k * lf)
@@ -176,16 +284,19 @@ def backward_scan(ls: LoopSetup, n_steps: int, K, c_own, ct_force, ct_approach, 
 
 
 # -- the custom_vjp core (over a batch of runs that share the laws and the structure) ---------
-def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughness, q0,
-            xi_w_ref, delta0):
+def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughness, observers,
+            q0, xi_w_ref, delta0):
     """``time_loop`` of the tuple of laws for runs [B] (speed, dt, x_start, impact_position
     [B]; q0, xi_w_ref, delta0 [B, ...] are the runs' own start, computed again outside for
-    their gradients: their values are unused here)."""
+    their gradients: their values are unused here), with the instrument ``observers`` (each
+    also recording its readouts under ``_READ``)."""
     n_steps, max_iter, precision, batched = statics
+    observers = (OwnCompliance(),) + tuple(
+        _Recorded(obs, _READ.format(i)) for i, obs in enumerate(observers))
 
     def one(v, d, xs, xi):
         return time_loop(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
-                         roughness=roughness, observers=(OwnCompliance(),))
+                         roughness=roughness, observers=observers)
 
     if not batched:  # adjoint_loop: time_loop itself (a batch of one can round apart)
         return {k: v[None] for k, v in one(speed[0], dt[0], x_start[0],
@@ -193,7 +304,7 @@ def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughnes
 
     def compiled(v, d, xs, xi):  # as fit._batch_runs: vmap of run_scan, the same rounding
         return run_scan(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
-                        roughness=roughness, observers=(OwnCompliance(),))
+                        roughness=roughness, observers=observers)
 
     return jax.vmap(compiled)(speed, dt, x_start, impact_position)
 
@@ -206,22 +317,23 @@ def _perturbed(tree) -> bool:
         tree, is_leaf=lambda x: isinstance(x, jax.custom_derivatives.CustomVJPPrimal)))
 
 
-def _fwd(statics, laws, struct, speed, dt, x_start, impact_position, roughness, q0, xi_w_ref,
-         delta0):
-    names = ("struct", "speed", "dt", "x_start", "impact_position", "roughness")
-    fixed = (struct, speed, dt, x_start, impact_position, roughness)
+def _fwd(statics, laws, struct, speed, dt, x_start, impact_position, roughness, observers, q0,
+         xi_w_ref, delta0):
+    names = ("struct", "speed", "dt", "x_start", "impact_position", "roughness", "observers")
+    fixed = (struct, speed, dt, x_start, impact_position, roughness, observers)
     bad = [name for name, value in zip(names, fixed, strict=True) if _perturbed(value)]
     if bad:
         raise NotImplementedError(
             f"the adjoint time loop differentiates the contact law only, not {', '.join(bad)}: "
             "use jax.grad through wfjax.loop.run.run_scan for those")
     values = jax.custom_derivatives.custom_vjp_primal_tree_values
-    laws, struct, speed, dt, x_start, impact_position, roughness = values(
-        (laws, struct, speed, dt, x_start, impact_position, roughness))
+    laws, struct, speed, dt, x_start, impact_position, roughness, observers = values(
+        (laws, struct, speed, dt, x_start, impact_position, roughness, observers))
     out = _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughness,
-                  None, None, None)
-    res = (laws, struct, speed, dt, x_start, impact_position, roughness, out["x"][:, 1:],
-           out["s"][:, 1:], out["approach"][:, 1:], out["own_compliance"][:, 1:])
+                  observers, None, None, None)
+    reads = [out[_READ.format(i)] for i in range(len(observers))]
+    res = (laws, struct, speed, dt, x_start, impact_position, roughness, observers, out["x"],
+           out["s"][:, 1:], out["approach"][:, 1:], out["own_compliance"][:, 1:], reads)
     return out, res
 
 
@@ -253,66 +365,102 @@ class _StepChunks:
         return a.reshape((a.shape[0], -1) + a.shape[3:])[:, :self.n]
 
 
-def _bwd(statics, res, cts):
-    n_steps, _, precision, _ = statics
-    laws, struct, speed, dt, x_start, impact_position, roughness, x, s, approach, c_own = res
-    zero = jax.custom_derivatives.SymbolicZero
-    for key, ct in cts.items():
-        if key in SUPPORTED_OUTPUTS or key in _NOT_DIFFERENTIATED or isinstance(ct, zero):
-            continue
-        raise NotImplementedError(
-            f"the adjoint time loop propagates cotangents of {SUPPORTED_OUTPUTS} only, not "
-            f"of {key!r}: use jax.grad through wfjax.loop.run.run_scan for it")
+class _LawSteps:
+    """The laws at every step of a batch's forward pass ([B, N - 1, n] ``x``, ``s``,
+    ``approach``), in chunks (:class:`_StepChunks`) up to the last step the cotangents reach:
+    their slopes K and the cotangent of their leaves from the explicit forces' cotangents."""
 
-    # the laws at every step up to the last one the cotangents reach (chunks of steps)
-    leaves, treedef = jax.tree.flatten(laws)
-    diff = [i for i, leaf in enumerate(leaves)
-            if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)]
-    chunks = _StepChunks(x.shape[1])
-    xs, ss, aps = (chunks.split(a) for a in (x, s, approach))
+    def __init__(self, laws, roughness, precision, x, s, approach):
+        self.leaves, self.treedef = jax.tree.flatten(laws)
+        self.diff = [i for i, leaf in enumerate(self.leaves)
+                     if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)]
+        self.roughness, self.precision = roughness, precision
+        self.chunks = _StepChunks(x.shape[1])
+        self.steps = tuple(self.chunks.split(a) for a in (x, s, approach))
 
-    def evaluate(diff_leaves, xc, sc, ac):  # forces and slopes [B, chunk, n] of one chunk
-        full = list(leaves)
-        for i, leaf in zip(diff, diff_leaves, strict=True):
+    def evaluate(self, diff_leaves, xc, sc, ac):  # forces and slopes [B, chunk, n] of a chunk
+        full = list(self.leaves)
+        for i, leaf in zip(self.diff, diff_leaves, strict=True):
             full[i] = leaf
         cast_laws, cast_rough = cast_precision(
-            (jax.tree.unflatten(treedef, full), roughness), precision)
+            (jax.tree.unflatten(self.treedef, full), self.roughness), self.precision)
         return jax.vmap(lambda *a: forces_and_slopes(cast_laws, cast_rough, *a))(xc, sc, ac)
 
-    diff_leaves = [leaves[i] for i in diff]
-    def dense(key):
-        ct = cts[key]
-        return jnp.zeros_like(x) if isinstance(ct, zero) else ct[:, 1:]
+    def diff_leaves(self):
+        return [self.leaves[i] for i in self.diff]
 
-    ct_force, ct_approach = dense("force"), dense("approach")
-    n_top = _last_nonzero(ct_force, ct_approach)
-    K = chunks.join(jax.lax.map(lambda c: jax.lax.cond(
-        c[0] <= n_top, lambda: evaluate(diff_leaves, *c[1:])[1],
-        lambda: jnp.zeros_like(c[1])), (chunks.first, xs, ss, aps)))
+    def slopes(self, n_top):
+        """K [B, N - 1, n] N/m (zeros after the chunk of step ``n_top``)."""
+        return self.chunks.join(jax.lax.map(lambda c: jax.lax.cond(
+            c[0] <= n_top, lambda: self.evaluate(self.diff_leaves(), *c[1:])[1],
+            lambda: jnp.zeros_like(c[1])), (self.chunks.first,) + self.steps))
 
-    def one(v, d, xs, xi, k, c, cf, ca):
-        ls = loop_setup(laws, struct, v, d, xs, xi, precision, roughness)
+    def cotangent(self, l_expl, n_top):
+        """The laws' cotangent (a pytree like them) from the explicit forces' [B, N - 1, n]."""
+        def law_cotangent(acc, c):  # sum over the chunks of the vjp of their explicit forces
+            def run():
+                _, vjp = jax.vjp(lambda d: self.evaluate(d, *c[1:4])[0], self.diff_leaves())
+                return [a + b for a, b in zip(acc, vjp(c[4])[0], strict=True)]
+
+            return jax.lax.cond(c[0] <= n_top, run, lambda: acc), None
+
+        acc0 = [jnp.zeros_like(leaf) for leaf in self.diff_leaves()]
+        ct_diff, _ = jax.lax.scan(law_cotangent, acc0, (self.chunks.first,) + self.steps + (
+            self.chunks.split(l_expl, zero_pad=True),))
+        ct_leaves = [None] * len(self.leaves)
+        for i, ct in zip(self.diff, ct_diff, strict=True):
+            ct_leaves[i] = ct
+        return jax.tree.unflatten(self.treedef, ct_leaves)
+
+
+def _check_cotangents(cts):
+    for key, ct in cts.items():
+        if key in _UNSUPPORTED and not isinstance(ct, jax.custom_derivatives.SymbolicZero):
+            raise NotImplementedError(
+                f"the adjoint time loop propagates cotangents of {SUPPORTED_OUTPUTS} only, "
+                f"not of {key!r}: use jax.grad through wfjax.loop.run.run_scan for it")
+
+
+def _run_backward(setup, n_steps, n_top, observers, run, k, c, cf, ca, x_run, ct_run):
+    """One run's :func:`backward_scan` with its observers' readout cotangents ``ct_run``
+    ([N, ...] each, steps 0..N-1; wheels at ``x_run`` [N, n] m); ``setup(*run)`` is its
+    :class:`LoopSetup`."""
+    ls = setup(*run)
+    if not observers:
         return backward_scan(ls, n_steps, k, c, cf, ca, n_top)
+    transpose = _readout_transpose(ls, observers)
+    l_expl, ct_q0, ct_xi = backward_scan(ls, n_steps, k, c, cf, ca, n_top, readout=(
+        transpose, x_run[1:], [a[1:] for a in ct_run]))
+    return l_expl, ct_q0 + transpose(x_run[0], None, [a[0] for a in ct_run])[0], ct_xi
 
-    l_expl, ct_q0, ct_xi_w_ref = jax.vmap(one)(speed, dt, x_start, impact_position, K, c_own,
-                                               ct_force, ct_approach)
 
-    def law_cotangent(acc, c):  # sum over the chunks of the vjp of their explicit forces
-        def run():
-            _, vjp = jax.vjp(lambda d: evaluate(d, *c[1:4])[0], diff_leaves)
-            return [a + b for a, b in zip(acc, vjp(c[4])[0], strict=True)]
+def _bwd(statics, res, cts):
+    n_steps, _, precision, _ = statics
+    (laws, struct, speed, dt, x_start, impact_position, roughness, observers, x_all, s,
+     approach, c_own, reads) = res
+    _check_cotangents(cts)
+    runs = (speed, dt, x_start, impact_position)
 
-        return jax.lax.cond(c[0] <= n_top, run, lambda: acc), None
+    def setup(v, d, xs, xi):
+        return loop_setup(laws, struct, v, d, xs, xi, precision, roughness)
 
-    acc0 = [jnp.zeros_like(leaf) for leaf in diff_leaves]
-    ct_diff, _ = jax.lax.scan(law_cotangent, acc0, (chunks.first, xs, ss, aps, chunks.split(
-        l_expl.astype(K.dtype), zero_pad=True)))
-    ct_leaves = [None] * len(leaves)
-    for i, ct in zip(diff, ct_diff, strict=True):
-        ct_leaves[i] = ct
-    ct_laws = jax.tree.unflatten(treedef, ct_leaves)
-    ct_delta0 = None if isinstance(cts["approach"], zero) else cts["approach"][:, 0]
-    return (ct_laws, None, None, None, None, None, None, ct_q0, ct_xi_w_ref, ct_delta0)
+    observers = cast_precision(observers, precision)
+    ct_obs = {k: _dense(v) for k, v in cts.items() if k not in _LOOP_KEYS}
+    ct_reads = jax.vmap(lambda run, *a: _readout_cotangents(setup(*run), observers, *a))(
+        runs, x_all, reads, ct_obs)
+    ct_force, ct_approach = (_dense(cts[k])[:, 1:] for k in ("force", "approach"))
+    n_top = _last_nonzero(ct_force, ct_approach, *(
+        jnp.reshape(c[:, 1:], (c.shape[0], c.shape[1] - 1, -1)) for c in ct_reads))
+    law_steps = _LawSteps(laws, roughness, precision, x_all[:, 1:], s, approach)
+    K = law_steps.slopes(n_top)
+    l_expl, ct_q0, ct_xi_w_ref = jax.vmap(functools.partial(
+        _run_backward, setup, n_steps, n_top, observers))(runs, K, c_own, ct_force,
+                                                           ct_approach, x_all, ct_reads)
+    ct_laws = law_steps.cotangent(l_expl.astype(K.dtype), n_top)
+    approach_ct = cts["approach"]
+    ct_delta0 = (None if isinstance(approach_ct, jax.custom_derivatives.SymbolicZero)
+                 else approach_ct[:, 0])
+    return (ct_laws, None, None, None, None, None, None, None, ct_q0, ct_xi_w_ref, ct_delta0)
 
 
 _core.defvjp(_fwd, _bwd, symbolic_zeros=True)
@@ -320,7 +468,7 @@ _core.defvjp(_fwd, _bwd, symbolic_zeros=True)
 
 def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
                  max_iter: int = 30, precision: str = "float64", roughness=None,
-                 _batched: bool = True) -> dict:
+                 observers: tuple = (), _batched: bool = True) -> dict:
     """:func:`adjoint_loop` of a batch of runs [B] that share the law(s) and the structure.
 
     ``speed``, ``dt``, ``x_start``, ``impact_position``: [B] arrays (m/s, s, m, m). Returns
@@ -330,18 +478,12 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     ``custom_vjp`` for the batch, the backward pass skips the steps after the last one that
     any run's cotangent reaches (a max-force misfit: after the peak), which a ``vmap`` of
     :func:`adjoint_loop` cannot (its steps are selected, not skipped, per run).
+    ``observers`` are shared by the batch.
     """
     single = not isinstance(law, tuple)
     laws = (law,) if single else law
-    for lw in laws:
-        if not pointwise(lw):
-            raise NotImplementedError(
-                f"the adjoint supports pointwise contact laws only; {type(lw).__name__} "
-                "solves its own step (the direct 3D mode): use run_scan")
-    if struct.supports is not None:
-        raise NotImplementedError(
-            "the adjoint does not carry hanging sleepers' one-sided ballast (Track.ballast_gap"
-            " > 0): use run_scan (plain autodiff)")
+    observers = tuple(observers)
+    _check_supported(laws, struct, observers)
     args = tuple(jnp.asarray(a) for a in (speed, dt, x_start, impact_position))
 
     def start(v, d, xs, xi):
@@ -352,15 +494,37 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     if not _batched and args[0].shape != (1,):
         raise ValueError("_batched=False is adjoint_loop's: one run")
     out = _core((int(n_steps), int(max_iter), precision, bool(_batched)), laws, struct, *args,
-                roughness, q0, xi_w_ref, delta0)
-    del out["own_compliance"]  # the backward pass's input, not time_loop's output
-    if single:
-        out = {k: (v if k == "t" else v[..., 0]) for k, v in out.items()}
+                roughness, observers, q0, xi_w_ref, delta0)
+    # the backward pass's inputs, not time_loop's outputs
+    out = {k: v for k, v in out.items() if k != "own_compliance" and not k.startswith("_")}
+    if single:  # as time_loop of one law: its histories and detector peaks lose the wheel axis
+        out |= {k: out[k][..., 0] for k in StepOutput._fields}
+        if "detector_peak" in out:
+            out["detector_peak"] = out["detector_peak"][:, 0]
     return out
 
 
+def _check_supported(laws, struct, observers):
+    """NotImplementedError for what the adjoint does not carry (see the module docstring)."""
+    for lw in laws:
+        if not pointwise(lw):
+            raise NotImplementedError(
+                f"the adjoint supports pointwise contact laws only; {type(lw).__name__} "
+                "solves its own step (the direct 3D mode): use run_scan")
+    if struct.supports is not None:
+        raise NotImplementedError(
+            "the adjoint does not carry hanging sleepers' one-sided ballast (Track.ballast_gap"
+            " > 0): use run_scan (plain autodiff)")
+    for obs in observers:
+        if not (hasattr(obs, "readout") and hasattr(obs, "reduce")):
+            raise NotImplementedError(
+                f"the adjoint carries instrument observers (readout/reduce: Sensors, "
+                f"DetectorReadings) only, not {type(obs).__name__}: use run_scan")
+
+
 def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
-                 max_iter: int = 30, precision: str = "float64", roughness=None) -> dict:
+                 max_iter: int = 30, precision: str = "float64", roughness=None,
+                 observers: tuple = ()) -> dict:
     """:func:`wfjax.loop.run.time_loop` with a hand-written reverse mode (pure).
 
     The same results as ``time_loop`` (bit for bit: it runs it); ``jax.grad``/``vjp``/
@@ -380,20 +544,28 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
         n_steps: steps incl. t = 0 (static). max_iter: Newton iteration cap (static).
         precision: ``"float64"`` or ``"float32"`` (static).
         roughness: a :class:`wfjax.roughness.LoopRoughness` or None (not differentiated).
+        observers: instruments (:class:`wfjax.loop.observers.Sensors`,
+            :class:`~wfjax.loop.observers.DetectorReadings`, history on or off; not
+            differentiated themselves): their outputs join the result as in ``time_loop``
+            and carry cotangents.
 
     Returns:
         dict as ``time_loop``: x, s, force, approach, wheel_disp, rail_disp, residual,
-        axle_acc ([n_steps] for one law, [n_steps, n] for a tuple) and t [n_steps].
+        axle_acc ([n_steps] for one law, [n_steps, n] for a tuple), t [n_steps] and the
+        observers' outputs (``sensors`` [n_steps, n_quantities, n_s], ``sensor_max``,
+        ``sensor_min`` [n_quantities, n_s], ``detector_load`` [n_steps, n_bays],
+        ``detector_peak`` [n_bays] or [n, n_bays]).
 
     Raises:
         NotImplementedError: a law with its own step (the direct 3D mode); a track with
-        hanging sleepers (``struct.supports``); in reverse mode, a cotangent on
+        hanging sleepers (``struct.supports``); an observer other than an instrument
+        (``readout``/``reduce``); in reverse mode, a cotangent on
         ``wheel_disp``, ``rail_disp`` or ``axle_acc``, or a differentiated input other than
         the law.
     """
     out = adjoint_runs(law, struct, *(jnp.asarray(a)[None] for a in (
         speed, dt, x_start, impact_position)), n_steps, max_iter, precision, roughness,
-        _batched=False)
+        observers, _batched=False)
     return {k: v[0] for k, v in out.items()}
 
 

@@ -502,10 +502,11 @@ def _reference_flat(flat: Flat, extent_bound: float | None) -> Flat:
 
 
 def _batch_runs(setup: _Setup, law, n_steps, speeds, dt, x_start, impact, checkpoint: bool,
-                adjoint: bool = False):
-    """Force histories [batch, n_steps] of runs batched over (speed, dt, x_start, impact).
+                adjoint: bool = False, observers: tuple = (), output: str = "force"):
+    """The ``output`` [batch, ...] (default the force histories [batch, n_steps] N) of runs
+    batched over (speed, dt, x_start, impact), with ``observers`` shared by the runs.
 
-    ``adjoint``: run :func:`wfjax.adjoint.run_adjoint` (same forces; a hand-written reverse
+    ``adjoint``: run :func:`wfjax.adjoint.run_adjoint` (same outputs; a hand-written reverse
     mode, no forward mode) instead of :func:`wfjax.loop.run.run_scan`."""
     max_iter = setup.config.newton_iterations
     runner = run_scan
@@ -515,13 +516,14 @@ def _batch_runs(setup: _Setup, law, n_steps, speeds, dt, x_start, impact, checkp
 
         if not checkpoint:  # one custom_vjp for the batch (its backward skips late steps)
             return adjoint_mod.run_adjoint_runs(law, setup.struct, *args, n_steps, max_iter,
-                                                precision=setup.config.precision)["force"]
+                                                precision=setup.config.precision,
+                                                observers=observers)[output]
         runner = adjoint_mod.run_adjoint
 
     def one(args):
         v, d, xs, xi = args
         return runner(law, setup.struct, v, d, xs, xi, n_steps, max_iter,
-                      precision=setup.config.precision)["force"]
+                      precision=setup.config.precision, observers=observers)[output]
 
     if checkpoint:
         return jax.lax.map(jax.checkpoint(one), args)
@@ -592,14 +594,15 @@ def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False
                    temperature: float | None = 1e3, extent_bound: float | None = None,
                    wheel: Wheel | None = None, track: Track | None = None,
                    material: Material | None = None, config: SimConfig | None = None,
-                   cache_dir=None) -> ForceModel:
+                   cache_dir=None, adjoint: bool = False) -> ForceModel:
     """Differentiable detector readings [N] at each of ``speeds`` [m/s].
 
     Every run carries the detector (:class:`wfjax.sensors.Detector`, default 3 bays) in its
     scan; windows are lengthened so the wheel crosses every bay. ``per_bay``: the readings
     of every bay at the one position ``impact_positions`` (a single [m] value), flattened
     [n * n_bays]; otherwise the maximum over bays, then ``smooth_max(temperature)`` [N] over
-    the impact positions (count or [m] array), [n].
+    the impact positions (count or [m] array), [n]. ``adjoint``: reverse mode through
+    :mod:`wfjax.adjoint` (as :func:`max_force_model`: the same readings, reverse mode only).
     """
     from . import sensors as sensor_mod
 
@@ -618,18 +621,11 @@ def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False
     n_steps, dt, s0, _ = batch_windows(ref, v, setup.config)
     vv, pp = (a.ravel() for a in np.meshgrid(v, pos, indexing="ij"))
     dd, ss = (np.repeat(a, pos.size) for a in (dt, s0))
-    max_iter = setup.config.newton_iterations
+    observers = (DetectorReadings(spec, history=False),)
 
     def fn(flat: Flat):
-        law = _contact(setup, flat)
-
-        def one(args):
-            speed, d, xs, xi = args
-            return run_scan(law, setup.struct, speed, d, xs, xi, n_steps, max_iter,
-                            observers=(DetectorReadings(spec, history=False),))["detector_peak"]
-
-        args = tuple(jnp.asarray(a, dtype=float) for a in (vv, dd, pp + ss, pp))
-        peaks = jax.vmap(one)(args)  # [n * n_pos, n_bays]
+        peaks = _batch_runs(setup, _contact(setup, flat), n_steps, vv, dd, pp + ss, pp, False,
+                            adjoint, observers, "detector_peak")  # [n * n_pos, n_bays]
         if per_bay:
             return peaks.reshape(-1)
         return smooth_max(jnp.max(peaks, axis=-1).reshape(v.size, pos.size), temperature,
@@ -637,7 +633,7 @@ def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False
 
     info = {"kind": "detector", "speeds": v, "impact_positions": pos, "n_steps": n_steps,
             "time_steps": dt, "temperature": temperature, "detector": detector,
-            "per_bay": per_bay}
+            "per_bay": per_bay, "adjoint": adjoint}
     return ForceModel(fn, setup, info)
 
 

@@ -10,6 +10,13 @@ as whether histories are kept, is static) with three methods, as ``optax`` compo
   the dict holds the per-step values kept as histories (``[n_steps, ...]`` in the result);
 * ``finalize(state, ctx) -> {name: value}``: its summaries.
 
+Instruments (:class:`Sensors`, :class:`DetectorReadings`) split ``update`` into
+``readout(reading, ctx) -> value``, linear in the modal state and the forces at fixed wheel
+positions, and ``reduce(state, value, reading, ctx) -> (state, {name: value})``, which may read the
+reading's step index and positions but not its modal state or forces: :mod:`wfjax.adjoint`
+transposes the readout at each step and differentiates the reduction over the recorded
+values.
+
 The time loop (:func:`wfjax.loop.run.time_loop`) feeds every observer the static start
 (step 0) and every step, in its scan; the step itself knows no instrument. A new output is one
 observer class here (or in the user's code) and its use by an entry point. Every running
@@ -93,11 +100,19 @@ class Sensors:
         shape = (len(self.spec.quantities), self.spec.positions.shape[0])
         return jnp.full(shape, -jnp.inf, ctx.real), jnp.full(shape, jnp.inf, ctx.real)
 
-    def update(self, state, r: Reading, ctx: LoopContext):
-        y = sensor_mod.evaluate(self.spec, ctx.model, r.q, r.force, r.x)
+    def readout(self, r: Reading, ctx: LoopContext):
+        """The readings [n_quantities, n_s] at ``r``: linear in (``r.q``, ``r.force``) at
+        fixed ``r.x``."""
+        return sensor_mod.evaluate(self.spec, ctx.model, r.q, r.force, r.x)
+
+    def reduce(self, state, y, r: Reading, ctx: LoopContext):
+        """The running extremes after readings ``y`` at ``r`` (its step index only)."""
         on = counted(r.n, self.run_in, self.end)
         state = running_max(state[0], y, on), running_min(state[1], y, on)
         return state, ({"sensors": y} if self.history else {})
+
+    def update(self, state, r: Reading, ctx: LoopContext):
+        return self.reduce(state, self.readout(r, ctx), r, ctx)
 
     def finalize(self, state, ctx: LoopContext):
         return {"sensor_max": state[0], "sensor_min": state[1]}
@@ -117,10 +132,20 @@ class DetectorReadings:
     def init(self, ctx: LoopContext):
         return jnp.full((ctx.n_wheels,) + self.spec.left.shape, -jnp.inf, ctx.real)
 
-    def update(self, state, r: Reading, ctx: LoopContext):
-        est, gate = sensor_mod.detector_load(self.spec, ctx.model, r.q, r.force, r.x)
+    def readout(self, r: Reading, ctx: LoopContext):
+        """The ungated estimate [n_bays] N at ``r``: linear in (``r.q``, ``r.force``) at
+        fixed ``r.x``."""
+        return sensor_mod.detector_load(self.spec, ctx.model, r.q, r.force, r.x)[0]
+
+    def reduce(self, state, est, r: Reading, ctx: LoopContext):
+        """The running peaks after estimate ``est`` at ``r`` (its step index and the wheels'
+        positions, which gate the bays)."""
+        gate = sensor_mod.detector_load(self.spec, ctx.model, r.q, r.force, r.x)[1]
         state = running_max(state, est, gate & counted(r.n, 0, self.end))
         return state, ({"detector_load": est} if self.history else {})
+
+    def update(self, state, r: Reading, ctx: LoopContext):
+        return self.reduce(state, self.readout(r, ctx), r, ctx)
 
     def finalize(self, state, ctx: LoopContext):
         return {"detector_peak": state}
