@@ -54,7 +54,7 @@ from .contact.laws import prepare, prepare_family, resolve_mode_3d
 from .contact.table_law import TableLaw, cached_tables_3d, table_specs_3d
 from .contact.tables import ContactTable, pad_columns
 from .loop.observers import DetectorReadings, Sensors
-from .loop.run import run_scan
+from .loop.run import StepOutput, run_scan
 from .loop.structure import structure, vehicle_structure
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .results import summarise, summarise_vehicle
@@ -327,8 +327,7 @@ def _reduce(n_steps, max_iter, precision, laws, struct, extras, n_run, flat_inde
     hist = run_scan(law, struct, speed, dt, x_start, impact_position, n_steps, max_iter,
                     observers=observers, precision=precision,
                     roughness=_realisation(extras.get("roughness"), realisation), n_run=n_run)
-    contact = {k: hist[k] for k in ("t", "x", "s", "force", "approach", "wheel_disp",
-                                    "rail_disp", "residual", "axle_acc")}
+    contact = {k: hist[k] for k in ("t",) + StepOutput._fields}
     out = {}
     if others is None:
         res = summarise(contact, speed, impact_position, dt, run_in_steps, end_steps=end_steps)
