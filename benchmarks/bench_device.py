@@ -55,6 +55,7 @@ from wfjax._compile_clock import compile_seconds
 from wfjax.cli import expose_cpu_cores
 from wfjax.commands.figures import fig7_flats
 from wfjax.contact import table_law, tables
+from wfjax.program import grid
 
 SECTIONS = ("table", "gradient", "default", "fig7", "fig8", "large-hertz", "large-3d")
 # per size: speeds [km/h], positions, Fig. 8 depths [mm], 3D element [m], table element [m],
@@ -256,7 +257,7 @@ def main(argv=None) -> int:
         run, n_runs, note = makers[name]()
         rows.append(measure(name, run, n_runs, note, float32=name != "table"))
     header["load_average_end"] = os.getloadavg()
-    header["chunk_width_per_device"] = wf.sweeps.chunk_width(3000, 599)
+    header["chunk_width_per_device"] = grid.chunk_width(3000, 599)
     print(f"\n{header['backend']} ({header['device']}) x {header['device_count']}, "
           f"size {size_name}, load average {header['load_average'][0]:.1f} -> "
           f"{header['load_average_end'][0]:.1f}; peak memory = {rows[-1]['peak_of']}\n")

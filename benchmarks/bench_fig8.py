@@ -44,7 +44,7 @@ def _peak_mib() -> float:
 def fig8_flats(depths_mm):
     """The Fig. 8 flats, all with the batch's window bound (identical windows per mode)."""
     from wfjax.commands.figures import fig8_flats as paper_flats
-    from wfjax.sweeps import common_extent
+    from wfjax.program.laws import common_extent
 
     return common_extent(paper_flats(depths_mm))
 

@@ -1,7 +1,8 @@
 """Parametric 3D law against exact per-flat tables, end to end, off the Fig. 8 set.
 
 Max force of batched sweeps through the family (``SimConfig(contact_mode_3d="parametric")``)
-against each flat's exact table (``"table"``), identical windows (``sweeps.common_extent``),
+against each flat's exact table (``"table"``), identical windows
+(``wfjax.program.laws.common_extent``),
 R_W = R_R = 0.45 m, 1 mm elements, 4 impact positions:
 
 * ``--kind new``: new flats 0.40, 0.75, 1.25, 1.75 mm, 20-300 km/h in 40 km/h steps;
@@ -23,7 +24,7 @@ import numpy as np
 
 import wfjax as wf
 from wfjax.contact import family
-from wfjax.sweeps import common_extent
+from wfjax.program.laws import common_extent
 
 CASES = {
     "new": ([wf.Flat.new(d) for d in (0.4e-3, 0.75e-3, 1.25e-3, 1.75e-3)],

@@ -22,11 +22,11 @@ import wfjax as wf
 from wfjax import adjoint as adj
 from wfjax import fit
 from wfjax import roughness as rough_mod
-from wfjax.api import loop_roughness
 from wfjax.contact import family, laws
 from wfjax.contact.table_law import TableLaw
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure, vehicle_structure
+from wfjax.program.laws import loop_roughness
 from wfjax.vehicle import Vehicle, placement
 
 V, DT, N = 100 / 3.6, 3e-5, 400

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax import sweeps
 from wfjax.contact import table_law, tables
+from wfjax.program import grid
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,19 +28,19 @@ class _Device:
 
 
 def test_chunk_width_follows_device_memory():
-    per_run = sweeps.bytes_per_run(3000, 599)
+    per_run = grid.bytes_per_run(3000, 599)
     assert 250e3 < per_run < 300e3  # compiled on CPU: 215-262 KB per run (1000-4000 steps)
-    assert sweeps.bytes_per_run(3000, 599, "float32") == per_run // 2
+    assert grid.bytes_per_run(3000, 599, "float32") == per_run // 2
     gib = 2**30
     # a 16 GiB GPU with 6 GiB in use: half of the free 10 GiB, in runs, under the cap
-    wide = sweeps.chunk_width(3000, 599, device=_Device("gpu", 16 * gib, 6 * gib))
-    assert wide == min(sweeps.ACCELERATOR_CHUNK_CAP, int(0.5 * 10 * gib // per_run)) > 64
-    small = sweeps.chunk_width(3000, 599, device=_Device("gpu", gib, gib - 100 * per_run))
+    wide = grid.chunk_width(3000, 599, device=_Device("gpu", 16 * gib, 6 * gib))
+    assert wide == min(grid.ACCELERATOR_CHUNK_CAP, int(0.5 * 10 * gib // per_run)) > 64
+    small = grid.chunk_width(3000, 599, device=_Device("gpu", gib, gib - 100 * per_run))
     assert small == 50  # memory bound
-    assert sweeps.chunk_width(3000, 599, device=_Device("gpu", gib, gib)) == 1
-    huge = sweeps.chunk_width(3000, 599, device=_Device("gpu", 1000 * gib))
-    assert huge == sweeps.ACCELERATOR_CHUNK_CAP
-    assert sweeps.chunk_width(3000, 599, device=_Device("cpu")) == sweeps.CHUNK_CAP["cpu"]
+    assert grid.chunk_width(3000, 599, device=_Device("gpu", gib, gib)) == 1
+    huge = grid.chunk_width(3000, 599, device=_Device("gpu", 1000 * gib))
+    assert huge == grid.ACCELERATOR_CHUNK_CAP
+    assert grid.chunk_width(3000, 599, device=_Device("cpu")) == grid.CHUNK_CAP["cpu"]
 
 
 def test_table_batch_size_by_platform_and_batched_build_agrees():

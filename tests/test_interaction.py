@@ -202,9 +202,9 @@ def test_loop_mode_shapes_equal_track_interpolation():
                          [(80, 64, 1, (40, 40)), (290, 64, 1, (58, 58)), (64, 64, 1, (64, 64)),
                           (6, 4, 2, (3, 4)), (5, 64, 2, (5, 6)), (1, 64, 1, (1, 1))])
 def test_chunks_spread_runs_evenly(n_runs, chunk, n_dev, layout):
-    from wfjax.sweeps import _chunk_layout
+    from wfjax.program.grid import chunk_layout
 
-    step, width = _chunk_layout(n_runs, chunk, n_dev)
+    step, width = chunk_layout(n_runs, chunk, n_dev)
     assert (step, width) == layout
     assert step <= chunk and width % n_dev == 0 and width >= step
     assert -(-n_runs // step) == -(-n_runs // chunk)  # no more chunks than needed
@@ -214,26 +214,26 @@ def test_sweep_progress_paces_its_eta_by_work(monkeypatch):
     """The ETA follows the work done (run-steps), not the runs: short chunks go first."""
     import io
 
-    from wfjax import sweeps
+    from wfjax.program import grid
 
     clock = iter([0.0, 2.0])
-    monkeypatch.setattr(sweeps.time, "perf_counter", lambda: next(clock))
+    monkeypatch.setattr(grid.time, "perf_counter", lambda: next(clock))
     out = io.StringIO()
-    bar = sweeps._Progress(4, "runs", stream=out)
+    bar = grid.Progress(4, "runs", stream=out)
     bar.work_total = 10.0
     bar.update(2, 2.0)  # half the runs, a fifth of the work, in 2 s: 8 s to go
     assert "2/4 runs" in out.getvalue() and "ETA   8.0 s" in out.getvalue()
 
 
 def test_planned_runs_are_sorted_by_steps_and_dealt_to_the_devices():
-    """_plan_runs sorts the runs by their own step count (each chunk's loop stops at its
+    """plan_runs sorts the runs by their own step count (each chunk's loop stops at its
     longest), deals every chunk's runs to the devices in turn, and ``order`` maps them back."""
-    from wfjax import sweeps
+    from wfjax.program import grid
 
     speeds = np.array([300.0, 40.0, 120.0, 20.0]) / 3.6
     struct = structure(wf.Wheel(), wf.Track(), wf.SimConfig())
-    mesh = sweeps._device_mesh()
-    runs = sweeps._plan_runs([ROUNDED], speeds, np.array([0.1, 0.3]), struct, wf.SimConfig(),
+    mesh = grid.device_mesh()
+    runs = grid.plan_runs([ROUNDED], speeds, np.array([0.1, 0.3]), struct, wf.SimConfig(),
                              mesh, chunk_size=4)
     steps = runs.columns[6]
     own = run_windows(ROUNDED, speeds, wf.SimConfig())[0]
@@ -242,5 +242,5 @@ def test_planned_runs_are_sorted_by_steps_and_dealt_to_the_devices():
     assert all(a.max() <= b.min() for a, b in zip(chunks[:-1], chunks[1:], strict=True))
     speed_of_run = np.repeat(speeds, 2)  # results order: (flat, speed, position)
     np.testing.assert_array_equal(runs.columns[1], speed_of_run[runs.order])
-    back = sweeps._unsorted(runs.columns[1], runs.order)
+    back = grid.unsorted(runs.columns[1], runs.order)
     np.testing.assert_array_equal(back, speed_of_run)

@@ -15,8 +15,9 @@ from wfjax.contact.protocol import ContactLaw
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
 from wfjax.params import _pytree
+from wfjax.program.core import _sharded
+from wfjax.program.laws import common_extent, prepare_batch
 from wfjax.scenario.windows import n_steps_for, run_windows, simulation_window
-from wfjax.sweeps import _batched, common_extent, prepare_batch
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 MODEL = (wf.Wheel(), wf.Track.comparison(), wf.Material(), COARSE)
@@ -40,10 +41,10 @@ def test_batched_laws_equal_one_law_per_flat(contact):
 def test_sweep_over_depths_is_one_program_equal_to_single_runs():
     """A depth batch compiles once and each flat's result equals its own simulate()."""
     speeds, positions = np.array([60.0, 140.0]) / 3.6, np.array([0.2])
-    before = _batched.cache_info().misses
+    before = _sharded.cache_info().misses
     sw = wf.sweep(FLATS, speeds, positions, contact="hertz-trajectory", track=MODEL[1],
                   config=COARSE, progress=False)
-    assert _batched.cache_info().misses - before <= 1
+    assert _sharded.cache_info().misses - before <= 1
     sized = common_extent(FLATS)
     for i, flat in enumerate(sized):
         for j, v in enumerate(speeds):
@@ -180,7 +181,7 @@ def test_table_cache_key_holds_the_builder_revision(tmp_path, monkeypatch):
 def test_batch_groups_put_every_exact_table_in_one_group():
     """Exact 3D tables batch together whatever the flats' kinds; the family by kind; the
     direct mode and the other models' measured profiles one flat per program."""
-    from wfjax.sweeps import BatchGroup, batch_groups
+    from wfjax.program.laws import BatchGroup, batch_groups
 
     x = np.linspace(-0.05, 0.05, 41)
     profile = wf.Flat.from_profile(x, 0.5e-3 * np.cos(np.pi * x / 0.1) ** 2)
@@ -217,14 +218,14 @@ def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path, monkeypatch):
     the steps beyond them are not counted)."""
     import importlib
 
-    sweeps = importlib.import_module("wfjax.sweeps")
+    core = importlib.import_module("wfjax.program.core")
     config = wf.SimConfig(contact_element=2e-3, max_travel_step=2e-3, max_time_step=5e-5)
     track = wf.Track()
     flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
     speeds, position = np.array([120.0]) / 3.6, 0.2
     compiled = []
-    program = sweeps._batched
-    monkeypatch.setattr(sweeps, "_batched", lambda *args: compiled.append(args) or program(*args))
+    program = core._sharded
+    monkeypatch.setattr(core, "_sharded", lambda *args: compiled.append(args) or program(*args))
     sw = wf.sweep(flats, speeds, [position], contact="3d", track=track, config=config,
                   progress=False, cache_dir=tmp_path)
     assert len(compiled) == 1  # one program (compiled ahead for the tables' predicted shapes)

@@ -11,10 +11,10 @@ from fe_reference import newmark_wheels
 import wfjax as wf
 from wfjax import sleepers, supports
 from wfjax import track as track_mod
-from wfjax.api import vehicle_laws
 from wfjax.contact.laws import prepare
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure, vehicle_structure
+from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
 
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)

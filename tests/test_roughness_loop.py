@@ -11,6 +11,8 @@ from fe_reference import newmark_wheels
 import wfjax as wf
 from wfjax import roughness as rough_mod
 from wfjax import supports
+from wfjax.program.laws import loop_roughness, padded_models
+from wfjax.scenario.description import Scenario
 from wfjax.scenario.windows import check_impact_positions
 
 REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
@@ -102,7 +104,7 @@ def test_roughness_response_agrees_with_a_direct_fe_time_integration():
     # point-contact laws see for a sinusoid)
     lam, amp = 0.1, 2e-6
     f, d, res = _fluctuation("hertz-profile", _sine(amp, lam))
-    length = float(wf.api.loop_roughness(_sine(amp, lam)).contact_length[0])
+    length = float(loop_roughness(_sine(amp, lam)).contact_length[0])
     gain = float(rough_mod.contact_filter_response(lam, length))
     x0, s0, dt = float(res.x[0]), float(res.s[0]), float(res.time_step)
     n = f.size
@@ -150,9 +152,9 @@ def test_impact_positions_are_absolute_on_a_track_whose_supports_vary():
 def test_bad_roughness_inputs_are_refused():
     circ_wheel = rough_mod.generate_wheel(rough_mod.ISO3095_LIMIT, 0)
     with pytest.raises(ValueError, match="must not be periodic"):
-        wf.api.loop_roughness(circ_wheel)
+        Scenario.of(wf.Flat.none(), roughness=circ_wheel)
     with pytest.raises(ValueError, match="must be periodic"):
-        wf.api.loop_roughness(None, _sine(1e-6))
+        Scenario.of(wf.Flat.none(), wheel_roughness=_sine(1e-6))
     two = rough_mod.generate(rough_mod.ISO3095_LIMIT, 0, 4.0, n_realisations=2)
     three = rough_mod.generate_wheel(rough_mod.ISO3095_LIMIT, 0, n_realisations=3)
     with pytest.raises(ValueError, match="same number of realisations"):
@@ -171,7 +173,7 @@ def test_a_rail_profile_shorter_than_the_run_is_refused():
 
 
 def test_static_contact_length_is_the_hertz_patch():
-    length = float(wf.api.loop_roughness(_sine(1e-6)).contact_length[0])
+    length = float(loop_roughness(_sine(1e-6)).contact_length[0])
     assert 10e-3 < length < 14e-3
 
 
@@ -225,7 +227,7 @@ def test_bad_roughness_and_support_flags_fail_before_work(tmp_path, capsys, monk
 def test_support_realisations_share_one_compile_and_equal_a_loop():
     base = wf.Track(n_bays=20)
     tracks = [supports.scatter(base, key=k, cv=0.3) for k in range(3)]
-    models = wf.sweeps.padded_models(tracks, wf.SimConfig())
+    models = padded_models(tracks, wf.SimConfig())
     counts = [int(wf.track.modal_model(t, max_frequency=wf.SimConfig().track_max_frequency)
                   .poles.shape[0]) for t in tracks]
     assert models.poles.shape[:2] == (3, max(counts))

@@ -14,11 +14,11 @@ import wfjax as wf
 from wfjax import supports
 from wfjax import track as track_mod
 from wfjax import wheel as wheel_mod
-from wfjax.api import vehicle_laws
 from wfjax.contact.laws import prepare
 from wfjax.loop.observers import Sensors
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import cross_table, structure, vehicle_structure
+from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
 from wfjax.vehicle import Vehicle, placement, residual_pairs, transfer_receptance
 

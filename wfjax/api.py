@@ -1,55 +1,33 @@
-"""The entry point for one run: :func:`simulate` (and the pieces it shares with
-:func:`wfjax.sweep` and the fits: the loop's roughness and a vehicle's contact laws).
+"""The entry point for one run: :func:`simulate`, a thin layer over the program core.
 
-The run itself is :func:`wfjax.loop.run.time_loop`; its windows and checks are
+A run is a :class:`wfjax.scenario.description.Scenario` (checked once there) compiled into a
+:class:`wfjax.program.core.Program` and run once, saving every step
+(:class:`wfjax.program.core.Histories`); its windows and checks are
 :mod:`wfjax.scenario.windows`. Contact models (``contact=``) come from
-:mod:`wfjax.contact.registry`.
-
-Roughness
----------
-``simulate(roughness=, wheel_roughness=)`` and ``time_loop(roughness=)`` (a
-:class:`wfjax.roughness.LoopRoughness`): point-contact laws add the contact-filtered
-roughness to the approach, the 2D bedding and the direct 3D solve take it off the gap element
-by element (:meth:`wfjax.contact.laws.ContactLaw.rough_nodes`); see ``docs/real_track.md``.
+:mod:`wfjax.contact.registry`; rail roughness and rail-top inputs (``roughness=``) are read
+as ``docs/real_track.md`` describes.
 """
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from . import roughness as rough_mod
 from . import sensors as sensor_mod
 from . import supports as supports_mod
-from . import vehicle as vehicle_mod
-from ._xla import LOOP_COMPILER_OPTIONS
-from .contact import registry
-from .contact.laws import prepare
-from .loop.observers import DetectorReadings, Sensors
-from .loop.run import _LOOP_STATIC, time_loop
-from .loop.structure import structure, vehicle_structure
 from .params import Flat, Material, SimConfig, Track, Wheel
-from .results import SimResult, summarise, summarise_vehicle
+from .program.core import Run, compile_scenario
+from .results import SimResult, one_wheel, summarise_run
+from .scenario.description import Scenario
 from .scenario.windows import (
     RUN_IN_TIME,
     check_impact_position,
-    check_rail_span,
     check_speed,
-    detector_config,
     impact_position_from_angle,
     n_steps_for,
     simulation_window,
-    vehicle_window_flat,
-    wheel_positions,
 )
 
-__all__ = ["simulate", "loop_roughness", "vehicle_laws", "SimResult"]
-
-
-# simulate's own program: a top-level jit may carry compiler options, a nested one may not
-_simulation = jax.jit(time_loop, static_argnames=_LOOP_STATIC,
-                      compiler_options=LOOP_COMPILER_OPTIONS)
+__all__ = ["simulate", "SimResult"]
 
 
 def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: float = 0.0,
@@ -96,120 +74,47 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
         :class:`SimResult` with time histories [n_steps] and summary values (a vehicle's:
         the flat wheel's, plus every wheel's in the ``wheel_*`` fields).
     """
-    wheel = wheel or Wheel()
-    track = track or Track()
-    material = material or Material()
-    config = config or SimConfig()
+    scenario = Scenario.of(flat, contact, wheel=wheel, track=track, material=material,
+                           config=config, vehicle=vehicle, roughness=roughness,
+                           wheel_roughness=wheel_roughness, sensors=sensors,
+                           sensor_quantities=sensor_quantities, detector=detector)
     v = check_speed(speed)
-    wheels = [wheel] if vehicle is None else vehicle.wheel_list(wheel)
-    flats = [flat] if vehicle is None else vehicle.flat_list(
-        flat, lambda i: float(wheels[i].radius))
-    if vehicle is not None:
-        vehicle.check_spacing(wheels)
-    for i, (f, w) in enumerate(zip(flats, wheels, strict=True)):
-        if abs(float(f.wheel_radius) - float(w.radius)) > 1e-12:
-            where = "" if vehicle is None else f" of wheel {i}"
-            raise ValueError(
-                f"flat.wheel_radius{where} ({float(f.wheel_radius)} m) must equal wheel.radius "
-                f"({float(w.radius)} m)"
-            )
-    spacing = float(track.sleeper_spacing)
-    if detector is not None:
-        config = detector_config(detector, track, config, wheel_positions(vehicle, spacing))
-    window_flat = flat
-    if vehicle is not None:
-        window_flat = vehicle_window_flat(vehicle, flats)
-    s_start, s_end = simulation_window(window_flat, v, config)
+    run, n_steps = _run_of(scenario, v, impact_position, angle0, n_steps)
+    program = compile_scenario(scenario, cache_dir)
+    hist = program.history(run, n_steps)
+    fw = scenario.vehicle.flat_wheel
+    quantities = () if program.data.sensors is None else program.data.sensors.quantities
+    res = summarise_run(hist, fw, v, run.impact_position - scenario.shift, run.dt, run.run_in,
+                        quantities, program.data.struct.preload)
+    if not scenario.per_wheel:
+        res = one_wheel(res, fw)
+    if program.data.struct.supports is not None:
+        res = res._replace(support_force=hist["support_force"],
+                           sleeper_disp=hist["sleeper_disp"],
+                           hanging_sleepers=supports_mod.hanging_sleepers(scenario.track))
+    if program.data.sensors is None:
+        return res
+    return res._replace(sensor_positions=np.asarray(program.data.sensors.positions))
+
+
+def _run_of(scenario: Scenario, v: float, impact_position, angle0, n_steps) -> tuple:
+    """(the :class:`Run` of :func:`simulate`, its step count): the window of the scenario's
+    flat at speed ``v`` [m/s], checked on the track and the rail roughness."""
+    config, spacing = scenario.config, float(scenario.track.sleeper_spacing)
+    window = scenario.window_flat(scenario.flats[0])
+    s_start, s_end = simulation_window(window, v, config)
     if angle0 is not None:
-        impact_position = float(impact_position_from_angle(
-            angle0, s_start, float(wheels[0 if vehicle is None else vehicle.flat_wheel].radius),
-            spacing))
-    x_imp = check_impact_position(impact_position, track)
-    n_auto, dt = n_steps_for(window_flat, v, config)
+        radius = float(scenario.wheels[scenario.vehicle.flat_wheel].radius)
+        impact_position = float(impact_position_from_angle(angle0, s_start, radius, spacing))
+    x_imp = check_impact_position(impact_position, scenario.track)
+    n_auto, dt = n_steps_for(window, v, config)
     if n_steps is None:
         n_steps = n_auto
     elif int(n_steps) < 2:
         raise ValueError(f"n_steps must be >= 2, got {n_steps!r}")
     else:
         dt = (s_end - s_start) / v / (int(n_steps) - 1)
-    registry.check(contact)
-    run_in_steps = int(0.5 * RUN_IN_TIME / dt)
-    if vehicle is None:
-        struct = structure(wheel, track, config, cache_dir)
-        law = prepare(contact, flat, wheel, track, material, config, cache_dir)
-        x_abs = x_imp
-    else:
-        x_abs = x_imp + vehicle_mod.placement(vehicle, spacing)
-        vehicle_mod.check_on_track(vehicle, track, x_abs + s_start, x_abs + s_end)
-        struct = vehicle_structure(vehicle, wheels, track, config, cache_dir)
-        law = vehicle_laws(contact, flats, wheels, track, material, config, cache_dir)
-    sensor_spec = (None if sensors is None
-                   else sensor_mod.sensor_spec(sensors, track, struct.track, sensor_quantities))
-    det_spec = (None if detector is None
-                else sensor_mod.detector_spec(detector, track, struct.track))
-    rough = loop_roughness(roughness, wheel_roughness, wheels, track, material)
-    offsets = np.zeros(1) if vehicle is None else vehicle.offsets()
-    check_rail_span(roughness, x_abs + s_start + offsets.min(), x_abs + s_end + offsets.max())
-    observers = tuple(o for o in (
-        None if sensor_spec is None else Sensors(sensor_spec, run_in_steps),
-        None if det_spec is None else DetectorReadings(det_spec)) if o is not None)
-    hist = _simulation(law, struct, v, dt, x_abs + s_start, x_abs, int(n_steps),
-                       config.newton_iterations, observers=observers,
-                       precision=config.precision, roughness=rough)
-    quantities = () if sensor_spec is None else sensor_spec.quantities
-    if vehicle is None:
-        res = summarise(hist, v, x_imp, dt, run_in_steps, quantities, struct.preload)
-    else:
-        res = summarise_vehicle(hist, vehicle.flat_wheel, v, x_imp, dt, run_in_steps,
-                                quantities, struct.preload)
-    if struct.supports is not None:
-        res = res._replace(support_force=hist["support_force"],
-                           sleeper_disp=hist["sleeper_disp"],
-                           hanging_sleepers=supports_mod.hanging_sleepers(track))
-    if sensor_spec is None:
-        return res
-    return res._replace(sensor_positions=np.asarray(sensor_spec.positions))
-
-
-def loop_roughness(rail=None, wheel=None, wheels=None, track: Track | None = None,
-                   material: Material | None = None):
-    """The time loop's :class:`wfjax.roughness.LoopRoughness` (None when both are None).
-
-    The contact filter's length (point-contact laws) is each wheel's static Hertz contact
-    length (:func:`wfjax.roughness.static_contact_length` at its preload, on the Hertz radius
-    sqrt(R_W R_R)), 13.1 mm for the default wheel and track: the patch the wheel rolls on between
-    impacts, where roughness excites it.
-
-    Args:
-        rail: rail :class:`wfjax.roughness.Roughness` (``values [n]`` or, for
-            :func:`wfjax.sweep`'s Monte Carlo, ``[R, n]``) or None.
-        wheel: wheel roughness (periodic) or None. wheels: [n_wheels] :class:`Wheel`
-            (default: one default wheel). track, material: as :func:`simulate`.
-    """
-    if rail is None and wheel is None:
-        return None
-    from .contact.laws import hertz_radius
-
-    if rail is not None and rail.periodic:
-        raise ValueError("roughness (rail) must not be periodic; a wheel profile goes to "
-                         "wheel_roughness")
-    if wheel is not None and not wheel.periodic:
-        raise ValueError("wheel_roughness must be periodic (roughness.read_csv(..., "
-                         "wheel_radius=R) or roughness.generate_wheel)")
-    wheels = wheels or [Wheel()]
-    track, material = track or Track(), material or Material()
-    length = np.array([float(rough_mod.static_contact_length(
-        float(w.preload), material, float(hertz_radius(w, track)))) for w in wheels])
-    return rough_mod.LoopRoughness(rail, wheel, jnp.asarray(length))
-
-
-def vehicle_laws(contact: str, flats: list[Flat], wheels: list[Wheel], track: Track,
-                 material: Material, config: SimConfig, cache_dir=None) -> tuple:
-    """[n] contact laws of the vehicle's wheels (one per distinct flat and wheel radius)."""
-    laws, done = [], {}
-    for f, w in zip(flats, wheels, strict=True):
-        key = (id(f), float(w.radius)) if f.kind != "none" else ("none", float(w.radius))
-        if key not in done:
-            done[key] = prepare(contact, f, w, track, material, config, cache_dir)
-        laws.append(done[key])
-    return tuple(laws)
+    scenario.check_travel(window, [v], [x_imp])
+    x_abs = x_imp + scenario.shift
+    run_in = int(0.5 * RUN_IN_TIME / dt)
+    return Run(0, v, dt, x_abs + s_start, x_abs, run_in, int(n_steps), 0), int(n_steps)

@@ -55,6 +55,8 @@ def flag_help(option, command: str, defaults: dict) -> str:
     """The ``--help`` line of ``option`` in ``wfjax command``: meaning, unit, default."""
     unit = option.flag_unit or option.unit
     text = option.doc + (f" [{unit}]" if unit and option.kind not in ("str", "path") else "")
+    if option.choice_list is not None:
+        text += f" ({' | '.join(option.choice_list)})"
     default = defaults.get(option.path) if option.case else option.default_for(command)
     if option.kind == "bool" or default in (None, [], ""):
         return text
@@ -78,8 +80,9 @@ def add_options(parser: argparse.ArgumentParser, command: str) -> None:
         elif option.action:
             kw.update(action=option.action, metavar=option.metavar)
         else:
-            kw.update(action=_Typed, metavar=option.metavar,
-                      choices=option.choice_list if option.kind == "str" else None)
+            # no argparse ``choices``: the generated validation refuses a bad name with the
+            # same one-line error (and exit status 2) as every other bad value
+            kw.update(action=_Typed, metavar=option.metavar)
         parser.add_argument(option.flag, *option.aliases, **kw)
 
 

@@ -10,7 +10,7 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["SimResult", "summarise", "summarise_vehicle"]
+__all__ = ["SimResult", "summarise", "summarise_run", "one_wheel", "flat_label"]
 
 
 class SimResult(NamedTuple):
@@ -240,10 +240,11 @@ def counted_steps(n_steps: int, run_in_steps, end_steps=None):
     return (n >= run_in_steps) if end_steps is None else (n >= run_in_steps) & (n < end_steps)
 
 
-def summarise_vehicle(hist: dict, flat_wheel: int, speed, impact_position, dt, run_in_steps,
+def summarise_run(hist: dict, flat_wheel: int, speed, impact_position, dt, run_in_steps,
                       quantities=(), preload=None, end_steps=None) -> SimResult:
-    """:func:`summarise` for a vehicle's histories ([n_steps, n_wheels], one run): the main
-    fields are the reference wheel's (``flat_wheel``), the ``wheel_*`` fields every wheel's.
+    """:func:`summarise` of a run's histories ([n_steps, n_wheels]; one wheel is a vehicle
+    of one): the main fields are the reference wheel's (``flat_wheel``), the ``wheel_*``
+    fields every wheel's.
 
     ``preload`` [n_wheels] N: the detector's ratio divides each wheel's peak by its own load.
     """
@@ -259,6 +260,8 @@ def summarise_vehicle(hist: dict, flat_wheel: int, speed, impact_position, dt, r
     if "detector_peak" in hist:
         extra = {"detector_peak": hist["detector_peak"],
                  "detector_ratio": hist["detector_peak"] / jnp.asarray(preload)[:, None]}
+        if "detector_load" in hist:
+            extra["detector_load"] = hist["detector_load"]
     return res._replace(
         wheel_force=f, wheel_max_force=jnp.max(jnp.where(after, f, -jnp.inf), axis=0),
         wheel_min_force=jnp.min(jnp.where(after, f, jnp.inf), axis=0),
@@ -266,3 +269,26 @@ def summarise_vehicle(hist: dict, flat_wheel: int, speed, impact_position, dt, r
         wheel_axle_acc=acc, wheel_axle_acc_peak=jnp.max(jnp.where(after, jnp.abs(acc), 0.0),
                                                         axis=0),
         wheel_x=hist["x"], **extra)
+
+
+def one_wheel(res: SimResult, flat_wheel: int = 0) -> SimResult:
+    """A :func:`summarise_run` result as the paper's single wheel reports it: without the
+    ``wheel_*`` fields, the detector's peaks [n_bays] of the reference wheel only."""
+    extra = {}
+    if res.detector_peak is not None:
+        extra = {"detector_peak": res.detector_peak[..., flat_wheel, :],
+                 "detector_ratio": res.detector_ratio[..., flat_wheel, :]}
+    return res._replace(wheel_force=None, wheel_max_force=None, wheel_min_force=None,
+                        wheel_loss_of_contact=None, wheel_axle_acc=None,
+                        wheel_axle_acc_peak=None, wheel_x=None, **extra)
+
+
+def flat_label(flat) -> str:
+    """A short human label of a :class:`wfjax.Flat` (mm), e.g. ``"new d=0.90mm"``."""
+    d = float(flat.depth) * 1e3
+    if flat.kind == "rounded":
+        return f"rounded d={d:.2f}mm l={float(flat.length) * 1e3:.1f}mm"
+    if flat.kind == "new":
+        return f"new d={d:.2f}mm"
+    return f"{flat.kind} d={d:.2f}mm"
+

@@ -177,8 +177,6 @@ def check_rail_span(rail, x_lo: float, x_hi: float) -> None:
 
 def wheel_positions(vehicle, sleeper_spacing: float) -> tuple:
     """Every wheel's rail coordinate at the reference impact, less the impact position [m]."""
-    if vehicle is None:
-        return (0.0,)
     shift = placement(vehicle, sleeper_spacing)
     return tuple(float(shift + o) for o in vehicle.offsets())
 

@@ -1,0 +1,395 @@
+"""One scenario, one program: :func:`compile_scenario` and the runs every entry point makes.
+
+A :class:`Program` holds a :class:`wfjax.scenario.description.Scenario` prepared for the
+devices (:class:`ProgramData`: structure, contact laws, instruments, roughness) and runs it
+over a grid of :class:`Run` s. Every run of every entry point is :func:`run_one`: the time
+loop (:func:`wfjax.loop.run.time_loop`) of the scenario's wheels with the swept flat's law on
+the reference wheel, what to save chosen by a *save* object and, for the fits, how to
+differentiate by a *differentiation* object, as ``diffrax.diffeqsolve`` takes ``SaveAt`` and
+an adjoint:
+
+- save: :class:`Extremes` (every run's extremes after its run-in: :func:`wfjax.sweep`),
+  :class:`Histories` (every step: :func:`wfjax.simulate` and the fits);
+- differentiation: :class:`Autodiff` (JAX's reverse and forward modes), :class:`Checkpointed`
+  (the runs one after another under ``jax.checkpoint``), :class:`Adjoint` (the hand-written
+  reverse mode of :mod:`wfjax.adjoint`).
+
+Grids: :meth:`Program.sweep` (speeds x positions x flats x realisations, chunked and sharded
+over the devices, :mod:`wfjax.program.grid`), :meth:`Program.history` (one run),
+:meth:`Program.forward` (a rectangular batch of runs for a traced law: the fits).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import sys
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
+
+from .._parallel import in_background
+from .._xla import LOOP_COMPILER_OPTIONS
+from ..contact.table_law import cached_tables_3d
+from ..loop.observers import DetectorReadings, Sensors
+from ..loop.run import StepOutput, run_scan
+from ..loop.structure import vehicle_structure
+from ..params import Flat
+from ..results import summarise_run
+from ..scenario.description import Scenario
+from ..sensors import detector_spec, sensor_spec
+from . import grid as grid_mod
+from .laws import (
+    batch_groups,
+    loop_roughness,
+    padded_models,
+    pick_model,
+    prepare_batch,
+    realisation,
+    table_laws,
+    table_laws_like,
+    vehicle_laws,
+)
+
+__all__ = ["Run", "ProgramData", "Program", "compile_scenario", "run_one", "Extremes",
+           "Histories", "Autodiff", "Checkpointed", "Adjoint"]
+
+
+class Run(NamedTuple):
+    """One run's numbers (a grid holds [n] of each, in this order).
+
+    ``flat``: index of the swept flat among the program's (int); ``speed`` v [m/s]; ``dt``
+    time step [s]; ``x_start`` rail coordinate of the reference wheel at t = 0 [m];
+    ``impact_position`` its rail coordinate where its flat strikes [m]; ``run_in``: steps
+    before the extremes count; ``end``: the run's own step count (later steps are not
+    counted); ``realisation``: roughness/support realisation index (int).
+    """
+
+    flat: Any
+    speed: Any
+    dt: Any
+    x_start: Any
+    impact_position: Any
+    run_in: Any
+    end: Any
+    realisation: Any
+
+
+class ProgramData(NamedTuple):
+    """What a program's runs read (a pytree of device arrays).
+
+    ``laws``: the swept flats' laws stacked along a leading flat axis; ``others``: [n_wheels]
+    the other wheels' fixed laws, None at the reference wheel; ``struct``:
+    :class:`wfjax.loop.structure.Structure`; ``sensors``/``detector``: their specs or None;
+    ``roughness``: :class:`wfjax.roughness.LoopRoughness` (realisations along a leading axis)
+    or None; ``tracks``: support realisations' padded modal models or None.
+    """
+
+    laws: Any
+    others: tuple
+    struct: Any
+    sensors: Any = None
+    detector: Any = None
+    roughness: Any = None
+    tracks: Any = None
+
+    @property
+    def flat_wheel(self) -> int:
+        """Index of the reference (swept) wheel."""
+        return [o is None for o in self.others].index(True)
+
+
+# -- what to save ----------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Extremes:
+    """Save every run's extremes after its run-in (and before its own end), by name: ``max``,
+    ``min`` [N], ``lost`` (F = 0 occurred), ``lost_t`` [s], ``res`` [m] (largest contact
+    residual), ``acc`` [m/s^2] (axle-box peak) of the reference wheel; ``w_max``, ``w_min``,
+    ``w_lost``, ``w_acc`` [n_wheels]; ``s_max``, ``s_min`` [n_quantities, n_s] of the
+    sensors; ``det`` [n_wheels, n_bays] N of the detector."""
+
+    def observers(self, data: ProgramData, run: Run) -> tuple:
+        """The instruments' observers of ``run``, keeping no histories."""
+        return tuple(o for o in (
+            None if data.sensors is None else Sensors(data.sensors, run.run_in, run.end,
+                                                      history=False),
+            None if data.detector is None else DetectorReadings(data.detector, run.end,
+                                                                history=False)) if o is not None)
+
+    def finalize(self, hist: dict, run: Run, data: ProgramData) -> dict:
+        """The run's extremes by name from its histories ``hist`` ([n_steps, n_wheels])."""
+        contact = {k: hist[k] for k in ("t",) + StepOutput._fields}
+        res = summarise_run(contact, data.flat_wheel, run.speed, run.impact_position, run.dt,
+                            run.run_in, end_steps=run.end)
+        out = {"w_max": res.wheel_max_force, "w_min": res.wheel_min_force,
+               "w_lost": res.wheel_loss_of_contact, "w_acc": res.wheel_axle_acc_peak,
+               "max": res.max_force, "min": res.min_force, "lost": res.loss_of_contact,
+               "lost_t": res.loss_of_contact_duration, "res": jnp.max(res.residual),
+               "acc": res.axle_acc_peak}
+        names = {"sensor_max": "s_max", "sensor_min": "s_min", "detector_peak": "det"}
+        return out | {short: hist[k] for k, short in names.items() if k in hist}
+
+
+@dataclasses.dataclass(frozen=True)
+class Histories:
+    """Save every step: the contact histories [n_steps, n_wheels] (:class:`StepOutput`'s
+    fields and ``t``), the sensors' histories and extremes after the run-in, the detector's
+    per-bay loads and peaks. ``instruments=False``: the instruments keep their extremes and
+    peaks only (a fit's detector)."""
+
+    instruments: bool = True
+
+    def observers(self, data: ProgramData, run: Run) -> tuple:
+        """The instruments' observers of ``run``."""
+        keep = self.instruments
+        return tuple(o for o in (
+            None if data.sensors is None else Sensors(data.sensors, run.run_in, history=keep),
+            None if data.detector is None else DetectorReadings(data.detector, history=keep))
+            if o is not None)
+
+    def finalize(self, hist: dict, run: Run, data: ProgramData) -> dict:
+        """The histories as they are."""
+        return hist
+
+
+# -- the run ---------------------------------------------------------------------------------
+def run_one(data: ProgramData, run: Run, n_steps: int, max_iter: int, precision: str,
+            save, n_run=None) -> dict:
+    """One run of a program (pure): the time loop of ``n_steps`` steps (static) of every
+    wheel, the reference wheel with law ``run.flat`` of ``data.laws``, on realisation
+    ``run.realisation``; ``save`` decides the outputs (:class:`Extremes`,
+    :class:`Histories`). ``n_run``: stop after that many steps (traced; forward only)."""
+    struct = data.struct
+    if data.tracks is not None:  # support realisations: this run's modal model
+        struct = struct._replace(track=pick_model(data.tracks, run.realisation))
+    law = jax.tree.map(lambda a: a[run.flat], data.laws)
+    laws = tuple(law if o is None else o for o in data.others)
+    hist = run_scan(laws, struct, run.speed, run.dt, run.x_start, run.impact_position, n_steps,
+                    max_iter, observers=save.observers(data, run), precision=precision,
+                    roughness=realisation(data.roughness, run.realisation), n_run=n_run)
+    return save.finalize(hist, run, data)
+
+
+# one run as its own top-level program (a top-level jit may carry compiler options)
+_one_run = jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision", "save"),
+                   compiler_options=LOOP_COMPILER_OPTIONS)
+
+
+@functools.cache
+def _sharded(mesh: Mesh, n_steps: int, max_iter: int, precision: str, save):
+    """Compiled (data, *run columns) -> per-run outputs, the runs sharded over ``mesh``.
+
+    ``shard_map`` gives every device its own ``vmap``-ed loop over its runs: the batched
+    Newton ``while_loop`` then stops on the device's own runs, with no cross-device reduction
+    of its condition at every step. Every device's loop stops at its own runs' longest
+    window (``time_loop(n_run=...)``).
+    """
+    def local(data, *columns):
+        runs = Run(*columns)
+        n_run = jnp.max(runs.end)
+        return jax.vmap(lambda r: run_one(data, r, n_steps, max_iter, precision, save,
+                                          n_run))(runs)
+
+    by_run = PartitionSpec("runs")
+    return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
+                                 in_specs=(PartitionSpec(),) + (by_run,) * len(Run._fields)),
+                   compiler_options=LOOP_COMPILER_OPTIONS)
+
+
+# -- how to differentiate a batch of runs (the fits) -------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Autodiff:
+    """JAX's own reverse and forward modes through the ``vmap``-ed runs."""
+
+    def batch(self, program: Program, data: ProgramData, runs: Run, save) -> dict:
+        """:func:`run_one` of each of ``runs`` ([B] leaves), outputs [B, ...]."""
+        return jax.vmap(lambda r: run_one(data, r, *program.statics, save))(runs)
+
+
+@dataclasses.dataclass(frozen=True)
+class Checkpointed:
+    """The runs one after another, each under ``jax.checkpoint`` (reverse-mode memory: one
+    time history at a time)."""
+
+    def batch(self, program: Program, data: ProgramData, runs: Run, save) -> dict:
+        """As :meth:`Autodiff.batch`, sequentially."""
+        return jax.lax.map(jax.checkpoint(lambda r: run_one(data, r, *program.statics, save)),
+                           runs)
+
+
+@dataclasses.dataclass(frozen=True)
+class Adjoint:
+    """The hand-written reverse mode of :mod:`wfjax.adjoint` (one ``custom_vjp`` for the
+    batch; reverse mode only). Not with the direct 3D mode or hanging sleepers (see
+    :mod:`wfjax.adjoint`), nor with support realisations; ``save`` must be
+    :class:`Histories`."""
+
+    def batch(self, program: Program, data: ProgramData, runs: Run, save) -> dict:
+        """As :meth:`Autodiff.batch` (the runs share one realisation and the instruments'
+        settings of the first run)."""
+        from ..adjoint import run_adjoint_runs
+
+        if not isinstance(save, Histories) or data.tracks is not None:
+            raise ValueError("the adjoint saves histories (Histories()) of one track")
+        law = jax.tree.map(lambda a: a[0], data.laws)
+        laws = tuple(law if o is None else o for o in data.others)
+        first = jax.tree.map(lambda a: a[0], runs)
+        n_steps, max_iter, precision = program.statics
+        return run_adjoint_runs(laws, data.struct, runs.speed, runs.dt, runs.x_start,
+                                runs.impact_position, n_steps, max_iter, precision,
+                                realisation(data.roughness, 0), save.observers(data, first))
+
+
+# -- the program -----------------------------------------------------------------------------
+@dataclasses.dataclass
+class Program:
+    """A scenario prepared for the devices (build with :func:`compile_scenario`).
+
+    ``data`` holds everything but the swept flats' laws (``laws`` None), which
+    :meth:`group_laws` prepares per group of flats (or a fit traces); ``n_steps`` the step
+    count of the batches :meth:`forward` runs (static).
+    """
+
+    scenario: Scenario
+    data: ProgramData
+    cache_dir: Any = None
+    n_steps: int = 0
+
+    @property
+    def statics(self) -> tuple:
+        """(n_steps, max_iter, precision) of :func:`run_one`."""
+        config = self.scenario.config
+        return self.n_steps, config.newton_iterations, config.precision
+
+    def group_laws(self, indices, tables: bool, progress: bool = False):
+        """(laws stacked along a flat axis, [n] flats that size each one's window) of the
+        scenario's flats ``indices`` (one :class:`wfjax.program.laws.BatchGroup`)."""
+        sc = self.scenario
+        members = [sc.flats[i] for i in indices]
+        wheel = sc.wheels[sc.vehicle.flat_wheel]
+        if tables:
+            return table_laws(cached_tables_3d(
+                members, float(wheel.radius), float(sc.track.rail_head_radius), sc.material,
+                sc.config.contact_element, self.cache_dir)), members
+        return prepare_batch(sc.contact, members, wheel, sc.track, sc.material, sc.config,
+                             self.cache_dir, progress)
+
+    def history(self, run: Run, n_steps: int, save=Histories()) -> dict:
+        """One run's outputs (default every step's histories) with the scenario's only
+        flat (``run.flat`` 0), on the host's default device."""
+        (group,) = batch_groups(self.scenario.flats, self.scenario.contact,
+                                self.scenario.config)
+        laws, _ = self.group_laws(group.indices, group.tables)
+        config = self.scenario.config
+        return _one_run(self.data._replace(laws=laws), run, n_steps=int(n_steps),
+                        max_iter=config.newton_iterations, precision=config.precision,
+                        save=save)
+
+    def forward(self, law, runs: Run, save=Histories(), differentiation=Autodiff()) -> dict:
+        """The outputs [B, ...] of a rectangular batch of ``runs`` ([B] leaves, every one
+        ``self.n_steps`` steps) of the swept flat's law ``law`` (traced geometry), as
+        ``differentiation`` differentiates them."""
+        data = self.data._replace(laws=jax.tree.map(lambda a: jnp.asarray(a)[None], law))
+        return differentiation.batch(self, data, runs, save)
+
+    def sweep(self, speeds: np.ndarray, positions: np.ndarray, chunk_size=None,
+              progress: bool = True, save=Extremes()) -> dict[str, np.ndarray]:
+        """Every flat x speed x position x realisation's outputs by name, [n_flats,
+        n_speeds, n_positions, R, ...], each run with :func:`wfjax.simulate`'s window and time
+        step (:func:`wfjax.program.grid.plan_runs`), chunked and sharded over the devices."""
+        return _Sweep(self, speeds, positions, chunk_size, progress, save).run()
+
+
+def compile_scenario(scenario: Scenario, cache_dir=None) -> Program:
+    """The :class:`Program` of ``scenario``: the structure of its vehicle on its track (modal
+    models cached on disk in ``cache_dir``), the other wheels' laws, the instruments' specs,
+    the loop roughness and, with support realisations, their padded modal models."""
+    sc = scenario
+    struct = vehicle_structure(sc.vehicle, list(sc.wheels), sc.track, sc.config, cache_dir)
+    models = None
+    if sc.tracks is not None:
+        models = padded_models(sc.tracks, sc.config, cache_dir)
+        struct = struct._replace(track=pick_model(models, 0))
+    flats = sc.vehicle_flats(Flat.none(float(sc.wheels[sc.vehicle.flat_wheel].radius)))
+    laws = vehicle_laws(sc.contact, flats, list(sc.wheels), sc.track, sc.material, sc.config,
+                        cache_dir)
+    others = tuple(None if i == sc.vehicle.flat_wheel else law for i, law in enumerate(laws))
+    sensors = (None if sc.sensors is None else sensor_spec(sc.sensors, sc.track, struct.track,
+                                                           sc.sensor_quantities))
+    detector = None if sc.detector is None else detector_spec(sc.detector, sc.track,
+                                                              struct.track)
+    rough = loop_roughness(sc.roughness, sc.wheel_roughness, list(sc.wheels), sc.track,
+                           sc.material)
+    return Program(sc, ProgramData(None, others, struct, sensors, detector, rough, models),
+                   cache_dir)
+
+
+class _Sweep:
+    """:meth:`Program.sweep`'s work: per group of flats, its laws, runs and chunks."""
+
+    def __init__(self, program: Program, speeds, positions, chunk_size, progress, save):
+        self.program, self.v, self.pos = program, np.asarray(speeds), np.asarray(positions)
+        self.chunk_size, self.progress, self.save = chunk_size, progress, save
+        self.mesh = grid_mod.device_mesh()
+        self.data = grid_mod.replicate(program.data, self.mesh)
+
+    def run(self) -> dict[str, np.ndarray]:
+        sc = self.program.scenario
+        groups = batch_groups(sc.flats, sc.contact, sc.config)
+        if self.progress and any(g.tables for g in groups):
+            print("  building the 3D contact tables (cached after the first run) ...",
+                  end="\r", file=sys.stderr, flush=True)
+        wheel = sc.wheels[sc.vehicle.flat_wheel]
+        # the exact 3D tables are built while the program compiles
+        ahead = {tuple(g.indices): in_background(
+            cached_tables_3d, [sc.flats[i] for i in g.indices], float(wheel.radius),
+            float(sc.track.rail_head_radius), sc.material, sc.config.contact_element,
+            self.program.cache_dir) for g in groups if g.tables}
+        out = {}
+        for group in groups:
+            for key, col in self._group(group, ahead.get(tuple(group.indices))).items():
+                out.setdefault(key, np.zeros((len(sc.flats),) + col.shape[1:],
+                                             col.dtype))[group.indices] = col
+        return out
+
+    def _label(self, members, tables: bool) -> str:
+        if len(members) == 1:
+            from ..results import flat_label
+
+            return flat_label(members[0])
+        return f"{len(members)} flats" if tables else f"{len(members)} {members[0].kind} flats"
+
+    def _group(self, group, tables_ahead) -> dict[str, np.ndarray]:
+        sc, program = self.program.scenario, self.program
+        members = [sc.flats[i] for i in group.indices]
+        label = self._label(members, group.tables)
+        if self.progress:  # a 3D table or family build takes seconds to a minute, cold
+            what = "3D contact tables" if group.tables else f"{sc.contact} contact law"
+            print(f"  {label}: preparing the {what} ...", end="\r", file=sys.stderr,
+                  flush=True)
+        compiled = None
+        if group.tables:  # compile for the tables' shapes while they are being built
+            wheel = sc.wheels[sc.vehicle.flat_wheel]
+            laws, sizing = table_laws_like(members, wheel, sc.track, sc.material,
+                                           sc.config), members
+        else:
+            laws, sizing = program.group_laws(group.indices, False, self.progress)
+        windows = [sc.window_flat(w) for w in sizing]
+        for w in windows:
+            sc.check_travel(w, self.v, self.pos)
+        runs = grid_mod.plan_runs(windows, self.v, self.pos + sc.shift, program.data.struct,
+                                  sc.config, self.mesh, self.chunk_size, sc.n_realisations)
+        fn = _sharded(self.mesh, runs.n_steps, sc.config.newton_iterations,
+                      sc.config.precision, self.save)
+        data = self.data._replace(laws=grid_mod.replicate(laws, self.mesh))
+        if group.tables:
+            compiled = fn.lower(data, *grid_mod.chunk(runs, 0, self.mesh)[1]).compile()
+            like, laws = laws, table_laws(tables_ahead.result())
+            data = self.data._replace(laws=grid_mod.replicate(laws, self.mesh))
+            if jax.tree.map(np.shape, laws) != jax.tree.map(np.shape, like):
+                compiled = None  # not the shapes it was compiled for: compile as usual
+        bar = grid_mod.Progress(runs.columns[0].size, label, enabled=self.progress)
+        return grid_mod.run_chunks(compiled or fn, data, runs, self.mesh, bar)
