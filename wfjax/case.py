@@ -181,7 +181,8 @@ def default_layer(command: str) -> dict:
         layer.update({"run.speed_kmh": 100.0, "run.impact_position": 0.0})
     if command in _VEHICLE_CMDS:
         layer.update({"roughness.preset": "none", "roughness.realisations": 1,
-                      "roughness.seed": 0, "roughness.length": 6.0})
+                      "roughness.seed": 0, "roughness.length": 6.0,
+                      "joint.position": 0.0, "joint.length": 0.5, "joint.shape": "cosine"})
     if command in _MODEL_CMDS_EARLY:
         layer.update({"supports.void_remaining": 0.0, "supports.void_gap": 0.0,
                       "supports.scatter_cv": 0.0,
@@ -388,10 +389,25 @@ class Case:
             raise CaseError(f"[supports]: {exc}") from None
         return track
 
+    def joint(self):
+        """The case's :class:`wfjax.joint.Joint` (``[joint]`` with a ``depth``), or None."""
+        from .joint import Joint
+
+        v = self.values
+        if v.get("joint.depth") is None:
+            return None
+        try:
+            return Joint(v.get("joint.position", 0.0), v["joint.depth"],
+                         v.get("joint.length", 0.5), v.get("joint.shape", "cosine"))
+        except ValueError as exc:
+            raise CaseError(f"[joint]: {exc}") from None
+
     def roughness(self, wheel_radius: float):
         """(rail, wheel) :class:`wfjax.roughness.Roughness` of the case (None where not
         given): ``roughness.rail_csv``, or ``roughness.preset = "iso3095"`` with
-        ``realisations`` (values ``[R, n]`` when R > 1), ``seed`` and ``length``."""
+        ``realisations`` (values ``[R, n]`` when R > 1), ``seed`` and ``length``; with a
+        ``[joint]`` depth, the rail with the joint's dip added (:meth:`Joint.add_to`: a new
+        profile over the whole model rail when there is no other)."""
         from . import roughness as R
 
         v = self.values
@@ -412,6 +428,14 @@ class Case:
                 wheel = R.read_csv(v["roughness.wheel_csv"], wheel_radius=wheel_radius)
         except (ValueError, OSError) as exc:
             raise CaseError(f"[roughness]: {exc}") from None
+        joint = self.joint()
+        if joint is not None:
+            from .joint import rail_span
+
+            try:
+                rail = joint.add_to(rail, span=rail_span(self.model()[1]))
+            except ValueError as exc:
+                raise CaseError(f"[joint]: {exc}") from None
         return rail, wheel
 
     def speeds(self) -> np.ndarray:
@@ -428,6 +452,8 @@ class Case:
             self._check_gauge_offset(track)
         if self.command in _MODEL_CMDS_EARLY:
             track = self.supports(track)
+        if self.joint() is not None:
+            self._check_joint(wheel, track)
         if self.command == "simulate" and int(self.values.get("roughness.realisations", 1)) > 1:
             raise CaseError(f"roughness.realisations = {self.values['roughness.realisations']}: "
                             "simulate runs one realisation; allowed: 1 (sweep runs many)")
@@ -445,6 +471,31 @@ class Case:
         if pos is not None and (pos >= float(track.sleeper_spacing) or pos < 0):
             raise CaseError(f"run.impact_position = {pos:.6g} m: out of range; allowed: [0, "
                             f"{float(track.sleeper_spacing):g}) m (track.sleeper_spacing)")
+
+    def _check_joint(self, wheel: P.Wheel, track: P.Track) -> None:
+        """The joint must suit the wheel, lie on the model rail and, in a one-wheel
+        simulate, on the wheel's path (else it would change nothing)."""
+        from .joint import rail_span
+
+        joint, (lo, hi) = self.joint(), rail_span(track)
+        try:
+            joint.check_wheel(float(wheel.radius))
+            if joint.start < lo or joint.end > hi:
+                raise ValueError(f"Joint.position must put the dip on the model rail [{lo:g}, "
+                                 f"{hi:g}] m, got {joint.position!r} (length {joint.length:g} m)")
+        except ValueError as exc:
+            raise CaseError(f"[joint]: {exc}") from None
+        if self.command != "simulate" or self.vehicle() is not None:
+            return
+        from .scenario.windows import simulation_window
+
+        speed, x = self.values["run.speed_kmh"], self.values["run.impact_position"]
+        s0, s1 = simulation_window(self.flat(), speed / 3.6, self.model()[3])
+        if joint.end <= x + s0 or joint.start >= x + s1:
+            raise CaseError(f"joint.position = {joint.position:g} m: the dip [{joint.start:.4g}, "
+                            f"{joint.end:.4g}] m is off the wheel's path [{x + s0:.4g}, "
+                            f"{x + s1:.4g}] m at {speed:g} km/h; move it, or lengthen "
+                            "config.run_in / config.run_out")
 
     def _check_gauge_offset(self, track: P.Track) -> None:
         """The detector's bridges must lie within half a bay of their sleepers."""

@@ -5,8 +5,9 @@ Two sources, one shape (:class:`Option`):
 * the model parameters: the field metadata of the dataclasses in :mod:`wfjax.params`
   (:func:`wfjax.params.option`), read by :func:`model_options` (the ``[wheel]``, ``[track]``,
   ``[material]`` and ``[config]`` tables, and the flat's depth and length);
-* the run and output options (speeds, positions, flats, vehicle, roughness, supports,
-  detector, fit and compare settings, ``--out``, ...): the table :data:`RUN_OPTIONS` below.
+* the run and output options (speeds, positions, flats, vehicle, roughness, joint,
+  supports, detector, fit and compare settings, ``--out``, ...): the table
+  :data:`RUN_OPTIONS` below.
   They describe a run, not a model object, so they have no dataclass of their own; this
   module is their one place (case.py reads and resolves cases, it does not describe them).
 
@@ -26,7 +27,9 @@ from typing import Any
 
 import numpy as np
 
+from . import joint as J
 from . import params as P
+from . import roughness as R
 from .contact import registry
 
 __all__ = ["Option", "CaseError", "COMMANDS", "OPTIONS", "KEYS", "SECTIONS", "MODEL_SECTIONS",
@@ -37,6 +40,8 @@ COMMANDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "geo
 MODEL_SECTIONS = {"wheel": P.Wheel, "track": P.Track, "material": P.Material,
                   "config": P.SimConfig}
 MAX_SPEED_KMH = P.MAX_SPEED * 3.6  # the API's limit in the CLI's unit
+# a joint's dip is rail roughness: the joint's own bound (5 mm) within what Roughness holds
+JOINT_MAX_DEPTH = min(J.MAX_DEPTH, R.MAX_AMPLITUDE)
 
 
 class CaseError(ValueError):
@@ -264,6 +269,20 @@ RUN_OPTIONS: tuple[Option, ...] = (
            doc="seed of the random roughness", commands=_VEHICLE_CMDS, flag="--seed"),
     Option("roughness", "length", "float", "m", 0.5, 200.0,
            doc="length of the random rail profile, centred on x = 0", commands=_VEHICLE_CMDS),
+    Option("joint", "position", "float", "m", -J.MAX_POSITION, J.MAX_POSITION,
+           doc="rail coordinate of a dipped rail joint's centre (x = 0 above the middle "
+               "sleeper; docs/joint.md)", commands=_VEHICLE_CMDS, flag="--joint-position-m"),
+    Option("joint", "depth", "float", "m", 0.0, JOINT_MAX_DEPTH, low_open=True,
+           doc="depth of the joint's dip, positive (the rail top goes down by it); unset: no "
+               "joint", commands=_VEHICLE_CMDS, flag="--joint-depth-mm", factor=1e-3,
+           flag_unit="mm"),
+    Option("joint", "length", "float", "m", J.MIN_LENGTH, J.MAX_LENGTH,
+           doc="total length of the joint's dip (its steepest slope at most 0.05 rad)",
+           commands=_VEHICLE_CMDS, flag="--joint-length-m"),
+    Option("joint", "shape", "str", choices=J.SHAPES,
+           doc="dip shape: cosine = smooth (1 + cos) / 2, v = two ramps meeting at the joint "
+               "(Jenkins' total angle 2 alpha = 4 depth / length)", commands=_VEHICLE_CMDS,
+           flag="--joint-shape"),
     Option("supports", "void_sleepers", "floats", "", 0, 10000,
            doc="indices of hanging sleepers (0 = leftmost modelled; n_bays // 2 - 1 above "
                "x = 0)", commands=_VEHICLE_CMDS, flag="--void-sleepers"),
