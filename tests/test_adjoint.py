@@ -24,6 +24,7 @@ from wfjax import fit
 from wfjax import roughness as rough_mod
 from wfjax.contact import family, laws
 from wfjax.contact.table_law import TableLaw
+from wfjax.fit.optimise import _objective
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure, vehicle_structure
 from wfjax.program.laws import loop_roughness
@@ -280,9 +281,9 @@ def test_fit_reverse_mode_uses_the_adjoint():
     ref = dataclasses.replace(wf.Flat.rounded(0.9e-3, 0.1), extent_bound=0.06)
     kw = dict(impact_positions=[0.1], config=coarse)
     y = jnp.asarray([150e3, 250e3])
-    fwd = fit._objective(fit.max_force_model(speeds, ref, "hertz-trajectory", **kw), par, y,
+    fwd = _objective(fit.max_force_model(speeds, ref, "hertz-trajectory", **kw), par, y,
                          2e5, "forward")
-    rev = fit._objective(fit.max_force_model(speeds, ref, "hertz-trajectory", adjoint=True,
+    rev = _objective(fit.max_force_model(speeds, ref, "hertz-trajectory", adjoint=True,
                                              **kw), par, y, 2e5, "reverse")
     (j_f, r_f), (j_r, r_r) = fwd[2](theta), rev[2](theta)
     np.testing.assert_array_equal(np.asarray(r_r), np.asarray(r_f))

@@ -50,13 +50,13 @@ def _assert_matches_fd(f, jac, x0, steps):
 
 
 def _min_force(model, speed_index, flat, position=0.1):
-    setup, info = model.setup, model.info
+    setup, info = model.law, model.info
     law = laws.prepare(setup.contact, flat, setup.wheel, setup.track, setup.material,
                        setup.config)
     v = info["speeds"][speed_index]
     s0 = simulation_window(flat, v, setup.config)[0]
-    hist = run_scan(law, setup.struct, v, info["time_steps"][speed_index], position + s0,
-                       position, info["n_steps"])
+    hist = run_scan(law, model.program.data.struct, v, info["time_steps"][speed_index],
+                    position + s0, position, info["n_steps"])
     return float(jnp.min(hist["force"][info["n_steps"] // 4:]))
 
 

@@ -302,7 +302,7 @@ def _primal(statics, laws, struct, speed, dt, x_start, impact_position, roughnes
         return {k: v[None] for k, v in one(speed[0], dt[0], x_start[0],
                                             impact_position[0]).items()}
 
-    def compiled(v, d, xs, xi):  # as fit._batch_runs: vmap of run_scan, the same rounding
+    def compiled(v, d, xs, xi):  # as program.core.Autodiff: vmap of run_scan, the same rounding
         return run_scan(laws, struct, v, d, xs, xi, n_steps, max_iter, precision=precision,
                         roughness=roughness, observers=observers)
 
@@ -474,7 +474,7 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     ``speed``, ``dt``, ``x_start``, ``impact_position``: [B] arrays (m/s, s, m, m). Returns
     the dict of :func:`adjoint_loop` with a leading run axis [B, ...] (as ``jax.vmap`` of it),
     the same values as ``jax.vmap`` of :func:`wfjax.loop.run.run_scan` (bit for bit,
-    also for one run, as ``fit._batch_runs`` computes without the adjoint). Under one
+    also for one run, as ``program.core.Autodiff`` computes without the adjoint). Under one
     ``custom_vjp`` for the batch, the backward pass skips the steps after the last one that
     any run's cotangent reaches (a max-force misfit: after the peak), which a ``vmap`` of
     :func:`adjoint_loop` cannot (its steps are selected, not skipped, per run).

@@ -156,16 +156,15 @@ class Histories:
 
 
 # -- the run ---------------------------------------------------------------------------------
-def run_one(data: ProgramData, run: Run, n_steps: int, max_iter: int, precision: str,
+def run_one(data: ProgramData, law, run: Run, n_steps: int, max_iter: int, precision: str,
             save, n_run=None) -> dict:
     """One run of a program (pure): the time loop of ``n_steps`` steps (static) of every
-    wheel, the reference wheel with law ``run.flat`` of ``data.laws``, on realisation
+    wheel, the reference wheel with contact law ``law`` (the swept flat's), on realisation
     ``run.realisation``; ``save`` decides the outputs (:class:`Extremes`,
     :class:`Histories`). ``n_run``: stop after that many steps (traced; forward only)."""
     struct = data.struct
     if data.tracks is not None:  # support realisations: this run's modal model
         struct = struct._replace(track=pick_model(data.tracks, run.realisation))
-    law = jax.tree.map(lambda a: a[run.flat], data.laws)
     laws = tuple(law if o is None else o for o in data.others)
     hist = run_scan(laws, struct, run.speed, run.dt, run.x_start, run.impact_position, n_steps,
                     max_iter, observers=save.observers(data, run), precision=precision,
@@ -173,9 +172,14 @@ def run_one(data: ProgramData, run: Run, n_steps: int, max_iter: int, precision:
     return save.finalize(hist, run, data)
 
 
+def _picked(data: ProgramData, run: Run, *statics, n_run=None) -> dict:
+    """:func:`run_one` with the law of flat ``run.flat`` among ``data.laws``."""
+    law = jax.tree.map(lambda a: a[run.flat], data.laws)
+    return run_one(data, law, run, *statics, n_run=n_run)
+
+
 # one run as its own top-level program (a top-level jit may carry compiler options)
-_one_run = jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision", "save"),
-                   compiler_options=LOOP_COMPILER_OPTIONS)
+_one_run = jax.jit(_picked, static_argnums=(2, 3, 4, 5), compiler_options=LOOP_COMPILER_OPTIONS)
 
 
 @functools.cache
@@ -190,8 +194,8 @@ def _sharded(mesh: Mesh, n_steps: int, max_iter: int, precision: str, save):
     def local(data, *columns):
         runs = Run(*columns)
         n_run = jnp.max(runs.end)
-        return jax.vmap(lambda r: run_one(data, r, n_steps, max_iter, precision, save,
-                                          n_run))(runs)
+        return jax.vmap(lambda r: _picked(data, r, n_steps, max_iter, precision, save,
+                                          n_run=n_run))(runs)
 
     by_run = PartitionSpec("runs")
     return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
@@ -204,9 +208,10 @@ def _sharded(mesh: Mesh, n_steps: int, max_iter: int, precision: str, save):
 class Autodiff:
     """JAX's own reverse and forward modes through the ``vmap``-ed runs."""
 
-    def batch(self, program: Program, data: ProgramData, runs: Run, save) -> dict:
-        """:func:`run_one` of each of ``runs`` ([B] leaves), outputs [B, ...]."""
-        return jax.vmap(lambda r: run_one(data, r, *program.statics, save))(runs)
+    def batch(self, program: Program, data: ProgramData, law, runs: Run, save) -> dict:
+        """:func:`run_one` of each of ``runs`` ([B] leaves) with the law ``law`` (shared),
+        outputs [B, ...]."""
+        return jax.vmap(lambda r: run_one(data, law, r, *program.statics, save))(runs)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,10 +219,10 @@ class Checkpointed:
     """The runs one after another, each under ``jax.checkpoint`` (reverse-mode memory: one
     time history at a time)."""
 
-    def batch(self, program: Program, data: ProgramData, runs: Run, save) -> dict:
+    def batch(self, program: Program, data: ProgramData, law, runs: Run, save) -> dict:
         """As :meth:`Autodiff.batch`, sequentially."""
-        return jax.lax.map(jax.checkpoint(lambda r: run_one(data, r, *program.statics, save)),
-                           runs)
+        return jax.lax.map(
+            jax.checkpoint(lambda r: run_one(data, law, r, *program.statics, save)), runs)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -227,14 +232,13 @@ class Adjoint:
     :mod:`wfjax.adjoint`), nor with support realisations; ``save`` must be
     :class:`Histories`."""
 
-    def batch(self, program: Program, data: ProgramData, runs: Run, save) -> dict:
+    def batch(self, program: Program, data: ProgramData, law, runs: Run, save) -> dict:
         """As :meth:`Autodiff.batch` (the runs share one realisation and the instruments'
         settings of the first run)."""
         from ..adjoint import run_adjoint_runs
 
         if not isinstance(save, Histories) or data.tracks is not None:
             raise ValueError("the adjoint saves histories (Histories()) of one track")
-        law = jax.tree.map(lambda a: a[0], data.laws)
         laws = tuple(law if o is None else o for o in data.others)
         first = jax.tree.map(lambda a: a[0], runs)
         n_steps, max_iter, precision = program.statics
@@ -284,16 +288,14 @@ class Program:
                                 self.scenario.config)
         laws, _ = self.group_laws(group.indices, group.tables)
         config = self.scenario.config
-        return _one_run(self.data._replace(laws=laws), run, n_steps=int(n_steps),
-                        max_iter=config.newton_iterations, precision=config.precision,
-                        save=save)
+        return _one_run(self.data._replace(laws=laws), run, int(n_steps),
+                        config.newton_iterations, config.precision, save)
 
     def forward(self, law, runs: Run, save=Histories(), differentiation=Autodiff()) -> dict:
         """The outputs [B, ...] of a rectangular batch of ``runs`` ([B] leaves, every one
         ``self.n_steps`` steps) of the swept flat's law ``law`` (traced geometry), as
         ``differentiation`` differentiates them."""
-        data = self.data._replace(laws=jax.tree.map(lambda a: jnp.asarray(a)[None], law))
-        return differentiation.batch(self, data, runs, save)
+        return differentiation.batch(self, self.data, law, runs, save)
 
     def sweep(self, speeds: np.ndarray, positions: np.ndarray, chunk_size=None,
               progress: bool = True, save=Extremes()) -> dict[str, np.ndarray]:
