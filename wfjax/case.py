@@ -475,14 +475,9 @@ class Case:
     def _check_joint(self, wheel: P.Wheel, track: P.Track) -> None:
         """The joint must suit the wheel, lie on the model rail and, in a one-wheel
         simulate, on the wheel's path (else it would change nothing)."""
-        from .joint import rail_span
-
-        joint, (lo, hi) = self.joint(), rail_span(track)
+        joint = self.joint()
         try:
-            joint.check_wheel(float(wheel.radius))
-            if joint.start < lo or joint.end > hi:
-                raise ValueError(f"Joint.position must put the dip on the model rail [{lo:g}, "
-                                 f"{hi:g}] m, got {joint.position!r} (length {joint.length:g} m)")
+            joint.check_track(track, float(wheel.radius))
         except ValueError as exc:
             raise CaseError(f"[joint]: {exc}") from None
         if self.command != "simulate" or self.vehicle() is not None:

@@ -169,6 +169,16 @@ class Joint:
                              f"radius l^2 / (2 pi^2 d) >= the wheel radius), got "
                              f"{self.length!r}")
 
+    def check_track(self, track: Track | None = None, wheel_radius: float | None = None) -> None:
+        """A one-line ValueError unless the dip lies on the model rail of ``track``
+        (:func:`rail_span`) and, with ``wheel_radius`` [m], :meth:`check_wheel` passes."""
+        if wheel_radius is not None:
+            self.check_wheel(wheel_radius)
+        lo, hi = rail_span(track)
+        if self.start < lo or self.end > hi:
+            raise ValueError(f"Joint.position must put the dip on the model rail [{lo:g}, "
+                             f"{hi:g}] m, got {self.position!r} (length {self.length:g} m)")
+
     # -- as rail roughness ---------------------------------------------------------------
     def add_to(self, roughness=None, *, span: tuple[float, float] | None = None,
                spacing: float = SPACING):
@@ -176,7 +186,8 @@ class Joint:
 
         Args:
             roughness: None, or a rail :class:`wfjax.roughness.Roughness` (``values [n]`` or
-                ``[R, n]``, not periodic).
+                ``[R, n]``, not periodic; concrete arrays: this is input preparation, before
+                any ``jit``).
             span: None only: the rail span [m] ``(x_lo, x_hi)`` the new profile covers
                 (default :func:`rail_span` of the default track, the whole model rail, so
                 every run's contacts read it); widened to the dip plus :data:`MARGIN`.
