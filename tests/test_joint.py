@@ -148,16 +148,15 @@ def test_add_to_keeps_the_grid_and_every_realisation_and_extends_by_holding_ends
 
 
 def test_a_joint_deeper_than_roughness_holds_is_refused_in_one_line():
+    base = R.Roughness(-1.0, 1e-3, np.full(2001, 4e-3))  # raised 4 mm: room for 1 mm below 0
     with pytest.raises(ValueError) as err:
-        Joint(0.0, 2e-3, 0.5).add_to(None)
+        Joint(0.0, 2e-3, 0.5).add_to(R.Roughness(-1.0, 1e-3, np.full(2001, -4e-3)))
     msg = str(err.value)
     assert "\n" not in msg and "Joint.depth = 0.002 m" in msg and "MAX_AMPLITUDE" in msg
     assert "allowed now: depth <= 1 mm" in msg
+    assert float(np.min(Joint(0.0, 2e-3, 0.5).add_to(base).values)) == pytest.approx(2e-3)
 
 
-@pytest.mark.xfail(R.MAX_AMPLITUDE < 3e-3, strict=True,
-                   reason="wfjax.roughness.Roughness holds +-1 mm: realistic joints (0.5-3 mm) "
-                          "need roughness.MAX_AMPLITUDE raised to the joint's 5 mm")
 def test_realistic_joints_up_to_3_mm_make_rail_profiles():
     rough = Joint(0.0, 3e-3, 0.5).add_to(None)
     assert float(np.min(rough.values)) == pytest.approx(-3e-3)

@@ -142,7 +142,7 @@ class Option:
 # -- the model parameters: from the dataclasses' field metadata ------------------------------
 _MODEL_CMDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "detector")
 _FLAT_CMDS = ("sweep", "simulate", "fit", "geometry", "detector")
-_VEHICLE_CMDS = ("sweep", "simulate")
+_VEHICLE_CMDS = ("sweep", "simulate", "fit")
 _MODEL_CMDS_EARLY = _VEHICLE_CMDS  # the commands that build varying supports
 
 

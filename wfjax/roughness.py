@@ -25,7 +25,10 @@ the elliptical contact patch: the equivalent input of a point-contact law).
 Limits (:data:`MAX_SPACING`, :data:`MAX_AMPLITUDE`): samples at most 1 mm apart, because the
 contact patch is about 10-12 mm long under a 118 kN wheel (the contact filter must average
 over ten samples or more) and the 2D bedding and direct 3D contact read the gap on 1 mm
-elements (``SimConfig.contact_element``); amplitudes at most 1 mm (roughness, not a defect).
+elements (``SimConfig.contact_element``); amplitudes at most 5 mm: the deepest wheel flat the
+model takes (``params.MAX_FLAT_DEPTH``), so a rail-top profile may carry a defect such as a
+dipped joint (0.5-3 mm, :mod:`wfjax.joint`) while the contact laws' approach stays within the
+range they are built and checked for.
 """
 
 from __future__ import annotations
@@ -64,7 +67,7 @@ __all__ = [
 ]
 
 MAX_SPACING = 1e-3  # m
-MAX_AMPLITUDE = 1e-3  # m
+MAX_AMPLITUDE = 5e-3  # m (= params.MAX_FLAT_DEPTH; see the module docstring)
 REFERENCE = 1e-6  # m: 0 dB re 1 um
 X_COLUMNS = {"x_m": 1.0, "x_mm": 1e-3}
 R_COLUMNS = {"roughness_m": 1.0, "roughness_mm": 1e-3, "roughness_um": 1e-6}
@@ -135,7 +138,7 @@ class Roughness:
         x_start: position of the first sample [m] (rail: rail coordinate; wheel: 0).
         spacing: sample spacing [m], > 0 and <= :data:`MAX_SPACING` (1 mm).
         values: float [n] or [n_realisations, n] roughness [m] (positive = surface raised),
-            ``|r| <= MAX_AMPLITUDE`` (1 mm).
+            ``|r| <= MAX_AMPLITUDE`` (5 mm).
         periodic (static): ``True`` for a wheel: ``r(s + n spacing) = r(s)`` (the period is the
             circumference); ``False`` for a rail: beyond the sampled span the end values are
             held (a constant offset, which exerts no dynamic force).

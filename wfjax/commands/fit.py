@@ -26,6 +26,7 @@ import numpy as np
 
 from ..options import MAX_SPEED_KMH
 from ._common import (
+    case_vehicle,
     prepare_out,
     resolve_case,
     save_figure,
@@ -33,7 +34,8 @@ from ._common import (
     write_summary,
 )
 
-HELP = "fit a flat's geometry to measured max forces vs speed or a force history (JSON, PNG)"
+HELP = ("fit a flat's geometry to measured max forces vs speed or a force history, on any "
+        "vehicle, rough rail or supports (JSON, PNG)")
 
 MAX_FORCE_COLUMNS = ("speed_kmh", "max_force_kN")
 HISTORY_COLUMNS = ("t_s", "force_kN")
@@ -155,12 +157,16 @@ def run(args) -> int:
     speed_kmh = case.get("run.speed_kmh")
     data = parse_data(text, source, speed_kmh, case["run.impact_position"] * 1e3)
     from .. import fit
+    from ..fit.data import validate_data
 
     flat, par = _initial_flat(case)
     # The data must suffice for the parameters before any output or work (a measured
     # profile's 8 bump amplitudes need 9 speeds).
-    fit._validate_data(data, len((par or fit.parametrisation_for(flat)).names))
+    validate_data(data, len((par or fit.parametrisation_for(flat)).names))
     wheel, track, material, config = case.model()
+    track = case.supports(track)
+    rail_rough, wheel_rough = case.roughness(float(wheel.radius))
+    vehicle = case_vehicle(case, wheel)
     contact = case["run.contact"]
     out = prepare_out(args.out)
     if case["fit.example"]:
@@ -176,6 +182,7 @@ def run(args) -> int:
                        temperature=case["fit.temperature_kN"] * 1e3 or None,
                        method=case["fit.method"], max_iter=case["fit.max_iter"],
                        wheel=wheel, track=track, material=material, config=config,
+                       vehicle=vehicle, roughness=rail_rough, wheel_roughness=wheel_rough,
                        callback=progress)
     summary = res.summary()
     write_summary(out / "fit.json", summary, case,

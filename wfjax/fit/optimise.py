@@ -88,6 +88,7 @@ def _gauss_newton(J, r, G):
     return G @ cov_theta @ G.T
 
 
+# Over 80 lines by its docstring (twenty documented arguments); the body is about 50.
 def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
              parametrisation=None, impact_positions=3, temperature: float | None = 1e3,
              time_temperature: float | None = None, method: str = "lbfgs",
@@ -142,15 +143,7 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
         :class:`FitResult`.
     """
     start = time.perf_counter()
-    registry.check(contact)
-    if not isinstance(initial, Flat):
-        raise ValueError(f"initial must be a Flat, got {type(initial).__name__}")
-    if method not in ("lbfgs", "adam"):
-        raise ValueError(f"method must be 'lbfgs' or 'adam', got {method!r}")
-    if mode not in ("auto", "forward", "reverse"):
-        raise ValueError(f"mode must be 'auto', 'forward' or 'reverse', got {mode!r}")
-    if int(max_iter) < 1:
-        raise ValueError(f"max_iter must be >= 1, got {max_iter!r}")
+    _check_arguments(contact, initial, method, mode, max_iter)
     par = parametrisation or parametrisation_for(initial, extent_bound)
     theta0 = np.asarray(par.from_flat(initial), dtype=float)
     n_par = theta0.size
@@ -174,36 +167,16 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
         if callback is not None:
             callback(i, value, par.to_flat(theta))
 
-    # A 3D fit's family covers a box around its start; a fit that leaves the box is restarted
-    # from where it left, on a box around that point (nodes are cached, so only new ones build).
-    theta, history, gnorms = jnp.asarray(theta0), [], []
-    for _ in range(MAX_FAMILY_ROUNDS):
-        model = build(jax.tree_util.tree_map(np.asarray, par.to_flat(theta)))
-        value_and_grad, loss_j, jacobian = _objective(model, par, y_j, scale, mode)
-        theta, h, g, message, converged = _optimise(
-            value_and_grad, loss_j, theta, method, int(max_iter) - len(history), learning_rate,
-            gtol, ftol, xtol, max_step, report)
-        restart = 1 if history else 0  # a restart's first entry repeats the last one
-        history, gnorms = history + list(h[restart:]), gnorms + list(g[restart:])
-        family = model.law.family
-        inside = family is None or _inside_family(family.spec, _concrete_flat(
-            jax.tree_util.tree_map(np.asarray, par.to_flat(theta))))
-        if inside or len(history) > int(max_iter):
-            break
+    def optimise(value_and_grad, loss_j, theta, budget):
+        return _optimise(value_and_grad, loss_j, theta, method, budget, learning_rate, gtol,
+                         ftol, xtol, max_step, report)
 
-    # uncertainty (Gauss-Newton, force residuals in N)
-    J_rel, r_rel = jacobian(theta)
-    J = np.asarray(J_rel) * scale
-    pred = np.asarray(r_rel) * scale + y
+    (theta, history, gnorms, message, converged, inside, family,
+     jacobian) = _rounds(build, par, theta0, y_j, scale, mode, int(max_iter), optimise)
+
+    pred, cov, params, std = _uncertainty(jacobian, theta, par, scale, y)
     r = pred - y
-    G = np.asarray(jax.jacfwd(par.physical)(theta))
-    cov = _gauss_newton(J, r, G)
-    phys = np.asarray(par.physical(theta))
-    flat = jax.tree_util.tree_map(np.asarray, par.to_flat(theta))
-    flat = _concrete_flat(flat)
-    names = par.names
-    params = {n: float(v) for n, v in zip(names, phys, strict=True)}
-    std = {n: float(math.sqrt(max(c, 0.0))) for n, c in zip(names, np.diag(cov), strict=True)}
+    flat = _concrete_flat(jax.tree_util.tree_map(np.asarray, par.to_flat(theta)))
     if flat.kind != "profile" and float(flat.length) / 2 > par.extent_bound + 1e-12:
         message += (f"; WARNING: fitted half length {float(flat.length) / 2 * 1e3:.1f} mm "
                     f"exceeds extent_bound {par.extent_bound * 1e3:.1f} mm, refit with a "
@@ -221,6 +194,53 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
                      prediction=pred, measured=np.asarray(y), x=np.asarray(x),
                      residual_rms=float(np.sqrt(np.mean(r**2))), kind=kind, contact=contact,
                      wall_time=time.perf_counter() - start)
+
+
+def _rounds(build, par, theta0, y_j, scale: float, mode: str, max_iter: int, optimise):
+    """The optimisation, in rounds: a 3D fit's family covers a box around its start; a fit
+    that leaves the box is restarted from where it left, on a box around that point (nodes
+    are cached, so only new ones build). Returns (theta, loss history, gradient norms,
+    message, converged, inside the family, the family or None, the last jacobian)."""
+    theta, history, gnorms = jnp.asarray(theta0), [], []
+    for _ in range(MAX_FAMILY_ROUNDS):
+        model = build(jax.tree_util.tree_map(np.asarray, par.to_flat(theta)))
+        value_and_grad, loss_j, jacobian = _objective(model, par, y_j, scale, mode)
+        theta, h, g, message, converged = optimise(value_and_grad, loss_j, theta,
+                                                   max_iter - len(history))
+        restart = 1 if history else 0  # a restart's first entry repeats the last one
+        history, gnorms = history + list(h[restart:]), gnorms + list(g[restart:])
+        family = model.law.family
+        inside = family is None or _inside_family(family.spec, _concrete_flat(
+            jax.tree_util.tree_map(np.asarray, par.to_flat(theta))))
+        if inside or len(history) > max_iter:
+            break
+    return theta, history, gnorms, message, converged, inside, family, jacobian
+
+
+def _check_arguments(contact: str, initial, method: str, mode: str, max_iter) -> None:
+    registry.check(contact)
+    if not isinstance(initial, Flat):
+        raise ValueError(f"initial must be a Flat, got {type(initial).__name__}")
+    if method not in ("lbfgs", "adam"):
+        raise ValueError(f"method must be 'lbfgs' or 'adam', got {method!r}")
+    if mode not in ("auto", "forward", "reverse"):
+        raise ValueError(f"mode must be 'auto', 'forward' or 'reverse', got {mode!r}")
+    if int(max_iter) < 1:
+        raise ValueError(f"max_iter must be >= 1, got {max_iter!r}")
+
+
+def _uncertainty(jacobian, theta, par, scale: float, y: np.ndarray):
+    """(prediction [n] N, covariance of the physical parameters, their values and standard
+    deviations by name) at ``theta``: Gauss-Newton on the force residuals in N."""
+    J_rel, r_rel = jacobian(theta)
+    pred = np.asarray(r_rel) * scale + y
+    G = np.asarray(jax.jacfwd(par.physical)(theta))
+    cov = _gauss_newton(np.asarray(J_rel) * scale, pred - y, G)
+    phys = np.asarray(par.physical(theta))
+    params = {n: float(v) for n, v in zip(par.names, phys, strict=True)}
+    std = {n: float(math.sqrt(max(c, 0.0)))
+           for n, c in zip(par.names, np.diag(cov), strict=True)}
+    return pred, cov, params, std
 
 
 def _objective(model: ForceModel, par, y_j, scale: float, mode: str):
