@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax import fit
+from wfjax import fit, supports
 from wfjax import roughness as rough_mod
 from wfjax.program.core import compile_scenario
 from wfjax.scenario.description import Scenario
@@ -60,13 +60,15 @@ def test_bogie_on_a_rough_rail_detector_gradient_matches_central_differences():
 
 
 @pytest.mark.slow
-def test_fit_flat_takes_a_vehicle_and_a_rough_rail():
-    """Max-force data of a bogie's flat wheel on a rough rail, simulated at a known depth, are
+def test_fit_flat_takes_a_vehicle_a_rough_rail_and_varying_supports():
+    """Max-force data of a bogie's flat wheel on a rough rail over varying supports, simulated
+    at a known depth, are
     fitted back from a start 30 % off by the same model (reverse mode through the adjoint)."""
     truth = wf.Flat.new(0.8e-3)
     speeds = np.array([50.0, 80.0, 110.0]) / 3.6
+    track = supports.scatter(wf.Track(), key=1, cv=0.3)  # varying pad and ballast stiffness
     kw = dict(contact="hertz-trajectory", config=COARSE, vehicle=Vehicle.bogie(),
-              roughness=_rough_rail())
+              roughness=_rough_rail(), track=track)
     data = fit.max_force_model(speeds, truth, impact_positions=2, **kw)(truth)
     res = fit.fit_flat({"speeds": speeds, "max_force": np.asarray(data)},
                        wf.Flat.new(0.56e-3), impact_positions=2, mode="reverse", max_iter=30,
@@ -94,3 +96,20 @@ def test_scenario_is_a_pytree_with_static_structure():
     assert doubled.vehicle == sc.vehicle and doubled.contact == "hertz-profile"
     assert float(doubled.flats[1].depth) == pytest.approx(2.4e-3)
     assert compile_scenario(sc).data.struct.offsets.shape == (2,)
+
+
+def test_a_joint_goes_into_any_entry_point_as_a_rail_top_input():
+    """``roughness=`` takes a rail-top input (a dipped joint) alone or with a rail profile: the
+    scenario adds it to the profile, for simulate, sweep and the fits alike."""
+    from wfjax.joint import Joint
+
+    joint, flat, v = Joint(0.3, 0.8e-3, 0.5), wf.Flat.none(), 100 / 3.6
+    kw = dict(contact="hertz-profile", impact_position=0.1, config=COARSE)
+    alone = wf.simulate(flat, v, roughness=joint, **kw)
+    assert float(np.max(alone.force)) == float(np.max(
+        wf.simulate(flat, v, roughness=joint.add_to(None), **kw).force))
+    rough = _rough_rail()
+    both = Scenario.of(flat, "hertz-profile", roughness=[rough, joint]).roughness
+    np.testing.assert_array_equal(np.asarray(both.values), np.asarray(joint.add_to(rough).values))
+    with pytest.raises(ValueError, match="at most one rail Roughness"):
+        Scenario.of(flat, roughness=[rough, rough])

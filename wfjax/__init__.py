@@ -26,6 +26,7 @@ from . import wheel as wheel
 from ._cache import load_or_build as load_or_build
 from .api import SimResult as SimResult
 from .api import simulate as simulate
+from .joint import Joint as Joint
 from .params import Flat as Flat
 from .params import Material as Material
 from .params import SimConfig as SimConfig
@@ -33,12 +34,16 @@ from .params import Track as Track
 from .params import Wheel as Wheel
 from .params import kmh as kmh
 from .params import mm as mm
+from .program.core import compile_scenario as compile_scenario
 from .roughness import Roughness as Roughness
+from .scenario.description import Scenario as Scenario
 from .scenario.windows import impact_position_from_angle as impact_position_from_angle
+from .sensors import Detector as Detector
 from .sweeps import SweepResult as SweepResult
 from .sweeps import sweep as sweep
 from .track import ModalModel as ModalModel
 from .track import MovingGreens as MovingGreens
+from .vehicle import Vehicle as Vehicle
 from .wheel import WheelModal as WheelModal
 
 __version__ = "0.1.0"
