@@ -31,7 +31,7 @@ jax.effects_barrier()
 print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 """
 
-STRUCTURE = "structure(wf.Wheel(), wf.Track(), wf.SimConfig())"
+STRUCTURE = "structure(Vehicle.single(), [wf.Wheel()], wf.Track(), wf.SimConfig())"
 
 
 def _table(flat: str) -> str:

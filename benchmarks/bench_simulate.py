@@ -28,6 +28,7 @@ from wfjax.contact import laws
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
 from wfjax.scenario.windows import n_steps_for, simulation_window
+from wfjax.vehicle import Vehicle
 
 
 def timed(fn):
@@ -53,8 +54,8 @@ def main() -> None:
     n, dt = n_steps_for(flat, v, config)
     s0, s1 = simulation_window(flat, v, config)
     travel = s1 - s0
-    t_struct, _ = timed(lambda: structure(wheel, track, config))
-    struct = structure(wheel, track, config)
+    t_struct, _ = timed(lambda: structure(Vehicle.single(), [wheel], track, config))
+    struct = structure(Vehicle.single(), [wheel], track, config)
     print(f"devices {jax.devices()}, x64 {jax.config.jax_enable_x64}; {n} steps, dt = "
           f"{dt * 1e6:.1f} us, {travel:.3f} m of travel at 100 km/h; modal models "
           f"{t_struct:.2f} s (from the disk cache if warm)\n")

@@ -26,7 +26,7 @@ from wfjax.contact import family, laws
 from wfjax.contact.table_law import TableLaw
 from wfjax.fit.optimise import _objective
 from wfjax.loop.run import run_scan
-from wfjax.loop.structure import structure, vehicle_structure
+from wfjax.loop.structure import structure
 from wfjax.program.laws import loop_roughness
 from wfjax.vehicle import Vehicle, placement
 
@@ -41,7 +41,7 @@ REL = 1e-8
 
 @pytest.fixture(scope="module")
 def struct():
-    return structure(WHEEL, TRACK, CONFIG)
+    return structure(Vehicle.single(), [WHEEL], TRACK, CONFIG)
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +112,7 @@ def test_table_law_leaves_get_the_plain_cotangents(struct, fam):
 @pytest.mark.parametrize("contact", ["hertz-trajectory", "3d"])
 def test_two_wheel_vehicle(contact, struct, fam):
     vehicle = Vehicle.bogie()
-    vstruct = vehicle_structure(vehicle, [WHEEL, WHEEL], TRACK, CONFIG)
+    vstruct = structure(vehicle, [WHEEL, WHEEL], TRACK, CONFIG)
     smooth = (laws.parametric_law(fam, jnp.asarray(0.6e-3), jnp.asarray(0.095)) if contact == "3d"
               else laws.prepare(contact, wf.Flat.none(), WHEEL, TRACK, MAT, CONFIG))
     x_imp = placement(vehicle, 0.65) + IMPACT
@@ -138,7 +138,7 @@ def test_two_wheels_on_a_track_whose_supports_vary():
     from wfjax import supports
 
     track, vehicle = supports.void_sleeper(TRACK, 35), Vehicle.bogie()
-    vstruct = vehicle_structure(vehicle, [WHEEL, WHEEL], track, CONFIG)
+    vstruct = structure(vehicle, [WHEEL, WHEEL], track, CONFIG)
     smooth = laws.prepare("hertz-profile", wf.Flat.none(), WHEEL, track, MAT, CONFIG)
 
     def loss(th, runner):

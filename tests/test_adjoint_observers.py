@@ -24,7 +24,7 @@ from wfjax import sensors as sensor_mod
 from wfjax.contact import laws
 from wfjax.loop.observers import DetectorReadings, OwnCompliance, Sensors
 from wfjax.loop.run import run_scan
-from wfjax.loop.structure import structure, vehicle_structure
+from wfjax.loop.structure import structure
 from wfjax.vehicle import Vehicle, placement
 
 V, DT, N = 100 / 3.6, 3e-5, 400
@@ -88,7 +88,7 @@ def _check(run):
 
 @pytest.fixture(scope="module")
 def struct():
-    return structure(WHEEL, TRACK, CONFIG)
+    return structure(Vehicle.single(), [WHEEL], TRACK, CONFIG)
 
 
 def test_one_wheel_sensors_and_detector(struct):
@@ -104,7 +104,7 @@ def test_one_wheel_sensors_and_detector(struct):
 @pytest.mark.slow
 def test_two_wheel_vehicle_sensors_and_detector():
     vehicle = Vehicle.bogie()
-    vstruct = vehicle_structure(vehicle, [WHEEL, WHEEL], TRACK, CONFIG)
+    vstruct = structure(vehicle, [WHEEL, WHEEL], TRACK, CONFIG)
     smooth = laws.prepare("hertz-trajectory", wf.Flat.none(), WHEEL, TRACK, MAT, CONFIG)
     x_imp = placement(vehicle, float(TRACK.sleeper_spacing)) + IMPACT
     offset = float(vehicle.offsets()[1])

@@ -10,6 +10,7 @@ from wfjax.contact import laws
 from wfjax.loop.run import LOOP_BLOCK, run_scan
 from wfjax.loop.structure import node_major_shapes, rail_terms, structure
 from wfjax.scenario.windows import RUN_IN_TIME, n_steps_for, run_windows, simulation_window
+from wfjax.vehicle import Vehicle
 
 ROUNDED = wf.Flat.rounded(0.9e-3, 0.1)
 NEW = wf.Flat.new(0.9e-3)
@@ -80,7 +81,7 @@ def test_a_loop_that_stops_early_equals_the_full_loop_on_its_steps():
     speed, cfg = 60 / 3.6, wf.SimConfig()
     n, dt = n_steps_for(ROUNDED, speed, cfg)
     s0, _ = simulation_window(ROUNDED, speed, cfg)
-    struct = structure(wf.Wheel(), wf.Track(), cfg)
+    struct = structure(Vehicle.single(), [wf.Wheel()], wf.Track(), cfg)
     law = laws.prepare("hertz-trajectory", ROUNDED, wf.Wheel(), wf.Track(), wf.Material(), cfg)
     full = run_scan(law, struct, speed, dt, 0.1 + s0, 0.1, n)
     k = n // 2
@@ -99,7 +100,7 @@ def _max_force_fn(contact, speed, position=0.1):
     cfg, wheel, track, mat = wf.SimConfig(), wf.Wheel(), wf.Track.comparison(), wf.Material()
     n, dt = n_steps_for(ROUNDED, speed, cfg)
     s0, _ = simulation_window(ROUNDED, speed, cfg)
-    struct = structure(wheel, track, cfg)
+    struct = structure(Vehicle.single(), [wheel], track, cfg)
 
     def max_force(depth):
         flat = wf.Flat("rounded", depth, 0.1, extent_bound=0.05)
@@ -231,7 +232,7 @@ def test_planned_runs_are_sorted_by_steps_and_dealt_to_the_devices():
     from wfjax.program import grid
 
     speeds = np.array([300.0, 40.0, 120.0, 20.0]) / 3.6
-    struct = structure(wf.Wheel(), wf.Track(), wf.SimConfig())
+    struct = structure(Vehicle.single(), [wf.Wheel()], wf.Track(), wf.SimConfig())
     mesh = grid.device_mesh()
     runs = grid.plan_runs([ROUNDED], speeds, np.array([0.1, 0.3]), struct, wf.SimConfig(),
                              mesh, chunk_size=4)

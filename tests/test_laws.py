@@ -18,6 +18,7 @@ from wfjax.params import _pytree
 from wfjax.program.core import _sharded
 from wfjax.program.laws import common_extent, prepare_batch
 from wfjax.scenario.windows import n_steps_for, run_windows, simulation_window
+from wfjax.vehicle import Vehicle
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 MODEL = (wf.Wheel(), wf.Track.comparison(), wf.Material(), COARSE)
@@ -58,7 +59,7 @@ def test_sweep_over_depths_is_one_program_equal_to_single_runs():
 def test_gradient_reaches_geometry_through_a_batched_law():
     """d(max force)/d(depth) of a vmapped batch of flats equals central finite differences."""
     wheel, track, material, config = MODEL
-    struct = structure(wheel, track, config)
+    struct = structure(Vehicle.single(), [wheel], track, config)
     v, pos = 100 / 3.6, 0.2
     ref = dataclasses.replace(FLATS[-1], extent_bound=0.07)
     n, dt = n_steps_for(ref, v, config)
@@ -98,7 +99,7 @@ class LinearSpring(ContactLaw):
 def test_time_loop_takes_any_law():
     """The time loop knows only the protocol: a user-defined law runs and reaches statics."""
     wheel, track, _, config = MODEL
-    struct = structure(wheel, track, config)
+    struct = structure(Vehicle.single(), [wheel], track, config)
     law = LinearSpring(1.0e9)
     hist = run_scan(law, struct, 20 / 3.6, 1e-4, 0.1, 0.3, 200)
     force = np.asarray(hist["force"])
@@ -279,7 +280,7 @@ def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
         ref = kalker.solve(gap, layout.element_size, layout.element_size, wf.Material(),
                            approach=delta, tol=direct3d.KALKER_TOL, validate=False)
         assert f_w == pytest.approx(float(ref.force), rel=1e-8), (s, c)
-    struct = structure(wheel, track, config)
+    struct = structure(Vehicle.single(), [wheel], track, config)
     runs = [np.asarray(run_scan(lw, struct, 80 / 3.6, 1e-4, 0.0, 0.12, 150,
                                    config.newton_iterations)["force"]) for lw in (law, whole)]
     assert runs[0].max() > 1.3 * 118e3  # through the impact

@@ -13,9 +13,10 @@ from wfjax import sleepers, supports
 from wfjax import track as track_mod
 from wfjax.contact.laws import prepare
 from wfjax.loop.run import run_scan
-from wfjax.loop.structure import structure, vehicle_structure
+from wfjax.loop.structure import structure
 from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
+from wfjax.vehicle import Vehicle
 
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 V = 100 / 3.6
@@ -47,7 +48,7 @@ def _direct_static(track, x_wheel, load):
 
 def _static_start(track, x_wheel):
     config = wf.SimConfig()
-    struct = structure(wf.Wheel(), track, config)
+    struct = structure(Vehicle.single(), [wf.Wheel()], track, config)
     law = prepare("hertz-profile", wf.Flat.none(), wf.Wheel(), track, wf.Material(), config)
     return run_scan(law, struct, V, 2e-5, x_wheel, x_wheel + 1.0, 2)
 
@@ -74,7 +75,7 @@ def test_bogie_static_start_over_a_hanging_sleeper_equals_the_direct_solve():
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 0.4e-3)
     config, vehicle = wf.SimConfig(), Vehicle.bogie()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3)]
-    struct = vehicle_structure(vehicle, wheels, track, config)
+    struct = structure(vehicle, wheels, track, config)
     laws = vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
                            wheels, track, wf.Material(), config)
     for x0 in (0.65 + 3 * 0.65 / 32, 3.25):  # the leading, then the trailing wheel near it
@@ -130,7 +131,7 @@ def test_hanging_sleeper_gradient_matches_finite_differences():
 
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
     config = wf.SimConfig()
-    struct = structure(wf.Wheel(), track, config)
+    struct = structure(Vehicle.single(), [wf.Wheel()], track, config)
 
     def peak(depth):
         flat = dataclasses.replace(ROUNDED, depth=depth, extent_bound=0.06)
@@ -167,7 +168,7 @@ def test_the_adjoint_refuses_hanging_sleepers():
 
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
     config = wf.SimConfig()
-    struct = structure(wf.Wheel(), track, config)
+    struct = structure(Vehicle.single(), [wf.Wheel()], track, config)
     law = prepare("hertz-profile", ROUNDED, wf.Wheel(), track, wf.Material(), config)
     with pytest.raises(NotImplementedError, match="hanging sleepers"):
         adjoint.adjoint_loop(law, struct, V, 2.5e-5, 0.5, 0.62, 10)

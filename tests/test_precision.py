@@ -10,6 +10,7 @@ import wfjax as wf
 from wfjax.contact.laws import prepare
 from wfjax.loop.run import time_loop
 from wfjax.loop.structure import structure
+from wfjax.vehicle import Vehicle
 
 FLAT = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 WIDE = (np.dtype(np.float64), np.dtype(np.complex128))
@@ -32,7 +33,7 @@ def _wide_outputs(jaxpr) -> list[str]:
 @pytest.mark.parametrize("contact", ["hertz-trajectory", "2d"])
 def test_float32_time_loop_has_no_float64_operation(contact):
     config = wf.SimConfig(precision="float32")
-    struct = structure(wf.Wheel(), wf.Track(), config)
+    struct = structure(Vehicle.single(), [wf.Wheel()], wf.Track(), config)
     law = prepare(contact, FLAT, wf.Wheel(), wf.Track(), wf.Material(), config)
     closed = jax.make_jaxpr(lambda law, struct: time_loop(
         law, struct, 25.0, 4e-5, -0.3, 0.1, 50, precision="float32"))(law, struct)

@@ -16,6 +16,7 @@ from wfjax import track as T
 from wfjax.loop.observers import DetectorReadings
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.vehicle import Vehicle
 
 P = 118e3
 LS = 0.65
@@ -24,7 +25,7 @@ Q = {q: i for i, q in enumerate(S.QUANTITIES)}
 
 @pytest.fixture(scope="module")
 def model():
-    return structure(wfjax.Wheel(), wfjax.Track(), wfjax.SimConfig()).track
+    return structure(Vehicle.single(), [wfjax.Wheel()], wfjax.Track(), wfjax.SimConfig()).track
 
 
 def static_state(model, x, force):
@@ -165,7 +166,7 @@ def test_detector_peak_gradient_matches_finite_differences():
     tr, wh, mat = wfjax.Track(), wfjax.Wheel(), wfjax.Material()
     det = S.Detector(n_bays=1, first_bay=0)
     cfg = wfjax.scenario.windows.detector_config(det, tr, wfjax.SimConfig())
-    struct = structure(wh, tr, cfg)
+    struct = structure(Vehicle.single(), [wh], tr, cfg)
     spec = S.detector_spec(det, tr, struct.track)
     v, x_imp = 20.0, 0.25
     flat0 = wfjax.Flat("rounded", depth=0.9e-3, length=0.1, extent_bound=0.06)

@@ -17,7 +17,7 @@ from wfjax import wheel as wheel_mod
 from wfjax.contact.laws import prepare
 from wfjax.loop.observers import Sensors
 from wfjax.loop.run import run_scan
-from wfjax.loop.structure import cross_table, structure, vehicle_structure
+from wfjax.loop.structure import cross_table, structure
 from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
 from wfjax.vehicle import Vehicle, placement, residual_pairs, transfer_receptance
@@ -56,7 +56,8 @@ def test_one_wheel_sensors_reproduce_the_single_wheel_loop():
 def _single_run(flat, x_start, impact, n, dt, config, contact="hertz-trajectory"):
     wheel, track = wf.Wheel(), wf.Track()
     law = prepare(contact, flat, wheel, track, wf.Material(), config)
-    return run_scan(law, structure(wheel, track, config), V, dt, x_start, impact, n)
+    struct = structure(Vehicle.single(), [wheel], track, config)
+    return run_scan(law, struct, V, dt, x_start, impact, n)
 
 
 @pytest.mark.slow  # the default run must stay under 10 min (2 cores)
@@ -94,7 +95,7 @@ def test_static_deflections_under_several_wheels_superpose_the_direct_solves():
     track, config = wf.Track(), wf.SimConfig()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3, 140e3)]
     vehicle = Vehicle((0.0, 1.6, 4.1))
-    struct = vehicle_structure(vehicle, wheels, track, config)
+    struct = structure(vehicle, wheels, track, config)
     laws = vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
                            wheels, track, wf.Material(), config)
     x0 = placement(vehicle, 0.65) + 7 * 0.65 / 32
@@ -118,7 +119,7 @@ def test_static_deflections_under_several_wheels_on_varying_supports(name):
     track, config = VARYING_TRACKS[name](), wf.SimConfig()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3)]
     vehicle = Vehicle.bogie()
-    struct = vehicle_structure(vehicle, wheels, track, config)
+    struct = structure(vehicle, wheels, track, config)
     laws = vehicle_laws("hertz-profile", vehicle.flat_list(wf.Flat.none(), lambda i: 0.45),
                            wheels, track, wf.Material(), config)
     for x0 in (placement(vehicle, 0.65) + 1.95 + 7 * 0.65 / 32, 2.6 + 0.65 / 32):
@@ -190,7 +191,7 @@ def test_axle_box_acceleration_is_the_second_derivative_of_the_axle_displacement
 def test_bogie_gradient_reaches_the_flat_and_matches_finite_differences():
     wheel, track, config, mat = wf.Wheel(), wf.Track(), wf.SimConfig(), wf.Material()
     vehicle = Vehicle.bogie()
-    struct = vehicle_structure(vehicle, [wheel, wheel], track, config)
+    struct = structure(vehicle, [wheel, wheel], track, config)
     smooth = prepare("hertz-profile", wf.Flat.none(), wheel, track, mat, config)
     x_imp = placement(vehicle, 0.65) + 0.2
     n, dt = 500, 2.5e-5
@@ -281,14 +282,15 @@ def test_sensors_and_detector_see_every_wheel():
 
     track, config, wheel = wf.Track(), wf.SimConfig(), wf.Wheel()
     vehicle = Vehicle.bogie()
-    struct = vehicle_structure(vehicle, [wheel, wheel], track, config)
+    struct = structure(vehicle, [wheel, wheel], track, config)
     smooth = prepare("hertz-profile", wf.Flat.none(), wheel, track, wf.Material(), config)
     spec = sensor_mod.sensor_spec([-1.3, 0.0, 0.2], track, struct.track,
                                   ("rail_disp", "shear", "seat_force"))
     x0 = placement(vehicle, 0.65) + 0.1
     both = run_scan((smooth, smooth), struct, V, 2e-5, x0, x0 + 1.0, 2,
                     observers=(Sensors(spec),))
-    alone = [run_scan(smooth, structure(wheel, track, config), V, 2e-5, x, x + 1.0, 2,
+    one = structure(Vehicle.single(), [wheel], track, config)
+    alone = [run_scan(smooth, one, V, 2e-5, x, x + 1.0, 2,
                       observers=(Sensors(spec),))["sensors"][0] for x in x0 + vehicle.offsets()]
     np.testing.assert_allclose(np.asarray(both["sensors"][0]), np.asarray(sum(alone)),
                                rtol=1e-6, atol=1e-9 * 118e3)

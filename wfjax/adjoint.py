@@ -537,7 +537,7 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     Args:
         law: a pointwise contact law (:func:`wfjax.contact.laws.prepare`; not the direct 3D
             mode), or a tuple of them, one per wheel of a vehicle (``struct`` from
-            :func:`wfjax.loop.structure.vehicle_structure`).
+            :func:`wfjax.loop.structure.structure`).
         struct: :class:`wfjax.loop.structure.Structure` (not differentiated).
         speed: v [m/s]; dt: time step [s]; x_start: rail coordinate of the reference wheel at
             t = 0 [m]; impact_position: where s = 0 [m] (none of them differentiated).

@@ -192,7 +192,7 @@ def time_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     Args:
         law: the prepared contact law (:func:`wfjax.contact.laws.prepare`), or a tuple of
             laws, one per wheel of a vehicle (``struct`` from
-            :func:`wfjax.loop.structure.vehicle_structure`) on the shared track.
+            :func:`wfjax.loop.structure.structure`) on the shared track.
         struct: modal wheel(s) and track (:class:`wfjax.loop.structure.Structure`).
         speed: v [m/s]; dt: time step [s]; x_start: rail coordinate of the (reference) wheel
             at t = 0 [m]; impact_position: its rail coordinate where s = 0 [m] (wheel i of a

@@ -15,22 +15,20 @@ import numpy as np
 from .. import supports as supports_mod
 from .. import track as track_mod
 from .. import vehicle as vehicle_mod
-from .. import wheel as wheel_mod
-from .._xla import to_device
 from ..params import SimConfig, Track, Wheel
 
 
 class Structure(NamedTuple):
     """Modal data of the wheels and the track used by the time loop (arrays; a pytree).
 
-    One wheel (:func:`structure`): ``wheel_poles``, ``wheel_residues``, ``axle_residues``
-    [n_w] and a scalar ``preload``; the vehicle fields are None. A vehicle
-    (:func:`vehicle_structure`): the same with a leading wheel axis [n_wheels, ...] and
+    (:func:`structure`) ``wheel_poles``, ``wheel_residues``, ``axle_residues`` [n_wheels, n_w]
+    and ``preload`` [n_wheels] N, one row per wheel (one wheel is a vehicle of one), and
     ``offsets`` [n_wheels] (rail coordinate of every wheel relative to the reference wheel
     [m]), ``delays`` [n_wheels] (the flats' delays [m], :class:`wfjax.vehicle.Vehicle`) and
     ``residual_pairs`` [n_res, n_wheels, n_wheels] (static compliance of the truncated track
     modes between the wheels across one bay, or along the whole rail when the supports vary:
-    :func:`wfjax.vehicle.residual_pairs`). ``supports``: the track's one-sided (hanging)
+    :func:`wfjax.vehicle.residual_pairs`; None for one wheel, whose own residual is the modal
+    model's residual table). ``supports``: the track's one-sided (hanging)
     sleepers, :func:`wfjax.supports.one_sided_spec`, or None.
     """
 
@@ -45,28 +43,22 @@ class Structure(NamedTuple):
     supports: Any = None  # supports.OneSidedSupports of hanging sleepers, or None
 
 
-def structure(wheel: Wheel, track: Track, config: SimConfig, cache_dir=None) -> Structure:
-    """Modal models of wheel and track (the track's is cached on disk)."""
-    model = track_mod.modal_model(track, max_frequency=config.track_max_frequency,
-                                  cache_dir=cache_dir)
-    wheel_modes = wheel_mod.modal_model(wheel)
-    return Structure(model, wheel_modes.poles, wheel_modes.residues,
-                     to_device(wheel.preload, float), wheel_modes.axle_residues,
-                     supports=_one_sided(track, model))
-
-
-def vehicle_structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
-                      cache_dir=None) -> Structure:
-    """:class:`Structure` of a :class:`wfjax.vehicle.Vehicle` with wheel models ``wheels``
-    ([n] :class:`Wheel`), placed on the track by :func:`wfjax.vehicle.placement`."""
+def structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
+              cache_dir=None) -> Structure:
+    """:class:`Structure` of a :class:`wfjax.vehicle.Vehicle` (one wheel:
+    ``Vehicle.single()``) with wheel models ``wheels`` ([n] :class:`Wheel`), placed on the
+    track by :func:`wfjax.vehicle.placement`; the track's modal model is cached on disk in
+    ``cache_dir``."""
     model = track_mod.modal_model(track, max_frequency=config.track_max_frequency,
                                   cache_dir=cache_dir)
     ws = vehicle_mod.wheel_set(wheels)
     offsets = vehicle.offsets()
-    pairs = vehicle_mod.residual_pairs(
-        track, model, offsets, vehicle_mod.placement(vehicle, float(track.sleeper_spacing)))
+    pairs = None  # one wheel: its own residual compliance is the model's residual table
+    if vehicle.n_wheels > 1:
+        pairs = jnp.asarray(vehicle_mod.residual_pairs(
+            track, model, offsets, vehicle_mod.placement(vehicle, float(track.sleeper_spacing))))
     return Structure(model, ws.poles, ws.residues, ws.preload, ws.axle_residues,
-                     jnp.asarray(offsets), jnp.asarray(vehicle.delays()), jnp.asarray(pairs),
+                     jnp.asarray(offsets), jnp.asarray(vehicle.delays()), pairs,
                      _one_sided(track, model, offsets))
 
 

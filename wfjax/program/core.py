@@ -36,7 +36,7 @@ from .._xla import LOOP_COMPILER_OPTIONS
 from ..contact.table_law import cached_tables_3d
 from ..loop.observers import DetectorReadings, Sensors
 from ..loop.run import StepOutput, run_scan
-from ..loop.structure import vehicle_structure
+from ..loop.structure import structure
 from ..params import Flat
 from ..results import summarise_run
 from ..scenario.description import Scenario
@@ -310,7 +310,7 @@ def compile_scenario(scenario: Scenario, cache_dir=None) -> Program:
     models cached on disk in ``cache_dir``), the other wheels' laws, the instruments' specs,
     the loop roughness and, with support realisations, their padded modal models."""
     sc = scenario
-    struct = vehicle_structure(sc.vehicle, list(sc.wheels), sc.track, sc.config, cache_dir)
+    struct = structure(sc.vehicle, list(sc.wheels), sc.track, sc.config, cache_dir)
     models = None
     if sc.tracks is not None:
         models = padded_models(sc.tracks, sc.config, cache_dir)
