@@ -33,6 +33,7 @@ from jax.sharding import Mesh, PartitionSpec
 
 from .._parallel import in_background
 from .._xla import LOOP_COMPILER_OPTIONS
+from ..contact.laws import prepare
 from ..contact.table_law import cached_tables_3d
 from ..loop.observers import DetectorReadings, Sensors
 from ..loop.run import StepOutput, run_scan
@@ -179,7 +180,8 @@ def _picked(data: ProgramData, run: Run, *statics, n_run=None) -> dict:
 
 
 # one run as its own top-level program (a top-level jit may carry compiler options)
-_one_run = jax.jit(_picked, static_argnums=(2, 3, 4, 5), compiler_options=LOOP_COMPILER_OPTIONS)
+_one_run = jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision", "save"),
+                   compiler_options=LOOP_COMPILER_OPTIONS)
 
 
 @functools.cache
@@ -283,13 +285,15 @@ class Program:
 
     def history(self, run: Run, n_steps: int, save=Histories()) -> dict:
         """One run's outputs (default every step's histories) with the scenario's only
-        flat (``run.flat`` 0), on the host's default device."""
-        (group,) = batch_groups(self.scenario.flats, self.scenario.contact,
-                                self.scenario.config)
-        laws, _ = self.group_laws(group.indices, group.tables)
-        config = self.scenario.config
-        return _one_run(self.data._replace(laws=laws), run, int(n_steps),
-                        config.newton_iterations, config.precision, save)
+        flat, its law prepared eagerly (a batch's laws compile: ``prepare_batch``), on the
+        host's default device (``run.flat`` unused)."""
+        sc = self.scenario
+        (flat,) = sc.flats
+        law = prepare(sc.contact, flat, sc.wheels[sc.vehicle.flat_wheel], sc.track,
+                      sc.material, sc.config, self.cache_dir)
+        return _one_run(self.data, law, run, n_steps=int(n_steps),
+                        max_iter=sc.config.newton_iterations, precision=sc.config.precision,
+                        save=save)
 
     def forward(self, law, runs: Run, save=Histories(), differentiation=Autodiff()) -> dict:
         """The outputs [B, ...] of a rectangular batch of ``runs`` ([B] leaves, every one
