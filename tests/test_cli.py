@@ -200,9 +200,17 @@ def test_fit_accepts_3d_contact_and_the_comparison_track(tmp_path):
 
 def test_argparse_errors_are_one_line(capsys):
     with pytest.raises(SystemExit) as exc:
-        main(["sweep", "--contact", "5d"])
+        main(["sweep", "--no-such-flag"])
     assert exc.value.code == 2
-    assert "invalid choice" in _one_line_error(capsys)
+    assert "unrecognized arguments" in _one_line_error(capsys)
+
+
+def test_a_bad_choice_gets_the_generated_one_line_error(capsys):
+    """A name outside an option's choices is refused like every other bad value (status 2,
+    the flag as typed, the value and the allowed names), not by argparse's own message."""
+    assert main(["sweep", "--contact", "5d"]) == 2
+    line = _one_line_error(capsys)
+    assert '--contact "5d"' in line and "allowed: 3d | 2d | hertz-trajectory" in line
 
 
 def test_non_finite_result_writes_nothing(tmp_path, capsys, monkeypatch):
