@@ -22,6 +22,9 @@ Every key, unit and range: docs/case_files.md.  Run: wfjax {command} --config ca
 
 
 def run(args) -> int:
+    from ._common import flag_layer
+
+    flag_layer(args, "config")  # its own flags (--command) checked before anything else
     if args.print_table:
         sys.stdout.write(case_mod.markdown_table())
         return 0
