@@ -226,7 +226,7 @@ def test_cli_joint_flags_change_the_peak_force_and_bad_ones_stop_with_one_line(t
     case = json.loads((tmp_path / "joint" / "simulate.json").read_text())["case"]
     assert case["joint"] == {"position": 0.1, "depth": 0.001, "length": 0.4, "shape": "v"}
     capsys.readouterr()
-    for bad, words in ((["--joint-depth-mm", "-1"], ["--joint-depth-mm", "(0, 1] mm"]),
+    for bad, words in ((["--joint-depth-mm", "-1"], ["--joint-depth-mm", "(0, 5] mm"]),
                        (["--joint-depth-mm", "1", "--joint-length-m", "0.05"],
                         ["--joint-length-m", "[0.1, 2] m"]),
                        (["--joint-depth-mm", "1", "--joint-position-m", "3"],

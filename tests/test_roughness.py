@@ -102,7 +102,7 @@ def test_read_csv_units_and_wheel(tmp_path):
     ("x_mm,roughness_um,extra\n0,1,1\n", "columns must be"),
     ("x_mm,roughness_um\n0,1\n0.5,abc\n1,1\n1.5,1\n", r"row 3 must hold two numbers"),
     ("x_mm,roughness_um\n0,1\n0.5,nan\n1,1\n1.5,1\n", "must be finite"),
-    ("x_mm,roughness_mm\n0,1\n0.5,2\n1,1\n1.5,1\n", r"within \+-1 mm, got 2 mm"),
+    ("x_mm,roughness_mm\n0,1\n0.5,6\n1,1\n1.5,1\n", r"within \+-5 mm, got 6 mm"),
     ("x_mm,roughness_um\n0,1\n2,2\n4,1\n6,1\n", r"2 mm is too coarse .* at most 1 mm"),
     ("x_mm,roughness_um\n0,1\n0.5,2\n0.7,1\n1.5,1\n", "uniformly spaced"),
     ("x_mm,roughness_um\n0,1\n0.5,2\n", "at least 4 rows"),
@@ -127,8 +127,8 @@ def test_bad_generation_and_profiles():
         R.generate(R.BandSpectrum(np.array([0.1]), np.array([80.0])), 0, 5.0)
     with pytest.raises(ValueError, match=r"length must be finite and > 0 m"):
         R.generate(spec, 0, length=-1.0)
-    with pytest.raises(ValueError, match=r"within \+-1 mm"):
-        R.Roughness(0.0, 1e-4, np.array([0.0, 2e-3, 0.0]))
+    with pytest.raises(ValueError, match=r"within \+-5 mm"):
+        R.Roughness(0.0, 1e-4, np.array([0.0, 6e-3, 0.0]))
     with pytest.raises(ValueError, match=r"must be finite, got a non-finite value at sample 1"):
         R.Roughness(0.0, 1e-4, np.array([0.0, np.nan, 0.0]))
     with pytest.raises(ValueError, match=r"spacing must be in \(0, 1\] mm"):

@@ -196,7 +196,7 @@ def test_cli_monte_carlo_writes_percentiles_and_the_band(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, words", [
     (["--roughness-csv", "missing.csv"], ["missing.csv"]),
-    (["--roughness-csv", "BAD"], ["roughness_um", "1 mm"]),
+    (["--roughness-csv", "BAD"], ["roughness_um", "5 mm"]),
     (["--void-sleepers", "99"], ["[supports]", "99"]),
     (["--realisations", "0"], ["--realisations", "[1, 100000]"]),
 ])
@@ -211,7 +211,7 @@ def test_bad_roughness_and_support_flags_fail_before_work(tmp_path, capsys, monk
     monkeypatch.setattr(sweeps, "sweep", boom)
     monkeypatch.setattr(api, "simulate", boom)
     bad = tmp_path / "bad.csv"
-    bad.write_text("x_mm,roughness_um\n0,1\n0.25,2\n0.5,5000\n0.75,1\n")  # 5 mm: absurd
+    bad.write_text("x_mm,roughness_um\n0,1\n0.25,2\n0.5,6000\n0.75,1\n")  # 6 mm: absurd
     argv = [str(bad) if a == "BAD" else a for a in argv]
     out = tmp_path / "out"
     assert main(["sweep", "--contact", "hertz-trajectory", "--speeds-kmh", "80",

@@ -175,8 +175,8 @@ class Roughness:
                       f"{int(np.flatnonzero(~np.isfinite(v.ravel()))[0]) % v.shape[-1]}")
             peak = float(np.max(np.abs(v)))
             if peak > MAX_AMPLITUDE:
-                _fail(f"Roughness.values must be within +-{MAX_AMPLITUDE * 1e3:g} mm (larger is "
-                      f"a defect, not roughness), got {peak * 1e3:.4g} mm")
+                _fail(f"Roughness.values must be within +-{MAX_AMPLITUDE * 1e3:g} mm (the "
+                      f"deepest flat the model takes), got {peak * 1e3:.4g} mm")
 
     @property
     def length(self) -> float:

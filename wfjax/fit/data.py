@@ -103,7 +103,7 @@ def validate_data(measured, n_params: int):
             raise ValueError(f"max_force must be > 0 N, got min {f.min():.6g} N")
         return MaxForceData(v, f)
     if isinstance(measured, DetectorData):
-        from .sensors import Detector
+        from ..sensors import Detector
 
         v = _finite_1d("speeds", measured.speeds)
         peak = np.asarray(measured.peak, dtype=float)
