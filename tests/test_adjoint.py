@@ -132,6 +132,7 @@ def test_two_wheel_vehicle(contact, struct, fam):
 
 
 
+@pytest.mark.slow
 def test_two_wheels_on_a_track_whose_supports_vary():
     # the backward pass's step compliance reads the vehicle's tables along the whole rail,
     # as the forward's (it once built its cross table per bay)
@@ -216,6 +217,7 @@ def test_under_vmap_and_batched_runs(struct):
         np.testing.assert_array_equal(np.asarray(got[k]), np.asarray(want[k]), err_msg=k)
 
 
+@pytest.mark.slow
 def test_3d_family_max_force_gradient_matches_central_differences(struct, fam):
     speeds = jnp.array([60.0, 120.0]) / 3.6
     n = 500

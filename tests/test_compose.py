@@ -34,6 +34,7 @@ def _rough_rail():
     return rough_mod.generate(rough_mod.ISO3095_LIMIT, 3, 12.0, x_start=-6.0)
 
 
+@pytest.mark.slow
 def test_bogie_on_a_rough_rail_detector_gradient_matches_central_differences():
     ref = wf.Flat.rounded(0.9e-3, 0.1)
     par = fit.parametrisation_for(ref)

@@ -122,6 +122,7 @@ def test_two_stage_form_and_zero_below_onset(rounded):
         assert float(g) == 0.0
 
 
+@pytest.mark.slow
 def test_far_from_flat_is_smooth_wheel(rounded):
     """Beyond the flat every node is the same smooth wheel: the family is exact there."""
     tab = exact(wf.Flat.rounded_relative(0.7e-3, 1.76))
@@ -132,6 +133,7 @@ def test_far_from_flat_is_smooth_wheel(rounded):
         assert f == pytest.approx(f_far, rel=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("arg", [3, 4])  # d/d depth, d/d length
 def test_gradient_matches_finite_difference(rounded, arg):
     d, length = 0.72e-3, 1.77 * l0(0.72e-3)
@@ -202,6 +204,7 @@ def exact_new(d):
                                  max_force=F_MAX)
 
 
+@pytest.mark.slow
 def test_new_flat_family_at_node(new):
     spec = new.spec
     np.testing.assert_allclose(spec.depths, [0.1375e-3, 0.275e-3])

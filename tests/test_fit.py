@@ -89,6 +89,7 @@ def test_reverse_mode_history_misfit_gradient():
     _assert_matches_fd(jax.jit(misfit), grad[None, :], TH0, [1e-7, 1e-4])
 
 
+@pytest.mark.slow
 def test_profile_shape_gradient_and_smooth_max():
     """Gradient w.r.t. the profile basis coefficients, through a smooth max over positions."""
     par = fit.ProfileParam(half_length=0.06, n_basis=5)
@@ -247,6 +248,7 @@ def _run_notebook(name: str, monkeypatch) -> str:
                    for o in c.get("outputs", []))
 
 
+@pytest.mark.slow
 def test_notebook_fast_mode(monkeypatch):
     """Executes notebooks/fit_flat.ipynb with WFJAX_FAST=1: the reduced fit (4 speeds, rounded
     flat, 3 % noise, start 50 % off) asserts it recovers depth and length within 5 %."""
@@ -314,6 +316,7 @@ def test_fit_to_detector_readings_3d():
         assert abs(res.params[name] / true - 1) < 0.05, res.params
 
 
+@pytest.mark.slow
 def test_detector_model_max_over_bays_and_gradient():
     """Max-over-bays detector data: the model is the per-bay model's maximum (one position,
     hard max), and its forward-mode Jacobian matches central differences."""

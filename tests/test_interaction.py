@@ -39,6 +39,7 @@ def test_smooth_wheel_keeps_static_load_and_sleeper_passing_frequency():
     assert np.max(np.abs(half_shift - fw[later])) > 0.3 * np.ptp(fw)  # not a shorter period
 
 
+@pytest.mark.slow
 def test_quasi_static_run_follows_rigid_trajectory():
     # at walking speed inertia is negligible: F stays ~P, so the contact compression is the
     # static one and the relative wheel/rail motion reproduces the wheel-centre trajectory
@@ -51,6 +52,7 @@ def test_quasi_static_run_follows_rigid_trajectory():
     assert np.max(np.abs(np.asarray(res.force) / 118e3 - 1)) < 0.05
 
 
+@pytest.mark.slow
 def test_loss_of_contact_is_exact():
     res = wf.simulate(NEW, 100 / 3.6, contact="hertz-trajectory")
     f = np.asarray(res.force)
@@ -63,6 +65,7 @@ def test_loss_of_contact_is_exact():
     assert np.max(np.asarray(res.residual)) < 1e-12
 
 
+@pytest.mark.slow
 def test_sweep_equals_looped_simulate():
     speeds = np.array([40.0, 120.0]) / 3.6
     positions = np.array([0.1, 0.4])
@@ -122,6 +125,7 @@ def test_gradient_of_max_force_matches_finite_differences(contact, speed_kmh):
     assert g > 0  # deeper flats hit harder
 
 
+@pytest.mark.slow
 def test_time_step_convergence_of_max_force():
     """Halving the time step at the defaults changes the max force by < 1 %."""
     values = []

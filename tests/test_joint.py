@@ -214,6 +214,7 @@ def _peak(out) -> float:
     return json.loads((out / "simulate.json").read_text())["max_force_kN"]
 
 
+@pytest.mark.slow
 def test_cli_joint_flags_change_the_peak_force_and_bad_ones_stop_with_one_line(tmp_path,
                                                                              capsys):
     base = ["simulate", "--contact", "hertz-profile", "--flat", "new", "--depth-mm", "0.05"]

@@ -39,6 +39,7 @@ def test_batched_laws_equal_one_law_per_flat(contact):
                     float(single.force(delta, s)), rel=1e-9, abs=1e-6)
 
 
+@pytest.mark.slow
 def test_sweep_over_depths_is_one_program_equal_to_single_runs():
     """A depth batch compiles once and each flat's result equals its own simulate()."""
     speeds, positions = np.array([60.0, 140.0]) / 3.6, np.array([0.2])
@@ -213,6 +214,7 @@ def test_widened_table_gives_the_same_forces():
         tables.pad_columns(table, n - 1)
 
 
+@pytest.mark.slow
 def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path, monkeypatch):
     """A rounded and a new flat with exact 3D tables: one compiled program for both, and each
     flat's extremes equal its own simulate() in its own windows (the new flat's are shorter:

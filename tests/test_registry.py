@@ -44,6 +44,7 @@ def user_laws():
         registry.unregister(name)
 
 
+@pytest.mark.slow
 def test_a_registered_law_runs_in_simulate(user_laws):
     """The user's law with the built-in constant gives the built-in's forces; twice the
     constant gives 2^(-2/3) of the static approach and a larger impact force."""

@@ -44,6 +44,7 @@ def test_compare_cli_writes_files_and_orders_models(tmp_path, capsys):
     assert summary["per_kind"]["2d"]["new"]["max_percent"] < 0
 
 
+@pytest.mark.slow
 def test_figures_cli_fig5(tmp_path):
     assert main(["figures", "--fast", "--only", "5", "--out", str(tmp_path)]) == 0
     assert (tmp_path / "fig5_inputs.png").stat().st_size > 0

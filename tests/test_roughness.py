@@ -155,6 +155,7 @@ def test_contact_filter_matches_its_analytic_response(kind, wavelength):
     np.testing.assert_allclose(got, want, atol=0.01 * amp)
 
 
+@pytest.mark.slow
 def test_contact_filter_in_jit_vmap_grad():
     rough = R.generate(R.BandSpectrum(np.array([0.05, 0.02]), np.array([0.0, -3.0])), 1,
                        length=1.0, spacing=2.5e-4, n_realisations=4)

@@ -98,6 +98,7 @@ def test_wheel_roughness_equals_the_same_rail_roughness_under_one_wheel():
     assert np.max(np.abs(fa - fb)) < 1e-3 * np.ptp(fa)
 
 
+@pytest.mark.slow
 def test_roughness_response_agrees_with_a_direct_fe_time_integration():
     # independent reference: the full FE track by Newmark, Hertz on the point roughness times
     # the contact filter's response at the static Hertz contact length (what the loop's
@@ -119,6 +120,7 @@ def test_roughness_response_agrees_with_a_direct_fe_time_integration():
     assert f[late].max() == pytest.approx(rough[late].max(), rel=0.03)
 
 
+@pytest.mark.slow
 def test_monte_carlo_percentiles_equal_a_loop_over_the_realisations():
     rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 3, 4.0, x_start=-2.0,
                                n_realisations=5)

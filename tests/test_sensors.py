@@ -52,6 +52,7 @@ def fields_on_mesh(track, u, xs):
     return -ue @ ke[0], ue @ ke[1] - s * (ue @ ke[0])
 
 
+@pytest.mark.slow
 def test_static_readings_equal_direct_fe_solve(model):
     """At rest under a wheel load every reading is the FE statics; seats sum to the load."""
     tr = wfjax.Track()
@@ -133,6 +134,7 @@ def test_transfer_receptance_matches_direct_solve(model_20k, quantity):
     assert np.max(err) < 0.01, np.max(err)
 
 
+@pytest.mark.slow
 def test_detector_reads_static_load_at_low_speed():
     """Smooth wheel at 5 m/s (calibration run): while the wheel is in the crib the estimate
     averages to the static load within 0.05 % in every bay and its peak is the peak contact

@@ -46,6 +46,7 @@ def _start(tmp_path, n_devices: int):
     return proc, path
 
 
+@pytest.mark.slow
 def test_two_devices_equal_one(tmp_path):
     runs = [_start(tmp_path, n) for n in (1, 2)]
     results = []

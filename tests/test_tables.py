@@ -180,6 +180,7 @@ def test_column_two_stage_equals_table_force(coarse):
                           0.8e-3 * np.cos(np.linspace(-0.5, 0.5, 41) * np.pi) ** 2 *
                           (1 + 0.3 * np.linspace(-0.04, 0.04, 41) / 0.04)), R),
 ])
+@pytest.mark.slow
 def test_windowed_build_equals_whole_grid(flat, rail_radius):
     """Each solve on the window around its rigid overlap is the whole-grid problem: the
     forces agree to 1e-9 relative (tight CG tolerance, so the solver's own error is below)."""

@@ -116,6 +116,7 @@ def test_modal_receptance_matches_direct(model, x):
     assert np.max(np.abs(hm / hd - 1)) < 0.02
 
 
+@pytest.mark.slow
 def test_mode_shapes_at_jit_vmap_and_nodes(model):
     nx = np.asarray(model.node_x)
     i = np.argmin(np.abs(nx - 0.0)) + 3
@@ -154,6 +155,7 @@ def test_greens_function_fourier_transform_is_point_receptance(model):
         assert np.median(np.abs(ft / hd - 1)) < 0.005
 
 
+@pytest.mark.slow
 def test_moving_greens_two_ways_agree(model):
     """Complex modes + static residual vs Newmark integration of the full FE model."""
     tr = wfjax.Track()
@@ -168,6 +170,7 @@ def test_moving_greens_two_ways_agree(model):
     assert np.max(np.abs(gm.g[0] - gm.g[1])) > 0.05 * np.max(np.abs(gm.g[0]))
 
 
+@pytest.mark.slow
 def test_moving_greens_default_grid_and_decay(model):
     tr = wfjax.Track()
     g = T.moving_greens(tr, 100 / 3.6, model=model)
@@ -179,6 +182,7 @@ def test_moving_greens_default_grid_and_decay(model):
     np.testing.assert_allclose(g.g[0], g.g[-1], rtol=0, atol=0.01 * peak.max())  # periodic
 
 
+@pytest.mark.slow
 def test_clamped_end_reflections_do_not_matter():
     """Same response on a 70-bay and a 140-bay track over the default 0.1 s window."""
     v = 30 / 3.6

@@ -208,6 +208,7 @@ def test_bogie_gradient_reaches_the_flat_and_matches_finite_differences():
     assert grad == pytest.approx(fd, rel=1e-2)
 
 
+@pytest.mark.slow
 def test_bogie_sweep_gives_every_wheels_extremes():
     speeds = np.array([60.0, 140.0]) / 3.6
     sw = wf.sweep(ROUNDED, speeds, 2, contact="hertz-trajectory", vehicle=Vehicle.bogie(),
@@ -275,6 +276,7 @@ def test_two_wheels_on_a_hanging_sleeper_agree_with_a_direct_fe_time_integration
         assert fn.min() == pytest.approx(fm.min(), abs=0.02 * fm.max()), i
 
 
+@pytest.mark.slow
 def test_sensors_and_detector_see_every_wheel():
     # static start: the readings under a bogie are the superposition of each wheel's alone
     from wfjax import sensors as sensor_mod

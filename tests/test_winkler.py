@@ -50,6 +50,7 @@ def test_parabolic_bedding_is_hertz_exactly():
         assert K * val == pytest.approx(float(hertz.force(delta, MAT, R)), rel=1e-11)
 
 
+@pytest.mark.slow
 def test_discrete_parabola_converges_to_hertz_at_second_order():
     errors = []
     for h in (2e-3, 1e-3, 5e-4, 2.5e-4):
