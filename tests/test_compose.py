@@ -70,9 +70,12 @@ def test_fit_flat_takes_a_vehicle_a_rough_rail_and_varying_supports():
     track = supports.scatter(wf.Track(), key=1, cv=0.3)  # varying pad and ballast stiffness
     kw = dict(contact="hertz-trajectory", config=COARSE, vehicle=Vehicle.bogie(),
               roughness=_rough_rail(), track=track)
-    data = fit.max_force_model(speeds, truth, impact_positions=2, **kw)(truth)
-    res = fit.fit_flat({"speeds": speeds, "max_force": np.asarray(data)},
-                       wf.Flat.new(0.56e-3), impact_positions=2, mode="reverse", max_iter=30,
+    start = wf.Flat.new(0.56e-3)
+    bound = fit.parametrisation_for(start).extent_bound  # the fit's windows, for the data too
+    data = fit.max_force_model(speeds, truth, impact_positions=2, extent_bound=bound,
+                               **kw)(truth)
+    res = fit.fit_flat({"speeds": speeds, "max_force": np.asarray(data)}, start,
+                       impact_positions=2, mode="reverse", max_iter=40, xtol=1e-6, ftol=1e-12,
                        **kw)
     assert res.params["depth"] == pytest.approx(0.8e-3, rel=2e-3), res.message
 

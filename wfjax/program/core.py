@@ -38,7 +38,6 @@ from ..contact.table_law import cached_tables_3d
 from ..loop.observers import DetectorReadings, Sensors
 from ..loop.run import StepOutput, run_scan
 from ..loop.structure import structure
-from ..params import Flat
 from ..results import summarise_run
 from ..scenario.description import Scenario
 from ..sensors import detector_spec, sensor_spec
@@ -319,10 +318,10 @@ def compile_scenario(scenario: Scenario, cache_dir=None) -> Program:
     if sc.tracks is not None:
         models = padded_models(sc.tracks, sc.config, cache_dir)
         struct = struct._replace(track=pick_model(models, 0))
-    flats = sc.vehicle_flats(Flat.none(float(sc.wheels[sc.vehicle.flat_wheel].radius)))
-    laws = vehicle_laws(sc.contact, flats, list(sc.wheels), sc.track, sc.material, sc.config,
-                        cache_dir)
-    others = tuple(None if i == sc.vehicle.flat_wheel else law for i, law in enumerate(laws))
+    fw = sc.vehicle.flat_wheel
+    flats = [None if i == fw else f for i, f in enumerate(sc.vehicle_flats(sc.flats[0]))]
+    others = vehicle_laws(sc.contact, flats, list(sc.wheels), sc.track, sc.material, sc.config,
+                          cache_dir)  # the reference wheel's law: per flat, None here
     sensors = (None if sc.sensors is None else sensor_spec(sc.sensors, sc.track, struct.track,
                                                            sc.sensor_quantities))
     detector = None if sc.detector is None else detector_spec(sc.detector, sc.track,

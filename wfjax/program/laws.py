@@ -156,7 +156,7 @@ def padded_models(tracks, config: SimConfig, cache_dir=None):
         :class:`wfjax.track.ModalModel` with array fields [R, ...] (``sleeper_spacing`` and
         ``element_phi`` shared).
     """
-    from . import track as track_mod
+    from .. import track as track_mod
 
     models = [track_mod.modal_model(tr, max_frequency=config.track_max_frequency,
                                     cache_dir=cache_dir) for tr in tracks]
@@ -239,11 +239,15 @@ def loop_roughness(rail=None, wheel=None, wheels=None, track: Track | None = Non
 
 
 
-def vehicle_laws(contact: str, flats: list[Flat], wheels: list[Wheel], track: Track,
+def vehicle_laws(contact: str, flats: list, wheels: list[Wheel], track: Track,
                  material: Material, config: SimConfig, cache_dir=None) -> tuple:
-    """[n] contact laws of the vehicle's wheels (one per distinct flat and wheel radius)."""
+    """[n] contact laws of the vehicle's wheels (one per distinct flat and wheel radius;
+    None where the flat is None)."""
     laws, done = [], {}
     for f, w in zip(flats, wheels, strict=True):
+        if f is None:
+            laws.append(None)
+            continue
         key = (id(f), float(w.radius)) if f.kind != "none" else ("none", float(w.radius))
         if key not in done:
             done[key] = prepare(contact, f, w, track, material, config, cache_dir)
