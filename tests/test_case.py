@@ -13,6 +13,8 @@ import pytest
 
 import wfjax as wf
 from wfjax import case as C
+from wfjax.datafiles import read_profile_csv
+from wfjax.optdocs import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -191,7 +193,7 @@ def test_examples_resolve():
 
 def test_docs_table_is_generated_from_the_keys():
     """docs/case_files.md holds exactly the table of wfjax/case.py (wfjax config --print-table)."""
-    assert C.markdown_table() in (ROOT / "docs" / "case_files.md").read_text()
+    assert markdown_table() in (ROOT / "docs" / "case_files.md").read_text()
 
 
 def test_toml_output_is_valid_toml():
@@ -209,13 +211,13 @@ def test_profile_csv_is_resampled_centred_and_checked(tmp_path):
     z = np.where(np.abs(x - 1060) < 50, 0.45 * (1 + np.cos(2 * np.pi * (x - 1060) / 100)), 0.0)
     z[3] = -0.01  # measurement noise below zero is clipped
     path = _write(tmp_path, "# comment line\n" + _profile_text(x, z), "p.csv")
-    xm, zm = C.read_profile_csv(path)
+    xm, zm = read_profile_csv(path)
     np.testing.assert_allclose(np.diff(xm), 0.1e-3, rtol=1e-9)
     assert abs(np.sum(xm * zm) / np.sum(zm)) < 1e-9  # centred on the missing area
     assert zm.min() == 0.0 and zm.max() == pytest.approx(0.9e-3)
     flat = wf.Flat.from_profile(xm, zm)
     assert flat.kind == "profile" and float(flat.depth) == pytest.approx(0.9e-3)
-    xs, zs = C.read_profile_csv(path, smoothing_mm=2.0)
+    xs, zs = read_profile_csv(path, smoothing_mm=2.0)
     assert zs.max() < zm.max() and np.sum(zs) == pytest.approx(np.sum(zm), rel=1e-3)
     case = C.resolve("simulate", None, {"flat.profile_csv": path}, environ={})
     assert case["flat.kind"] == "profile" and "flat.depth" not in case.values
@@ -237,7 +239,7 @@ def test_profile_csv_is_resampled_centred_and_checked(tmp_path):
 def test_profile_csv_errors_are_clear(tmp_path, text, words):
     path = _write(tmp_path, text, "p.csv")
     with pytest.raises(C.CaseError) as err:
-        C.read_profile_csv(path)
+        read_profile_csv(path)
     message = str(err.value)
     assert "\n" not in message and path in message
     for w in words:

@@ -15,6 +15,7 @@ import pytest
 import wfjax as wf
 from wfjax import case as C
 from wfjax.cli import build_parser, main
+from wfjax.optdocs import markdown_table
 
 SWEEP = importlib.import_module("wfjax.sweeps")  # the module (wfjax.sweep is the function)
 INTERACTION = importlib.import_module("wfjax.api")
@@ -186,7 +187,7 @@ def test_config_check_shows_environment_precision_and_flag_wins(tmp_path, capsys
     assert main(["config", "--config", str(cfg), "--set", "config.precision=\"float64\""]) == 0
     assert 'precision = "float64"' in capsys.readouterr().out
     assert main(["config", "--print-table"]) == 0
-    assert capsys.readouterr().out == C.markdown_table()
+    assert capsys.readouterr().out == markdown_table()
 
 
 def test_fit_accepts_3d_contact_and_the_comparison_track(tmp_path):

@@ -2,7 +2,7 @@
 
 The prose lives in ``docs/case_files.template.md``; its markers ``<!-- keys -->`` and
 ``<!-- flags -->`` are replaced by the table of every case key
-(:func:`wfjax.case.markdown_table`) and the table of every command-line flag
+(:func:`markdown_table`) and the table of every command-line flag
 (:func:`flags_table`). Regenerate with ``python -m wfjax.optdocs`` from the project root; a
 test checks that the committed page equals the generated text.
 """
@@ -12,11 +12,29 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .case import markdown_table
-from .options import COMMANDS, OPTIONS
+from .case import _toml_value, default_layer
+from .options import COMMANDS, KEYS, OPTIONS
 
 TEMPLATE = Path("docs/case_files.template.md")
 PAGE = Path("docs/case_files.md")
+
+
+# -- documentation --------------------------------------------------------------------------
+def markdown_table() -> str:
+    """Every key as a Markdown table: key, unit, allowed values, sweep default, subcommands."""
+    defaults = {c: default_layer(c) for c in COMMANDS}
+    lines = ["| key | unit | allowed | default | read by | meaning |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for path, key in KEYS.items():
+        shown = {_toml_value(defaults[c][path]) for c in key.commands if path in defaults[c]}
+        first = next((defaults[c][path] for c in ("sweep", *key.commands) if path in defaults[c]),
+                     None)
+        default = "-" if first is None else f"`{_toml_value(first)}`"
+        if len(shown) > 1:
+            default += " (differs by subcommand)"
+        lines.append(f"| `{path}` | {key.unit or '-'} | {key.allowed().replace('|', '/')} | "
+                     f"{default} | {', '.join(key.commands)} | {key.doc.replace('|', '/')} |")
+    return "\n".join(lines) + "\n"
 
 
 def flags_table() -> str:

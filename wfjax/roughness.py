@@ -25,10 +25,8 @@ the elliptical contact patch: the equivalent input of a point-contact law).
 Limits (:data:`MAX_SPACING`, :data:`MAX_AMPLITUDE`): samples at most 1 mm apart, because the
 contact patch is about 10-12 mm long under a 118 kN wheel (the contact filter must average
 over ten samples or more) and the 2D bedding and direct 3D contact read the gap on 1 mm
-elements (``SimConfig.contact_element``); amplitudes at most 5 mm: the deepest wheel flat the
-model takes (``params.MAX_FLAT_DEPTH``), so a rail-top profile may carry a defect such as a
-dipped joint (0.5-3 mm, :mod:`wfjax.joint`) while the contact laws' approach stays within the
-range they are built and checked for.
+elements (``SimConfig.contact_element``); amplitudes at most 5 mm, the model's deepest flat,
+so a rail profile may carry a dipped joint (0.5-3 mm, :mod:`wfjax.joint`).
 """
 
 from __future__ import annotations

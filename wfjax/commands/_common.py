@@ -12,6 +12,7 @@ from pathlib import Path
 
 from .. import case as case_mod
 from .. import options
+from ..datafiles import file_sha256
 
 
 class NonFiniteResult(RuntimeError):
@@ -120,7 +121,7 @@ def provenance(case: case_mod.Case, inputs: dict[str, str] | None = None) -> dic
         "jax_backend": jax.default_backend(),
         "jax_device_count": jax.device_count(),
         "case_sha256": case.digest(),
-        "inputs_sha256": {str(p): case_mod.file_sha256(p) for p in (inputs or {}).values()
+        "inputs_sha256": {str(p): file_sha256(p) for p in (inputs or {}).values()
                           if p and Path(p).is_file()},
     }
 

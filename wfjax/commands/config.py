@@ -12,6 +12,7 @@ from __future__ import annotations
 import sys
 
 from .. import case as case_mod
+from ..optdocs import markdown_table
 
 HELP = "print the default case file (--print-defaults) or check and resolve one (--config)"
 
@@ -26,7 +27,7 @@ def run(args) -> int:
 
     flag_layer(args, "config")  # its own flags (--command) checked before anything else
     if args.print_table:
-        sys.stdout.write(case_mod.markdown_table())
+        sys.stdout.write(markdown_table())
         return 0
     if args.print_defaults and (args.config or args.set_values):
         raise ValueError("--print-defaults prints the defaults; leave out --config and --set "

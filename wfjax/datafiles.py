@@ -1,0 +1,108 @@
+"""The data files a case names: a measured flat profile's CSV (:func:`read_profile_csv`) and
+the sha256 of any input file for the provenance (:func:`file_sha256`)."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from . import params as P
+from .options import CaseError
+
+__all__ = ["read_profile_csv", "file_sha256", "PROFILE_STEP"]
+
+PROFILE_STEP = 0.1e-3  # m; measured profiles are resampled on this uniform grid
+PROFILE_COLUMNS = ("x_mm", "z_mm")
+
+
+def read_profile_csv(path: str | os.PathLike, smoothing_mm: float = 0.0):
+    """A measured flat profile from CSV, as (x [m], z [m]) for :meth:`Flat.from_profile`.
+
+    Columns ``x_mm`` (circumferential coordinate [mm], strictly increasing, any origin) and
+    ``z_mm`` (radial deviation [mm]: depth of material missing from the round wheel, >= 0,
+    zero on the undamaged surface). Steps: checks (at least 5 rows, numbers, finite,
+    increasing x, no negative z beyond 0.02 mm of noise, both ends back on the undamaged
+    surface within 5 % of the depth, depth <= 5 mm); negative noise clipped to 0; linear
+    resampling on a uniform 0.1 mm grid; optional Gaussian smoothing (standard deviation
+    ``smoothing_mm``, the ends held at 0); centring on the centroid of the missing area.
+
+    Raises:
+        CaseError: one line naming the file, the line or column and what is wrong.
+    """
+
+    source = str(path)
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise CaseError(f"--profile-csv {source}: cannot read: {exc.strerror or exc}") from None
+    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
+    rows = [r for r in rows if not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise CaseError(f"{source}: empty profile file; need columns x_mm,z_mm")
+    header = [c.strip() for c in rows[0]]
+    if header != list(PROFILE_COLUMNS):
+        hint = (" (lengths must be in mm: multiply by 1000 and rename)"
+                if header in (["x_m", "z_m"], ["x", "z"]) else "")
+        raise CaseError(f"{source}: header must be x_mm,z_mm (circumferential coordinate and "
+                        f"radial deviation in mm), got {','.join(header)}{hint}")
+    values = []
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != 2:
+            raise CaseError(f"{source}: line {i} has {len(row)} fields, need 2 (x_mm,z_mm)")
+        try:
+            pair = [float(c) for c in row]
+        except ValueError:
+            raise CaseError(f"{source}: line {i}: not a number: {','.join(row)}") from None
+        if not all(math.isfinite(v) for v in pair):
+            raise CaseError(f"{source}: line {i}: NaN or infinite value")
+        values.append(pair)
+    if len(values) < 5:
+        raise CaseError(f"{source}: need at least 5 rows of x_mm,z_mm, got {len(values)}")
+    x, z = np.asarray(values).T
+    bad = np.flatnonzero(np.diff(x) <= 0)
+    if bad.size:
+        raise CaseError(f"{source}: x_mm must be strictly increasing; line {bad[0] + 3} "
+                        f"({x[bad[0] + 1]:g}) follows {x[bad[0]]:g}")
+    depth = float(z.max())
+    if z.min() < -0.02:
+        hint = (" (z is material removed, positive into the wheel: flip the sign?)"
+                if depth <= 0.02 else "")
+        raise CaseError(f"{source}: z_mm down to {z.min():g} mm; allowed: >= -0.02 mm of "
+                        f"measurement noise{hint}")
+    if depth <= 0:
+        raise CaseError(f"{source}: z_mm is nowhere > 0: no flat in the profile")
+    if depth > P.MAX_FLAT_DEPTH * 1e3:
+        raise CaseError(f"{source}: z_mm maximum {depth:g} mm; allowed: (0, "
+                        f"{P.MAX_FLAT_DEPTH * 1e3:g}] mm (values in um instead of mm?)")
+    for end, value in (("first", z[0]), ("last", z[-1])):
+        if value > 0.05 * depth:
+            raise CaseError(f"{source}: the {end} row has z_mm = {value:g} mm, {value / depth:.0%}"
+                            " of the depth; the profile must reach the undamaged surface (z "
+                            "within 5 % of the depth of 0) at both ends: extend it")
+    if not 0 <= smoothing_mm <= 20:
+        raise CaseError(f"flat.profile_smoothing_mm = {smoothing_mm!r}: out of range; "
+                        "allowed: [0, 20] mm")
+    z = np.maximum(z, 0.0)
+    step = PROFILE_STEP * 1e3
+    n = int(np.floor((x[-1] - x[0]) / step)) + 1
+    xu = x[0] + step * np.arange(n)
+    zu = np.interp(xu, x, z)
+    zu[0] = zu[-1] = 0.0
+    if smoothing_mm > 0:
+        half = int(np.ceil(4 * smoothing_mm / step))
+        kernel = np.exp(-0.5 * (np.arange(-half, half + 1) * step / smoothing_mm) ** 2)
+        zu = np.convolve(np.pad(zu, half), kernel / kernel.sum(), mode="valid")
+        zu[0] = zu[-1] = 0.0
+    centre = float(np.sum(xu * zu) / np.sum(zu))
+    return (xu - centre) * 1e-3, zu * 1e-3
+
+
+def file_sha256(path) -> str:
+    """sha256 of a file's bytes (recorded in provenance for data and profiles)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
