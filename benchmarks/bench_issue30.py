@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import resource
 import shutil
@@ -329,10 +330,13 @@ RUNNERS = {"main": group_main, "fig8": group_fig8, "fit3d": group_fit3d,
 def summarise(runs: list[dict]) -> dict:
     """Per measurement: both trees' values by round, the paired ratios new/old, medians."""
     table: dict = {}
+    old_first: dict = {}
     for r in runs:
         m = table.setdefault(r["measurement"], {"old": {}, "new": {}})
         if r["rc"] == 0:
             m[r["tree"]][r["round"]] = r["wall_s"]
+        if r["tree"] == "old":
+            old_first[r["round"]] = r["first"]
     out = {}
     for name, m in table.items():
         paired = sorted(set(m["old"]) & set(m["new"]))
@@ -344,9 +348,22 @@ def summarise(runs: list[dict]) -> dict:
             "old_median": statistics.median(m["old"].values()) if m["old"] else None,
             "new_median": statistics.median(m["new"].values()) if m["new"] else None,
             "paired_median_ratio": statistics.median(ratios) if ratios else None,
+            "order_balanced_ratio": _balanced(paired, ratios, old_first),
             "rounds": len(ratios),
         }
     return out
+
+
+def _balanced(rounds: list, ratios: list, old_first: dict):
+    """exp of the mean of the two orders' mean log ratios (old first, new first): the second
+    run of a pair is measured slower on this machine, and with an odd number of rounds the
+    plain median leans to the order that ran more often."""
+    by = {True: [], False: []}
+    for k, ratio in zip(rounds, ratios, strict=True):
+        by[old_first[k]].append(math.log(ratio))
+    if not by[True] or not by[False]:
+        return None
+    return math.exp(0.5 * (statistics.mean(by[True]) + statistics.mean(by[False])))
 
 
 def markdown(summary: dict) -> str:
@@ -354,12 +371,14 @@ def markdown(summary: dict) -> str:
         return "-" if x is None else format(x, fmt)
 
     lines = ["| measurement | old median [s] | new median [s] | paired median ratio new/old "
-             "| ratios per round | rounds |", "| --- | ---: | ---: | ---: | --- | ---: |"]
+             "| order-balanced ratio | ratios per round | rounds |",
+             "| --- | ---: | ---: | ---: | ---: | --- | ---: |"]
     for name, s in summary.items():
         small = s["old_median"] is not None and s["old_median"] < 1
         fmt = ".3f" if small or name == RATIO else ".1f"
         lines.append(f"| {name} | {f(s['old_median'], fmt)} | {f(s['new_median'], fmt)} | "
                      f"**{f(s['paired_median_ratio'], '.3f')}** | "
+                     f"{f(s.get('order_balanced_ratio'), '.3f')} | "
                      f"{', '.join(format(x, '.2f') for x in s['ratios_new_over_old'])} | "
                      f"{s['rounds']} |")
     return "\n".join(lines)
@@ -383,6 +402,10 @@ def parse_args(argv=None):
     p.add_argument("--old-commit", default=OLD_COMMIT, help="default %(default)s")
     p.add_argument("--new", type=Path, default=REPO, help="new tree (default: this repository)")
     p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--first-round", type=int, default=1,
+                   help="number of the first round (its parity sets who runs first: odd old)")
+    p.add_argument("--merge", type=Path, nargs="+",
+                   help="print the summary of these JSON files' runs together and exit")
     p.add_argument("--only", default=",".join(GROUPS),
                    help="groups to run, comma separated (default %(default)s)")
     p.add_argument("--quick", action="store_true",
@@ -399,8 +422,17 @@ def parse_args(argv=None):
     return args
 
 
+def merged(paths: list[Path]) -> None:
+    """Print the summary of several runs' JSON files together (e.g. an extra round)."""
+    runs = [r for p in paths for r in json.loads(p.read_text())["runs"]]
+    print(markdown(summarise(runs)))
+
+
 def main(argv=None) -> None:
     args = parse_args(argv)
+    if args.merge:
+        merged(args.merge)
+        return
     old_commit = ensure_old_tree(args.old, args.old_commit)
     trees = {"old": args.old.resolve(), "new": args.new.resolve()}
     report = {
@@ -423,7 +455,7 @@ def main(argv=None) -> None:
               f"imports {found}", file=sys.stderr)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()
-    for rnd in range(args.rounds):
+    for rnd in range(args.first_round - 1, args.first_round - 1 + args.rounds):
         order = ("old", "new") if rnd % 2 == 0 else ("new", "old")
         t_round = time.perf_counter()
         for group in args.groups:
