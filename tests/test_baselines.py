@@ -23,7 +23,12 @@ def _stored(case: str) -> dict:
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW else c
                                   for c in baselines.CASES])
-def test_results_equal_the_baseline(case):
+def test_results_equal_the_baseline(case, tmp_path, monkeypatch):
+    # from an empty cache, as the baselines were written: 3D tables and families read from a
+    # warm cache were built in another order (warm-started solves), which moves the default
+    # sweep's maxima by ~1.6e-10 relative (measured: the baseline's own commit, 00125cf, fails
+    # at 1e-12 on a warm cache and passes on an empty one)
+    monkeypatch.setenv("WFJAX_CACHE_DIR", str(tmp_path))
     want = _stored(case)
     got = baselines.CASES[case]()
     assert set(got) == set(want)
