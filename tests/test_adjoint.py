@@ -73,9 +73,8 @@ def _close(a, b, rel=REL):
     assert np.max(np.abs(a - b)) <= rel * np.max(np.abs(b)), (a, b)
 
 
-@pytest.mark.parametrize("contact", [
-    "hertz-trajectory", pytest.param("hertz-profile", marks=pytest.mark.slow),
-    pytest.param("2d", marks=pytest.mark.slow), pytest.param("3d", marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("contact", ["hertz-trajectory", "hertz-profile", "2d", "3d"])
 def test_gradient_matches_plain_autodiff_and_forward_is_bit_identical(contact, struct, fam):
     def loss(th, runner):
         return _misfit(runner(_law(contact, th, fam), struct, V, DT, X0, IMPACT, N))

@@ -91,6 +91,7 @@ def struct():
     return structure(Vehicle.single(), [WHEEL], TRACK, CONFIG)
 
 
+@pytest.mark.slow
 def test_one_wheel_sensors_and_detector(struct):
     obs = _instruments(struct.track, [0.0, 0.3], sensor_mod.Detector(n_bays=2, first_bay=-1))
     for history in (True, False):
