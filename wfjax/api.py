@@ -79,13 +79,13 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
                            wheel_roughness=wheel_roughness, sensors=sensors,
                            sensor_quantities=sensor_quantities, detector=detector)
     v = check_speed(speed)
-    run, n_steps = _run_of(scenario, v, impact_position, angle0, n_steps)
+    run, x_imp = _run_of(scenario, v, impact_position, angle0, n_steps)
     program = compile_scenario(scenario, cache_dir)
-    hist = program.history(run, n_steps)
+    hist = program.history(run)
     fw = scenario.vehicle.flat_wheel
     quantities = () if program.data.sensors is None else program.data.sensors.quantities
-    res = summarise_run(hist, fw, v, run.impact_position - scenario.shift, run.dt, run.run_in,
-                        quantities, program.data.struct.preload)
+    res = summarise_run(hist, fw, v, x_imp, run.dt, run.run_in, quantities,
+                        program.data.struct.preload)
     if not scenario.per_wheel:
         res = one_wheel(res, fw)
     if program.data.struct.supports is not None:
@@ -98,13 +98,14 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
 
 
 def _run_of(scenario: Scenario, v: float, impact_position, angle0, n_steps) -> tuple:
-    """(the :class:`Run` of :func:`simulate`, its step count): the window of the scenario's
-    flat at speed ``v`` [m/s], checked on the track and the rail roughness."""
+    """(the :class:`Run` of :func:`simulate`, its impact position in the bay [m]): the window
+    of the scenario's flat at speed ``v`` [m/s], checked on the track and the rail
+    roughness; ``run.end`` is its step count."""
     config, spacing = scenario.config, float(scenario.track.sleeper_spacing)
     window = scenario.window_flat(scenario.flats[0])
     s_start, s_end = simulation_window(window, v, config)
     if angle0 is not None:
-        radius = float(scenario.wheels[scenario.vehicle.flat_wheel].radius)
+        radius = float(scenario.reference_wheel.radius)
         impact_position = float(impact_position_from_angle(angle0, s_start, radius, spacing))
     x_imp = check_impact_position(impact_position, scenario.track)
     n_auto, dt = n_steps_for(window, v, config)
@@ -117,4 +118,4 @@ def _run_of(scenario: Scenario, v: float, impact_position, angle0, n_steps) -> t
     scenario.check_travel(window, [v], [x_imp])
     x_abs = x_imp + scenario.shift
     run_in = int(0.5 * RUN_IN_TIME / dt)
-    return Run(0, v, dt, x_abs + s_start, x_abs, run_in, int(n_steps), 0), int(n_steps)
+    return Run(0, v, dt, x_abs + s_start, x_abs, run_in, int(n_steps), 0), x_imp

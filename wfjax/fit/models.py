@@ -89,7 +89,7 @@ class TracedLaw:
     def of(cls, scenario: Scenario, reference: Flat, cache_dir=None) -> TracedLaw:
         """The traced law of ``scenario``'s reference wheel, sized by ``reference``."""
         sc = scenario
-        wheel = sc.wheels[sc.vehicle.flat_wheel]
+        wheel = sc.reference_wheel
         spec3d = family = None
         if sc.contact == "3d" and reference.kind == "profile":
             from ..contact import tables

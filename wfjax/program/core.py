@@ -101,6 +101,10 @@ class ProgramData(NamedTuple):
         """Index of the reference (swept) wheel."""
         return [o is None for o in self.others].index(True)
 
+    def wheel_laws(self, law) -> tuple:
+        """[n_wheels] laws: ``law`` (the swept flat's) on the reference wheel, the others'."""
+        return tuple(law if o is None else o for o in self.others)
+
 
 # -- what to save ----------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
@@ -165,9 +169,9 @@ def run_one(data: ProgramData, law, run: Run, n_steps: int, max_iter: int, preci
     struct = data.struct
     if data.tracks is not None:  # support realisations: this run's modal model
         struct = struct._replace(track=pick_model(data.tracks, run.realisation))
-    laws = tuple(law if o is None else o for o in data.others)
-    hist = run_scan(laws, struct, run.speed, run.dt, run.x_start, run.impact_position, n_steps,
-                    max_iter, observers=save.observers(data, run), precision=precision,
+    hist = run_scan(data.wheel_laws(law), struct, run.speed, run.dt, run.x_start,
+                    run.impact_position, n_steps, max_iter,
+                    observers=save.observers(data, run), precision=precision,
                     roughness=realisation(data.roughness, run.realisation), n_run=n_run)
     return save.finalize(hist, run, data)
 
@@ -240,11 +244,10 @@ class Adjoint:
 
         if not isinstance(save, Histories) or data.tracks is not None:
             raise ValueError("the adjoint saves histories (Histories()) of one track")
-        laws = tuple(law if o is None else o for o in data.others)
         first = jax.tree.map(lambda a: a[0], runs)
         n_steps, max_iter, precision = program.statics
-        return run_adjoint_runs(laws, data.struct, runs.speed, runs.dt, runs.x_start,
-                                runs.impact_position, n_steps, max_iter, precision,
+        return run_adjoint_runs(data.wheel_laws(law), data.struct, runs.speed, runs.dt,
+                                runs.x_start, runs.impact_position, n_steps, max_iter, precision,
                                 realisation(data.roughness, 0), save.observers(data, first))
 
 
@@ -253,9 +256,9 @@ class Adjoint:
 class Program:
     """A scenario prepared for the devices (build with :func:`compile_scenario`).
 
-    ``data`` holds everything but the swept flats' laws (``laws`` None), which
-    :meth:`group_laws` prepares per group of flats (or a fit traces); ``n_steps`` the step
-    count of the batches :meth:`forward` runs (static).
+    ``data`` holds everything but the swept flats' laws (``laws`` None): :meth:`sweep`
+    prepares them per group of flats, :meth:`history` its one flat's, a fit traces its own;
+    ``n_steps`` is the step count of the batches :meth:`forward` runs (static).
     """
 
     scenario: Scenario
@@ -269,28 +272,15 @@ class Program:
         config = self.scenario.config
         return self.n_steps, config.newton_iterations, config.precision
 
-    def group_laws(self, indices, tables: bool, progress: bool = False):
-        """(laws stacked along a flat axis, [n] flats that size each one's window) of the
-        scenario's flats ``indices`` (one :class:`wfjax.program.laws.BatchGroup`)."""
-        sc = self.scenario
-        members = [sc.flats[i] for i in indices]
-        wheel = sc.wheels[sc.vehicle.flat_wheel]
-        if tables:
-            return table_laws(cached_tables_3d(
-                members, float(wheel.radius), float(sc.track.rail_head_radius), sc.material,
-                sc.config.contact_element, self.cache_dir)), members
-        return prepare_batch(sc.contact, members, wheel, sc.track, sc.material, sc.config,
-                             self.cache_dir, progress)
-
-    def history(self, run: Run, n_steps: int, save=Histories()) -> dict:
-        """One run's outputs (default every step's histories) with the scenario's only
-        flat, its law prepared eagerly (a batch's laws compile: ``prepare_batch``), on the
-        host's default device (``run.flat`` unused)."""
+    def history(self, run: Run, save=Histories()) -> dict:
+        """One run's outputs (default every step's histories) over its ``run.end`` steps with
+        the scenario's only flat, its law prepared eagerly (a batch's laws compile:
+        ``prepare_batch``), on the host's default device (``run.flat`` unused)."""
         sc = self.scenario
         (flat,) = sc.flats
-        law = prepare(sc.contact, flat, sc.wheels[sc.vehicle.flat_wheel], sc.track,
-                      sc.material, sc.config, self.cache_dir)
-        return _one_run(self.data, law, run, n_steps=int(n_steps),
+        law = prepare(sc.contact, flat, sc.reference_wheel, sc.track, sc.material, sc.config,
+                      self.cache_dir)
+        return _one_run(self.data, law, run, n_steps=int(run.end),
                         max_iter=sc.config.newton_iterations, precision=sc.config.precision,
                         save=save)
 
@@ -347,10 +337,10 @@ class _Sweep:
         if self.progress and any(g.tables for g in groups):
             print("  building the 3D contact tables (cached after the first run) ...",
                   end="\r", file=sys.stderr, flush=True)
-        wheel = sc.wheels[sc.vehicle.flat_wheel]
         # the exact 3D tables are built while the program compiles
         ahead = {tuple(g.indices): in_background(
-            cached_tables_3d, [sc.flats[i] for i in g.indices], float(wheel.radius),
+            cached_tables_3d, [sc.flats[i] for i in g.indices],
+            float(sc.reference_wheel.radius),
             float(sc.track.rail_head_radius), sc.material, sc.config.contact_element,
             self.program.cache_dir) for g in groups if g.tables}
         out = {}
@@ -377,11 +367,12 @@ class _Sweep:
                   flush=True)
         compiled = None
         if group.tables:  # compile for the tables' shapes while they are being built
-            wheel = sc.wheels[sc.vehicle.flat_wheel]
-            laws, sizing = table_laws_like(members, wheel, sc.track, sc.material,
+            laws, sizing = table_laws_like(members, sc.reference_wheel, sc.track, sc.material,
                                            sc.config), members
         else:
-            laws, sizing = program.group_laws(group.indices, False, self.progress)
+            laws, sizing = prepare_batch(sc.contact, members, sc.reference_wheel, sc.track,
+                                         sc.material, sc.config, program.cache_dir,
+                                         self.progress)
         windows = [sc.window_flat(w) for w in sizing]
         for w in windows:
             sc.check_travel(w, self.v, self.pos)

@@ -138,10 +138,14 @@ class Scenario:
                    per_wheel)
 
     @property
+    def reference_wheel(self) -> Wheel:
+        """The wheel that carries the swept flats (``vehicle.flat_wheel``)."""
+        return self.wheels[self.vehicle.flat_wheel]
+
+    @property
     def n_realisations(self) -> int:
         """R: roughness or support realisations (1 without)."""
-        counts = {int(np.shape(r.values)[0]) for r in (self.roughness, self.wheel_roughness)
-                  if r is not None and np.ndim(r.values) == 2}
+        counts = _realisation_counts(self.roughness, self.wheel_roughness)
         if self.tracks is not None:
             counts.add(len(self.tracks))
         return counts.pop() if counts else 1
@@ -197,6 +201,12 @@ def _check_tracks(tracks, per_wheel: bool, sensors, detector) -> tuple:
     return tracks
 
 
+def _realisation_counts(rail, wheel) -> set:
+    """The realisation counts R of the roughness profiles with values [R, n]."""
+    return {int(np.shape(r.values)[0]) for r in (rail, wheel)
+            if r is not None and np.ndim(r.values) == 2}
+
+
 def _check_roughness(rail, wheel, tracks) -> None:
     if rail is not None and rail.periodic:
         raise ValueError("roughness (rail) must not be periodic; a wheel profile goes to "
@@ -204,8 +214,7 @@ def _check_roughness(rail, wheel, tracks) -> None:
     if wheel is not None and not wheel.periodic:
         raise ValueError("wheel_roughness must be periodic (roughness.read_csv(..., "
                          "wheel_radius=R) or roughness.generate_wheel)")
-    counts = {int(np.shape(r.values)[0]) for r in (rail, wheel)
-              if r is not None and np.ndim(r.values) == 2}
+    counts = _realisation_counts(rail, wheel)
     if len(counts) > 1:
         raise ValueError(f"roughness and wheel_roughness must hold the same number of "
                          f"realisations, got {sorted(counts)}")
