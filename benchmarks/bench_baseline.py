@@ -1,8 +1,8 @@
 """Baseline: the Hertz-trajectory sweep written the way a user without wfjax would.
 
 NumPy/SciPy, a Python time loop, ``scipy.optimize.brentq`` for the contact equation of every
-step, and the same wheel and track modal data (taken from :func:`wfjax.track.modal_model` and
-:func:`wfjax.wheel.modal_model` as NumPy arrays), the same mode shapes at the contact
+step, and the same wheel and track modal data (taken from :func:`wfjax.model.track.modal_model` and
+:func:`wfjax.model.wheel.modal_model` as NumPy arrays), the same mode shapes at the contact
 positions, the same wheel-centre trajectory, time step and step count as :func:`wfjax.sweep`.
 The script runs both on the same case and prints the largest relative difference of the
 maximum and minimum forces and the speed ratio (wfjax compiled; compile time apart).
@@ -24,9 +24,9 @@ import numpy as np
 import scipy.optimize
 
 import wfjax as wf
-from wfjax import track as T  # noqa: N812
-from wfjax import wheel as W  # noqa: N812
 from wfjax.contact import laws
+from wfjax.model import track as T
+from wfjax.model import wheel as W
 from wfjax.scenario.windows import run_windows
 
 

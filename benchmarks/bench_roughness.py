@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 import wfjax as wf
-from wfjax import roughness as R
+from wfjax.scenario import roughness as R
 
 
 def main() -> None:

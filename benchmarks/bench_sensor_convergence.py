@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 import wfjax as wf
-from wfjax.sensors import Detector
+from wfjax.scenario.sensors import Detector
 
 FLAT = wf.Flat.rounded(0.9e-3, 0.1)
 V = 100 / 3.6

@@ -4,7 +4,7 @@
 Run: ``python benchmarks/bench_sensors.py [--repeats N]``. The default ``wfjax sweep`` (rounded
 0.9 mm/100 mm and new 0.9 mm flats, 20-300 km/h in 10 km/h steps, 10 positions, 3D contact)
 without sensors and with eight sensors computing every quantity of
-:data:`wfjax.sensors.QUANTITIES`, two of them or one (``--detector``: also the 3-bay
+:data:`wfjax.scenario.sensors.QUANTITIES`, two of them or one (``--detector``: also the 3-bay
 detector alone). Each variant is compiled by a first call, then timed ``N``
 times interleaved with the others (the machine is shared: the ratio of medians is reported).
 Prints Markdown.
@@ -16,7 +16,7 @@ import argparse
 
 from _timing import interleaved_sweeps, print_ratios
 
-from wfjax.sensors import Detector
+from wfjax.scenario.sensors import Detector
 
 SENSORS = [-0.65, -0.325, 0.0, 0.1, 0.325, 0.55, 0.65, 0.975]  # m: 8 sensors
 

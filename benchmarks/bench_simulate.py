@@ -27,8 +27,8 @@ from wfjax._compile_clock import compile_seconds
 from wfjax.contact import laws
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.model.vehicle import Vehicle
 from wfjax.scenario.windows import n_steps_for, simulation_window
-from wfjax.vehicle import Vehicle
 
 
 def timed(fn):

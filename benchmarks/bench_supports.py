@@ -19,8 +19,8 @@ import time
 import numpy as np
 
 import wfjax
-from wfjax import supports as S
-from wfjax import track as T
+from wfjax.model import supports as S
+from wfjax.model import track as T
 
 
 def timed(fn) -> tuple[float, float]:

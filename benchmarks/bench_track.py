@@ -12,8 +12,8 @@ import time
 import numpy as np
 
 import wfjax
-from wfjax import track as T
-from wfjax import wheel as W
+from wfjax.model import track as T
+from wfjax.model import wheel as W
 
 
 def timed(fn, *args, **kwargs):

@@ -27,7 +27,7 @@ import numpy as np
 from _timing import interleaved_sweeps, print_ratios
 
 import wfjax as wf
-from wfjax.vehicle import Vehicle
+from wfjax.model.vehicle import Vehicle
 
 VEHICLES = {"1 wheel": None, "bogie (2 wheels, 2.5 m)": Vehicle.bogie(),
             "8 wheels, 2.5 m apart": Vehicle(tuple(2.5 * np.arange(8)))}
@@ -39,7 +39,7 @@ def speed(repeats: int) -> None:
 
 
 def memory() -> None:
-    code = ("import numpy as np, wfjax as wf; from wfjax.vehicle import Vehicle; "
+    code = ("import numpy as np, wfjax as wf; from wfjax.model.vehicle import Vehicle; "
             "wf.sweep([wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)], "
             "np.arange(20.0, 300.1, 10.0) / 3.6, 10, progress=False, "
             "vehicle=Vehicle(tuple(2.5 * np.arange(8))))")

@@ -9,7 +9,7 @@ Hertz contact with the profile input. For each speed: the peak contact force of 
 peak of the contact force low-passed at 150 Hz (zero phase, 4th-order Butterworth: the P2
 resonance at ~70 Hz passes, the P1 transient at ~1 kHz does not) and Jenkins' P2 with the
 track's equivalent mass, stiffness and damping read from the model's receptance at the joint
-(:func:`wfjax.joint.equivalent_track`). For the v dip also the wheel's downward velocity as
+(:func:`wfjax.scenario.joint.equivalent_track`). For the v dip also the wheel's downward velocity as
 it reaches the joint, over the ``alpha v`` of a wheel running down the ramp in steady descent
 (Jenkins' assumption), and a second table: the same angle over shorter dips.
 """
@@ -20,7 +20,7 @@ import numpy as np
 import scipy.signal
 
 import wfjax as wf
-from wfjax.joint import Joint, equivalent_track
+from wfjax.scenario.joint import Joint, equivalent_track
 
 SPEEDS_KMH = (50, 100, 150, 200)
 DEPTH, LENGTH, POSITION = 1e-3, 0.4, 0.325

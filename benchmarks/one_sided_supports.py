@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 import wfjax as wf
-from wfjax import supports
+from wfjax.model import supports
 from wfjax.scenario.windows import RUN_IN_TIME
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))

@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 import wfjax as wf
-from wfjax import roughness as R
+from wfjax.scenario import roughness as R
 
 
 def main() -> None:

@@ -58,7 +58,7 @@ def single_wheel(contact: str) -> dict:
 def bogie() -> dict:
     """Two wheels on one rail, the leading one with the flat (Hertz trajectory)."""
     wf = _wf()
-    from wfjax.vehicle import Vehicle
+    from wfjax.model.vehicle import Vehicle
 
     res = wf.simulate(wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH), SPEED,
                       contact="hertz-trajectory", impact_position=0.2, vehicle=Vehicle.bogie())
@@ -69,7 +69,8 @@ def bogie() -> dict:
 def rough_void() -> dict:
     """A rough rail over a void sleeper (35, fully void) and over a hanging one (gap)."""
     wf = _wf()
-    from wfjax import roughness, supports
+    from wfjax.model import supports
+    from wfjax.scenario import roughness
 
     track = wf.Track()
     rough = roughness.generate(roughness.ISO3095_LIMIT, 0, 6.0, x_start=-3.0)
@@ -86,7 +87,7 @@ def rough_void() -> dict:
 def detector() -> dict:
     """The detector's readings over a speed sweep and one simulation's load histories."""
     wf = _wf()
-    from wfjax.sensors import Detector
+    from wfjax.scenario.sensors import Detector
 
     flat = wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH)
     det = Detector(n_bays=3)

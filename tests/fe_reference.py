@@ -6,10 +6,10 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 import wfjax as wf
-from wfjax import geometry, sleepers, supports
-from wfjax import track as track_mod
-from wfjax import wheel as wheel_mod
 from wfjax.contact.laws import prepare
+from wfjax.model import geometry, sleepers, supports
+from wfjax.model import track as track_mod
+from wfjax.model import wheel as wheel_mod
 
 
 def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_roughness=None,

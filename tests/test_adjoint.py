@@ -1,4 +1,4 @@
-"""The hand-written adjoint of the time loop (wfjax.adjoint, issue 20 item 4): the same forward
+"""The hand-written adjoint of the time loop (wfjax.loop.adjoint, issue 20 item 4): the same forward
 values as run_scan, the same reverse-mode gradients as plain autodiff through run_scan, and
 central finite differences for the 3D family.
 
@@ -19,16 +19,16 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax import adjoint as adj
 from wfjax import fit
-from wfjax import roughness as rough_mod
 from wfjax.contact import family, laws
 from wfjax.contact.table_law import TableLaw
 from wfjax.fit.optimise import _objective
+from wfjax.loop import adjoint as adj
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.model.vehicle import Vehicle, placement
 from wfjax.program.laws import loop_roughness
-from wfjax.vehicle import Vehicle, placement
+from wfjax.scenario import roughness as rough_mod
 
 V, DT, N = 100 / 3.6, 3e-5, 400
 IMPACT = 0.1
@@ -135,7 +135,7 @@ def test_two_wheel_vehicle(contact, struct, fam):
 def test_two_wheels_on_a_track_whose_supports_vary():
     # the backward pass's step compliance reads the vehicle's tables along the whole rail,
     # as the forward's (it once built its cross table per bay)
-    from wfjax import supports
+    from wfjax.model import supports
 
     track, vehicle = supports.void_sleeper(TRACK, 35), Vehicle.bogie()
     vstruct = structure(vehicle, [WHEEL, WHEEL], track, CONFIG)

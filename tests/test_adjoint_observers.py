@@ -1,5 +1,5 @@
 """The adjoint's instrument observers (issue 30, item 2): sensors and the wheel impact load
-detector through wfjax.adjoint give run_scan's outputs bit for bit and plain autodiff's
+detector through wfjax.loop.adjoint give run_scan's outputs bit for bit and plain autodiff's
 gradients, and central differences agree.
 
 Short runs as tests/test_adjoint.py (400 steps of 30 us at 100 km/h, Hertz-trajectory law,
@@ -18,14 +18,14 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax import adjoint as adj
 from wfjax import fit
-from wfjax import sensors as sensor_mod
 from wfjax.contact import laws
+from wfjax.loop import adjoint as adj
 from wfjax.loop.observers import DetectorReadings, OwnCompliance, Sensors
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
-from wfjax.vehicle import Vehicle, placement
+from wfjax.model.vehicle import Vehicle, placement
+from wfjax.scenario import sensors as sensor_mod
 
 V, DT, N = 100 / 3.6, 3e-5, 400
 IMPACT = 0.1

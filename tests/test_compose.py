@@ -17,13 +17,14 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax import fit, supports
-from wfjax import roughness as rough_mod
+from wfjax import fit
+from wfjax.model import supports
+from wfjax.model.vehicle import Vehicle
 from wfjax.program.core import compile_scenario
+from wfjax.scenario import roughness as rough_mod
 from wfjax.scenario.description import Scenario
+from wfjax.scenario.sensors import Detector
 from wfjax.scenario.windows import simulation_window
-from wfjax.sensors import Detector
-from wfjax.vehicle import Vehicle
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 STEP = 1e-4  # central-difference step in theta
@@ -105,7 +106,7 @@ def test_scenario_is_a_pytree_with_static_structure():
 def test_a_joint_goes_into_any_entry_point_as_a_rail_top_input():
     """``roughness=`` takes a rail-top input (a dipped joint) alone or with a rail profile: the
     scenario adds it to the profile, for simulate, sweep and the fits alike."""
-    from wfjax.joint import Joint
+    from wfjax.scenario.joint import Joint
 
     joint, flat, v = Joint(0.3, 0.8e-3, 0.5), wf.Flat.none(), 100 / 3.6
     kw = dict(contact="hertz-profile", impact_position=0.1, config=COARSE)

@@ -270,7 +270,7 @@ def test_3d_notebook_fast_mode(monkeypatch):
 
 def _detector_truth(contact, speeds, truth, par, position, config, track=None):
     """Per-bay readings of the 3-bay detector from the full model (sweep) and 3 % noise."""
-    from wfjax.sensors import Detector
+    from wfjax.scenario.sensors import Detector
 
     truth_b = wf.Flat(truth.kind, truth.depth, truth.length, extent_bound=par.extent_bound)
     cfg = config if contact != "3d" else dataclasses.replace(config, contact_mode_3d="table")

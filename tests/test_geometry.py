@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax import geometry
+from wfjax.model import geometry
 
 R = 0.45
 D = 0.9e-3

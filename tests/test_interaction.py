@@ -9,8 +9,8 @@ import wfjax as wf
 from wfjax.contact import laws
 from wfjax.loop.run import LOOP_BLOCK, run_scan
 from wfjax.loop.structure import node_major_shapes, rail_terms, structure
+from wfjax.model.vehicle import Vehicle
 from wfjax.scenario.windows import RUN_IN_TIME, n_steps_for, run_windows, simulation_window
-from wfjax.vehicle import Vehicle
 
 ROUNDED = wf.Flat.rounded(0.9e-3, 0.1)
 NEW = wf.Flat.new(0.9e-3)

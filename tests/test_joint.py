@@ -9,10 +9,10 @@ import pytest
 
 import wfjax as wf
 from wfjax import case as C
-from wfjax import roughness as R
-from wfjax import track as T
 from wfjax.cli import main
-from wfjax.joint import (
+from wfjax.model import track as T
+from wfjax.scenario import roughness as R
+from wfjax.scenario.joint import (
     MARGIN,
     MAX_SLOPE,
     Joint,

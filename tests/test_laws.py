@@ -14,11 +14,11 @@ from wfjax.contact import laws, table_law, tables
 from wfjax.contact.protocol import ContactLaw
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.model.vehicle import Vehicle
 from wfjax.params import _pytree
 from wfjax.program.core import _sharded
 from wfjax.program.laws import common_extent, prepare_batch
 from wfjax.scenario.windows import n_steps_for, run_windows, simulation_window
-from wfjax.vehicle import Vehicle
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 MODEL = (wf.Wheel(), wf.Track.comparison(), wf.Material(), COARSE)

@@ -9,14 +9,14 @@ import scipy.sparse.linalg
 from fe_reference import newmark_wheels
 
 import wfjax as wf
-from wfjax import sleepers, supports
-from wfjax import track as track_mod
 from wfjax.contact.laws import prepare
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.model import sleepers, supports
+from wfjax.model import track as track_mod
+from wfjax.model.vehicle import Vehicle
 from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
-from wfjax.vehicle import Vehicle
 
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 V = 100 / 3.6
@@ -70,7 +70,7 @@ def test_static_start_equals_a_direct_non_linear_static_fe_solve(gap_mm, closed)
 
 
 def test_bogie_static_start_over_a_hanging_sleeper_equals_the_direct_solve():
-    from wfjax.vehicle import Vehicle
+    from wfjax.model.vehicle import Vehicle
 
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 0.4e-3)
     config, vehicle = wf.SimConfig(), Vehicle.bogie()
@@ -164,7 +164,7 @@ def test_hanging_sleepers_refuse_sensors_and_the_direct_3d_mode():
 
 
 def test_the_adjoint_refuses_hanging_sleepers():
-    from wfjax import adjoint
+    from wfjax.loop import adjoint
 
     track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
     config = wf.SimConfig()

@@ -10,7 +10,7 @@ import wfjax as wf
 from wfjax.contact.laws import prepare
 from wfjax.loop.run import time_loop
 from wfjax.loop.structure import structure
-from wfjax.vehicle import Vehicle
+from wfjax.model.vehicle import Vehicle
 
 FLAT = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 WIDE = (np.dtype(np.float64), np.dtype(np.complex128))

@@ -1,4 +1,4 @@
-"""Rail and wheel roughness (wfjax.roughness): generation against its target spectrum, the
+"""Rail and wheel roughness (wfjax.scenario.roughness): generation against its target spectrum, the
 band estimator against sinusoids, the CSV reader, the contact filter against its analytic
 response, and bad input."""
 
@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from wfjax import roughness as R
+from wfjax.scenario import roughness as R
 
 
 def _write(path, text):

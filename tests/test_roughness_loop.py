@@ -9,9 +9,9 @@ import pytest
 from fe_reference import newmark_wheels
 
 import wfjax as wf
-from wfjax import roughness as rough_mod
-from wfjax import supports
+from wfjax.model import supports
 from wfjax.program.laws import loop_roughness, padded_models
+from wfjax.scenario import roughness as rough_mod
 from wfjax.scenario.description import Scenario
 from wfjax.scenario.windows import check_impact_positions
 
@@ -249,7 +249,7 @@ def test_support_realisations_share_one_compile_and_equal_a_loop():
 
 @pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_every_wheel_of_a_vehicle_rolls_on_the_rough_rail():
-    from wfjax.vehicle import Vehicle
+    from wfjax.model.vehicle import Vehicle
 
     bogie = Vehicle.bogie()
     kw = dict(contact="2d", impact_position=0.1, vehicle=bogie)

@@ -1,4 +1,4 @@
-"""Sensors and the wheel impact load detector (wfjax.sensors), checked against independent
+"""Sensors and the wheel impact load detector (wfjax.scenario.sensors), checked against independent
 references: direct static and frequency-domain solves of the FE model, a finer mesh, the
 shear jump at a load and the static wheel load."""
 
@@ -11,12 +11,12 @@ import pytest
 import scipy.sparse.linalg
 
 import wfjax
-from wfjax import sensors as S
-from wfjax import track as T
 from wfjax.loop.observers import DetectorReadings
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
-from wfjax.vehicle import Vehicle
+from wfjax.model import track as T
+from wfjax.model.vehicle import Vehicle
+from wfjax.scenario import sensors as S
 
 P = 118e3
 LS = 0.65

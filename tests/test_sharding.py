@@ -25,7 +25,7 @@ SCRIPT = textwrap.dedent("""
         out.append(np.stack([sw.max_force, sw.min_force, sw.loss_of_contact_duration,
                              sw.loss_of_contact]))
     np.save(sys.argv[1], np.stack(out))
-    from wfjax.sensors import Detector
+    from wfjax.scenario.sensors import Detector
     sw = wf.sweep(flat, np.array([50.0, 100.0]) / 3.6, impact_positions=3,
                   contact="hertz-profile", progress=False, chunk_size=4, sensors=[0.1, 0.6],
                   sensor_quantities=("shear", "seat_force"),

@@ -1,4 +1,4 @@
-"""Supports that vary from sleeper to sleeper (wfjax.supports and the track model with them).
+"""Supports that vary from sleeper to sleeper (wfjax.model.supports and the track model with them).
 
 The validation tracks are 20 bays long (19 sleepers) so the full eigenproblem stays quick; the
 comparison is between two routes through the same FE model, so the length does not matter.
@@ -13,9 +13,10 @@ import pytest
 import scipy.sparse.linalg
 
 import wfjax
-from wfjax import _cache, sleepers
-from wfjax import supports as S
-from wfjax import track as T
+from wfjax import _cache
+from wfjax.model import sleepers
+from wfjax.model import supports as S
+from wfjax.model import track as T
 
 LS = 0.65
 NB = 20  # bays of the validation tracks; the middle sleeper (x = 0) has index NB // 2 - 1 = 9
@@ -204,7 +205,7 @@ def test_modal_model_cached_per_support_realisation(tmp_path):
 def test_sensor_seat_force_uses_the_pad_under_the_sensor():
     """Static seat force of a sensor above a sleeper: k_P (w_R - w_S) with that sleeper's
     pad, from the sensor rows, equals the direct FE solve."""
-    from wfjax import sensors
+    from wfjax.scenario import sensors
 
     tr = S.with_supports(wfjax.Track(n_bays=NB),
                          pad_stiffness=np.linspace(60e6, 240e6, NB - 1))

@@ -1,4 +1,4 @@
-"""Tests of the discretely supported track model (wfjax.track) and the on-disk cache."""
+"""Tests of the discretely supported track model (wfjax.model.track) and the on-disk cache."""
 
 import os
 
@@ -9,7 +9,7 @@ import pytest
 
 import wfjax
 from wfjax import _cache
-from wfjax import track as T
+from wfjax.model import track as T
 
 LS = 0.65
 P = 118e3

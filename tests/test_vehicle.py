@@ -11,16 +11,16 @@ import scipy.sparse.linalg
 from fe_reference import newmark_wheels
 
 import wfjax as wf
-from wfjax import supports
-from wfjax import track as track_mod
-from wfjax import wheel as wheel_mod
 from wfjax.contact.laws import prepare
 from wfjax.loop.observers import Sensors
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import cross_table, structure
+from wfjax.model import supports
+from wfjax.model import track as track_mod
+from wfjax.model import wheel as wheel_mod
+from wfjax.model.vehicle import Vehicle, placement, residual_pairs, transfer_receptance
 from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
-from wfjax.vehicle import Vehicle, placement, residual_pairs, transfer_receptance
 
 REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
@@ -279,8 +279,8 @@ def test_two_wheels_on_a_hanging_sleeper_agree_with_a_direct_fe_time_integration
 @pytest.mark.slow
 def test_sensors_and_detector_see_every_wheel():
     # static start: the readings under a bogie are the superposition of each wheel's alone
-    from wfjax import sensors as sensor_mod
-    from wfjax.sensors import Detector
+    from wfjax.scenario import sensors as sensor_mod
+    from wfjax.scenario.sensors import Detector
 
     track, config, wheel = wf.Track(), wf.SimConfig(), wf.Wheel()
     vehicle = Vehicle.bogie()

@@ -1,11 +1,11 @@
-"""Tests of the 2-DOF wheel model (wfjax.wheel) against closed forms and direct convolution."""
+"""Tests of the 2-DOF wheel model against closed forms and direct convolution."""
 
 import numpy as np
 import pytest
 import scipy.linalg
 
 import wfjax
-from wfjax import wheel as W
+from wfjax.model import wheel as W
 
 
 def closed_form_receptance(p: wfjax.Wheel, f):

@@ -16,17 +16,19 @@ if not _jax.config.read("jax_enable_x64"):
 
 from . import contact as contact  # noqa: E402  (after the x64 switch)
 from . import fit as fit
-from . import geometry as geometry
 from . import params as params
-from . import roughness as roughness
-from . import sleepers as sleepers
-from . import supports as supports
-from . import track as track
-from . import wheel as wheel
 from ._cache import load_or_build as load_or_build
 from .api import SimResult as SimResult
 from .api import simulate as simulate
-from .joint import Joint as Joint
+from .model import geometry as geometry
+from .model import sleepers as sleepers
+from .model import supports as supports
+from .model import track as track
+from .model import wheel as wheel
+from .model.track import ModalModel as ModalModel
+from .model.track import MovingGreens as MovingGreens
+from .model.vehicle import Vehicle as Vehicle
+from .model.wheel import WheelModal as WheelModal
 from .params import Flat as Flat
 from .params import Material as Material
 from .params import SimConfig as SimConfig
@@ -35,15 +37,13 @@ from .params import Wheel as Wheel
 from .params import kmh as kmh
 from .params import mm as mm
 from .program.core import compile_scenario as compile_scenario
-from .roughness import Roughness as Roughness
+from .scenario import roughness as roughness
 from .scenario.description import Scenario as Scenario
+from .scenario.joint import Joint as Joint
+from .scenario.roughness import Roughness as Roughness
+from .scenario.sensors import Detector as Detector
 from .scenario.windows import impact_position_from_angle as impact_position_from_angle
-from .sensors import Detector as Detector
 from .sweeps import SweepResult as SweepResult
 from .sweeps import sweep as sweep
-from .track import ModalModel as ModalModel
-from .track import MovingGreens as MovingGreens
-from .vehicle import Vehicle as Vehicle
-from .wheel import WheelModal as WheelModal
 
 __version__ = "0.1.0"

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import sensors as sensor_mod
-from . import supports as supports_mod
+from .model import supports as supports_mod
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .program.core import Run, compile_scenario
 from .results import SimResult, one_wheel, summarise_run
+from .scenario import sensors as sensor_mod
 from .scenario.description import Scenario
 from .scenario.windows import (
     RUN_IN_TIME,
@@ -54,20 +54,20 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
         n_steps: number of time steps (default: from ``config``); the time step becomes the
             window's duration / (n_steps - 1), as in :func:`wfjax.sweep`.
         sensors: [n_s] fixed rail positions [m] (x = 0 at the middle sleeper; within
-            :func:`wfjax.sensors.allowed_range`): every quantity of
-            :data:`wfjax.sensors.QUANTITIES` at each, as time histories.
-        sensor_quantities: the subset of :data:`wfjax.sensors.QUANTITIES` to compute (each
+            :func:`wfjax.scenario.sensors.allowed_range`): every quantity of
+            :data:`wfjax.scenario.sensors.QUANTITIES` at each, as time histories.
+        sensor_quantities: the subset of :data:`wfjax.scenario.sensors.QUANTITIES` to compute (each
             costs one modal dot product per sensor and step).
-        detector: a :class:`wfjax.sensors.Detector`: its per-bay load estimate and peaks.
+        detector: a :class:`wfjax.Detector`: its per-bay load estimate and peaks.
             The run's window is lengthened (``run_in``/``run_out``) so that the wheel
             crosses every instrumented bay.
-        vehicle: a :class:`wfjax.vehicle.Vehicle` (default: the paper's single wheel): its
+        vehicle: a :class:`wfjax.model.vehicle.Vehicle` (default: the paper's single wheel): its
             wheels roll together on the track, ``flat`` on ``vehicle.flat_wheel`` (whose
             impact ``impact_position`` places), the others with the vehicle's flats or
             smooth; ``wheel`` is every wheel's model unless the vehicle gives its own.
-        roughness: rail roughness, a :class:`wfjax.roughness.Roughness` (``values [n]``,
+        roughness: rail roughness, a :class:`wfjax.Roughness` (``values [n]``,
             rail coordinate x [m]; see :func:`loop_roughness` for how each model reads it).
-        wheel_roughness: wheel roughness (periodic :class:`wfjax.roughness.Roughness`),
+        wheel_roughness: wheel roughness (periodic :class:`wfjax.Roughness`),
             read at the circumferential coordinate s [m] of each wheel.
 
     Returns:

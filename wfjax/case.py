@@ -325,8 +325,8 @@ class Case:
         return self.flats()[0]
 
     def vehicle(self):
-        """The case's :class:`wfjax.vehicle.Vehicle`, or None for the paper's single wheel."""
-        from .vehicle import Vehicle
+        """The case's :class:`wfjax.model.vehicle.Vehicle`, or None for the paper's single wheel."""
+        from .model.vehicle import Vehicle
 
         positions = self.values.get("vehicle.positions")
         preset = self.values.get("vehicle.preset", "single")
@@ -364,10 +364,10 @@ class Case:
 
     def supports(self, track: P.Track, seed: int | None = None) -> P.Track:
         """``track`` with the case's void sleepers and support scatter
-        (:func:`wfjax.supports.void_sleeper`, with ``void_gap`` > 0
-        :func:`wfjax.supports.hanging_sleeper`, :func:`wfjax.supports.scatter`; ``seed``
+        (:func:`wfjax.model.supports.void_sleeper`, with ``void_gap`` > 0
+        :func:`wfjax.model.supports.hanging_sleeper`, :func:`wfjax.model.supports.scatter`; ``seed``
         replaces ``supports.scatter_seed``)."""
-        from . import supports as S
+        from .model import supports as S
 
         try:
             voids = self.values.get("supports.void_sleepers")
@@ -390,8 +390,8 @@ class Case:
         return track
 
     def joint(self):
-        """The case's :class:`wfjax.joint.Joint` (``[joint]`` with a ``depth``), or None."""
-        from .joint import Joint
+        """The case's :class:`wfjax.Joint` (``[joint]`` with a ``depth``), or None."""
+        from .scenario.joint import Joint
 
         v = self.values
         if v.get("joint.depth") is None:
@@ -403,12 +403,12 @@ class Case:
             raise CaseError(f"[joint]: {exc}") from None
 
     def roughness(self, wheel_radius: float):
-        """(rail, wheel) :class:`wfjax.roughness.Roughness` of the case (None where not
+        """(rail, wheel) :class:`wfjax.Roughness` of the case (None where not
         given): ``roughness.rail_csv``, or ``roughness.preset = "iso3095"`` with
         ``realisations`` (values ``[R, n]`` when R > 1), ``seed`` and ``length``; with a
         ``[joint]`` depth, the rail with the joint's dip added (:meth:`Joint.add_to`: a new
         profile over the whole model rail when there is no other)."""
-        from . import roughness as R
+        from .scenario import roughness as R
 
         v = self.values
         preset = v.get("roughness.preset", "none")
@@ -430,7 +430,7 @@ class Case:
             raise CaseError(f"[roughness]: {exc}") from None
         joint = self.joint()
         if joint is not None:
-            from .joint import rail_span
+            from .scenario.joint import rail_span
 
             try:
                 rail = joint.add_to(rail, span=rail_span(self.model()[1]))
@@ -459,8 +459,8 @@ class Case:
                             "simulate runs one realisation; allowed: 1 (sweep runs many)")
         pos = self.values.get("run.impact_position")
         if pos is not None and self.command in _MODEL_CMDS_EARLY:
+            from .model.sleepers import is_uniform
             from .scenario.windows import check_impact_positions
-            from .sleepers import is_uniform
 
             if not is_uniform(track):
                 try:

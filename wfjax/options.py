@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from . import joint as J
 from . import params as P
-from . import roughness as R
 from .contact import registry
+from .scenario import joint as J
+from .scenario import roughness as R
 
 __all__ = ["Option", "CaseError", "COMMANDS", "OPTIONS", "KEYS", "SECTIONS", "MODEL_SECTIONS",
            "flags_of", "check_value", "from_text", "parse_number_list", "model_options"]

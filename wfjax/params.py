@@ -276,7 +276,7 @@ class Track(_Validated):
         ballast_gap: g [m] between a sleeper and its ballast at rest (default 0: every
         sleeper bonded to a linear ballast). A sleeper with g > 0 hangs: its ballast is a
         one-sided support that carries load only once the sleeper has moved down by g
-        (:func:`wfjax.supports.hanging_sleeper`), solved in every time step with the contacts.
+        (:func:`wfjax.model.supports.hanging_sleeper`), solved in every time step with the contacts.
         n_bays (static): number of sleeper bays of the finite model.
         elements_per_bay (static): rail beam elements per sleeper bay.
 
@@ -284,10 +284,10 @@ class Track(_Validated):
     (:data:`SUPPORT_FIELDS`) is a scalar (every sleeper alike, Table 2) or a float array
     ``[n_bays - 1]``, one value per interior sleeper, left to right (sleeper ``i`` at
     ``x = (i + 1 - n_bays // 2) L_S``). In an array, the pad damping and the ballast stiffness
-    and damping may be 0 (a hanging sleeper, :func:`wfjax.supports.void_sleeper`); pad
+    and damping may be 0 (a hanging sleeper, :func:`wfjax.model.supports.void_sleeper`); pad
     stiffness and sleeper mass stay > 0 (a sleeper must hang from the rail and have mass);
     ``ballast_gap`` is in [0, 0.05] m.
-    Presets and random scatter: :mod:`wfjax.supports`.
+    Presets and random scatter: :mod:`wfjax.model.supports`.
     """
 
     bending_stiffness: Any = option(6.4e6, unit="N m^2", low=1e5, high=1e8, positive=True,

@@ -9,7 +9,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from . import geometry  # noqa: E402
+from .model import geometry  # noqa: E402
 from .params import Flat, new_flat_length  # noqa: E402
 
 
@@ -205,7 +205,7 @@ def vehicle_history_figure(result, vehicle, preload: float = 118e3):
 
     Args:
         result: the result (its ``wheel_force``, ``wheel_axle_acc``).
-        vehicle: the :class:`wfjax.vehicle.Vehicle` (labels: wheel positions).
+        vehicle: the :class:`wfjax.model.vehicle.Vehicle` (labels: wheel positions).
         preload: the static wheel load P [N] (dotted line).
     """
     t = np.asarray(result.t) * 1e3

@@ -35,8 +35,8 @@ class SimResult(NamedTuple):
         impact_position: rail coordinate of the impact within the bay [m].
         time_step: dt [s].
         sensors: with sensors (:func:`wfjax.simulate` ``sensors=``), a dict
-            {quantity: [n_steps, n_s]} of :data:`wfjax.sensors.QUANTITIES` (SI units, sign
-            conventions in :mod:`wfjax.sensors`), else None.
+            {quantity: [n_steps, n_s]} of :data:`wfjax.scenario.sensors.QUANTITIES` (SI units, sign
+            conventions in :mod:`wfjax.scenario.sensors`), else None.
         sensor_max, sensor_min: dicts {quantity: [n_s]}: extremes after the run-in, or None.
         detector_load: [n_steps, n_bays] the detector's calibrated shear-difference estimate
             per bay [N] (ungated), or None.
@@ -47,7 +47,7 @@ class SimResult(NamedTuple):
         axle_acc: [n_steps] acceleration of the wheelset mass M_W (the axle box), downwards
             [m/s^2] (of the flat's wheel for a vehicle).
         axle_acc_peak: max |axle_acc| after the run-in [m/s^2].
-        wheel_force: a vehicle's (:class:`wfjax.vehicle.Vehicle`) contact forces of every
+        wheel_force: a vehicle's (:class:`wfjax.model.vehicle.Vehicle`) contact forces of every
             wheel, [n_steps, n_wheels] [N] (``force`` is the flat wheel's column), or None.
         wheel_max_force, wheel_min_force: [n_wheels] their extremes after the run-in [N].
         wheel_loss_of_contact: [n_wheels] bool, F = 0 occurred at that wheel.
@@ -57,7 +57,7 @@ class SimResult(NamedTuple):
         support_force: on a track with hanging sleepers (``Track.ballast_gap > 0``), the
             one-sided ballast's force on each of them, upwards [n_steps, n_s] [N], else None.
         sleeper_disp: their displacement, downwards [n_steps, n_s] [m], or None.
-        hanging_sleepers: their indices [n_s] (:func:`wfjax.sleepers.sleeper_positions`).
+        hanging_sleepers: their indices [n_s] (:func:`wfjax.model.sleepers.sleeper_positions`).
     """
 
     t: Any

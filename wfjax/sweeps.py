@@ -26,8 +26,8 @@ from .program.core import compile_scenario
 from .program.grid import over_realisations
 from .results import flat_label
 from .scenario.description import Scenario
+from .scenario.sensors import QUANTITIES
 from .scenario.windows import impact_positions_grid
-from .sensors import QUANTITIES
 
 __all__ = ["SweepResult", "sweep", "impact_positions_grid", "loss_of_contact_speed"]
 
@@ -51,7 +51,7 @@ class SweepResult(NamedTuple):
         sensor_positions: [n_s] sensor positions [m] (``sweep(sensors=...)``), or None.
         sensor_max, sensor_min: [n_flats, n_speeds, n_positions, n_quantities, n_s] extremes
             after the run-in of ``sensor_quantities`` (SI units), or None.
-        sensor_quantities: names of the quantity axis (:data:`wfjax.sensors.QUANTITIES`).
+        sensor_quantities: names of the quantity axis (:data:`wfjax.scenario.sensors.QUANTITIES`).
         detector_bays: [n_bays] bay indices of the detector (``sweep(detector=...)``), or None.
         detector_peak: [n_flats, n_speeds, n_positions, n_bays] detector reading per bay [N].
         detector_ratio: the same divided by the static wheel load P.
@@ -259,13 +259,13 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         progress: print progress with ETA to stderr.
         sensors: [n_s] fixed rail positions [m] (as :func:`wfjax.simulate`): the max and min
             of each of ``sensor_quantities`` (default every one of
-            :data:`wfjax.sensors.QUANTITIES`) at each, per run.
-        detector: a :class:`wfjax.sensors.Detector`: its reading per bay, per run (the runs'
+            :data:`wfjax.scenario.sensors.QUANTITIES`) at each, per run.
+        detector: a :class:`wfjax.Detector`: its reading per bay, per run (the runs'
             windows are lengthened so that the wheel crosses every bay).
-        vehicle: a :class:`wfjax.vehicle.Vehicle` (as :func:`wfjax.simulate`): every flat is
+        vehicle: a :class:`wfjax.model.vehicle.Vehicle` (as :func:`wfjax.simulate`): every flat is
             swept on ``vehicle.flat_wheel``, the other wheels roll with it on the same track;
             per-wheel extremes in the ``wheel_*`` fields (a detector's peak per wheel and bay).
-        roughness: rail roughness (:class:`wfjax.roughness.Roughness`, as
+        roughness: rail roughness (:class:`wfjax.Roughness`, as
             :func:`wfjax.simulate`). Monte Carlo: ``values [R, n]`` are R realisations, a
             batch axis of the runs (one compile, chunked like the runs): every flat x speed
             x position runs on every realisation.

@@ -32,7 +32,7 @@ def check_finite(what: str, **arrays) -> None:
 
 def sensor_positions(case: case_mod.Case, track) -> list[float] | None:
     """``run.sensors`` [m] as a list (None when not given), checked against ``track``."""
-    from ..sensors import check_positions
+    from ..scenario.sensors import check_positions
 
     value = case.get("run.sensors")
     if value is None:

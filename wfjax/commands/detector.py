@@ -44,7 +44,7 @@ def _csv(result) -> str:
 def run(args) -> int:
     case = resolve_case(args, "detector")
     from ..plotting import detector_figure
-    from ..sensors import Detector
+    from ..scenario.sensors import Detector
     from ..sweeps import sweep
 
     speeds = case.speeds()

@@ -134,7 +134,7 @@ def _initial_flat(case):
 
 
 def _profile_start(flat):
-    from ..geometry import profile_deviation
+    from ..model.geometry import profile_deviation
     from ..params import Flat
 
     half = 1.25 * flat.half_extent

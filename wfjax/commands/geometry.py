@@ -15,7 +15,7 @@ from ._common import (
 HELP = "profile deviation and wheel-centre trajectory of a flat (CSV, JSON, Fig. 5 PNG)"
 
 def run(args) -> int:
-    from .. import geometry
+    from ..model import geometry
     from ..params import new_flat_length
     from ..plotting import flat_inputs_figure
 

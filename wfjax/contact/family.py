@@ -721,7 +721,7 @@ def _exact_onset(spec: FamilySpec, s, depth, half, n_coarse: int = 129, n_fine: 
     Grid minimisers are held fixed for the gradient (envelope theorem); the kinks move with the
     depth and keep their gradient.
     """
-    from ..geometry import profile_deviation
+    from ..model.geometry import profile_deviation
 
     rw = spec.wheel_radius
     if spec.kind == "rounded":

@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import geometry
+from ..model import geometry
 from ..params import Flat, Material
 
 __all__ = [
@@ -730,7 +730,7 @@ def gap_3d(flat: Flat, s, x, y, wheel_radius, rail_head_radius):
 
     The wheel is a cylinder (exact circle of radius R_W in x, no transverse curvature); the
     rail is straight in x with a transverse head radius R_R; the flat's transverse arcs use
-    the same R_R (see :func:`wfjax.geometry.flat_surface`).
+    the same R_R (see :func:`wfjax.model.geometry.flat_surface`).
 
     Args:
         flat: the flat (its leaves are differentiable).

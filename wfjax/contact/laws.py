@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import geometry
+from ..model import geometry
 from ..params import (
     MAX_FLAT_DEPTH,
     Flat,
@@ -95,7 +95,7 @@ class HertzTrajectoryLaw(ContactLaw):
     Attributes:
         c_h: Hertz constant C_H [N/m^1.5].
         s_grid: [n] flat positions [m] of the tabulated trajectory (2e-5 m apart).
-        drop: [n] centre drop -H(s) >= 0 [m] (:func:`wfjax.geometry.centre_trajectory`),
+        drop: [n] centre drop -H(s) >= 0 [m] (:func:`wfjax.model.geometry.centre_trajectory`),
             computed by traced code from the flat, so it carries the geometry's gradient.
         flat: the flat it was computed from.
     """

@@ -183,7 +183,7 @@ def _onset(spec: TableSpec, flat: Flat, s, xp=jnp):
     the chord ends of a new flat (corners of the gap). ``xp``: jnp (traceable) or np (a
     concrete flat's leaves and s; ``s`` may then be [n], the onsets [n]).
     """
-    from ..geometry import _deviation
+    from ..model.geometry import _deviation
 
     hold = jax.lax.stop_gradient if xp is jnp else np.asarray
     s = xp.asarray(s)[..., None]

@@ -17,7 +17,7 @@ Conventions (used across wfjax):
   travel direction [m].
 * ``s``: wheel position relative to the position where the flat centre is at the contact point
   [m]; ``s < 0`` before the flat arrives. The tread point above ``x'`` is at flat coordinate
-  ``x' + s`` (the coordinate of :func:`wfjax.geometry.profile_deviation`).
+  ``x' + s`` (the coordinate of :func:`wfjax.model.geometry.profile_deviation`).
 * ``approach`` (delta): wheel-rail approach relative to the undamaged wheel [m], positive =
   compression, i.e. xi_W - xi_R in Eq. 11.
 
@@ -57,7 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..geometry import profile_deviation
+from ..model.geometry import profile_deviation
 from ..params import MAX_FLAT_DEPTH, Flat, Material, _is_concrete
 from .hertz import _check_range
 

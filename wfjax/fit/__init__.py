@@ -17,7 +17,7 @@ shape parameters and fits them to
 (b) a **force time history** at one speed (:class:`HistoryData`), with t = 0 when the flat
     centre is over the nominal contact point;
 (c) **detector readings against speed** (:class:`DetectorData`): the peaks of a strain-gauge
-    detector's load estimate (:class:`wfjax.sensors.Detector`, the rail's shear difference
+    detector's load estimate (:class:`wfjax.Detector`, the rail's shear difference
     across each instrumented crib), per bay at a known impact position or the maximum over
     the bays (then a smooth maximum over impact positions as in (a)). The measurement
     operator (shear at the bridges from the track's modal state, gating, peak) runs inside
@@ -47,7 +47,7 @@ Gradients
 Forward mode (``jax.jacfwd`` of the residual vector, one tangent per parameter) when there are
 few parameters: it costs about (1 + n_params) forward runs, needs no stored time history, and
 returns the Jacobian used by Gauss-Newton. Reverse mode (``jax.grad`` through the hand-written
-adjoint of the time loop, :mod:`wfjax.adjoint`, for every kind of data: about 1.3-1.4 forward
+adjoint of the time loop, :mod:`wfjax.loop.adjoint`, for every kind of data: about 1.3-1.4 forward
 evaluations per gradient, ``max_force_model(adjoint=True)``) otherwise, and always
 for ``"3d"`` with a measured profile (its exact table is rebuilt at every evaluation and the
 Kalker solver's implicit gradients are ``custom_vjp``); with

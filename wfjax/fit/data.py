@@ -53,7 +53,7 @@ class DetectorData(NamedTuple):
         speeds: [n] train speeds [m/s], > 0.
         peak: [n] the maximum over the detector's bays of each passage's reading [N], or
             [n, n_bays] the reading of every bay [N] (then ``impact_position`` is needed).
-        detector: the :class:`wfjax.sensors.Detector` (default ``Detector()``: 3 bays).
+        detector: the :class:`wfjax.Detector` (default ``Detector()``: 3 bays).
         impact_position: rail coordinate [m] of the impact in [0, L_S) for per-bay data
             (None for max-over-bays data: the model takes a smooth max over positions).
     """
@@ -103,13 +103,13 @@ def validate_data(measured, n_params: int):
             raise ValueError(f"max_force must be > 0 N, got min {f.min():.6g} N")
         return MaxForceData(v, f)
     if isinstance(measured, DetectorData):
-        from ..sensors import Detector
+        from ..scenario.sensors import Detector
 
         v = _finite_1d("speeds", measured.speeds)
         peak = np.asarray(measured.peak, dtype=float)
         det = measured.detector or Detector()
         if not isinstance(det, Detector):
-            raise ValueError(f"detector must be a wfjax.sensors.Detector, got {det!r}")
+            raise ValueError(f"detector must be a wfjax.Detector, got {det!r}")
         if peak.ndim == 2 and peak.shape != (v.size, det.n_bays):
             raise ValueError(f"per-bay peak must be [n_speeds, n_bays] = [{v.size}, "
                              f"{det.n_bays}], got {peak.shape}")

@@ -197,11 +197,11 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
         checkpoint: run the simulations sequentially under ``jax.checkpoint`` (reverse-mode
             memory: one time history at a time).
         adjoint: reverse mode through the hand-written adjoint of the time loop
-            (:mod:`wfjax.adjoint`: the same forces; measured for 10 speeds of the 3D family,
+            (:mod:`wfjax.loop.adjoint`: the same forces; measured for 10 speeds of the 3D family,
             value_and_grad at 1.3-1.4 forward evaluations instead of 3.3-4); the model then
             supports reverse mode only (``grad``/``jacrev``, not ``jacfwd``). Default False:
             plain autodiff.
-        vehicle: a :class:`wfjax.vehicle.Vehicle` (the flat on ``vehicle.flat_wheel``, whose
+        vehicle: a :class:`wfjax.model.vehicle.Vehicle` (the flat on ``vehicle.flat_wheel``, whose
             force is returned), as :func:`wfjax.simulate`. roughness, wheel_roughness: rail
             (or rail-top inputs) and wheel roughness of one realisation, as
             :func:`wfjax.simulate`.
@@ -238,15 +238,15 @@ def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False
                    wheel_roughness=None) -> ForceModel:
     """Differentiable detector readings [N] of the flat's wheel at each of ``speeds`` [m/s].
 
-    Every run carries the detector (:class:`wfjax.sensors.Detector`, default 3 bays) in its
+    Every run carries the detector (:class:`wfjax.Detector`, default 3 bays) in its
     scan; windows are lengthened so that every wheel crosses every bay. ``per_bay``: the
     readings of every bay at the one position ``impact_positions`` (a single [m] value),
     flattened [n * n_bays]; otherwise the maximum over bays, then ``smooth_max(temperature)``
     [N] over the impact positions (count or [m] array), [n]. ``adjoint``: reverse mode
-    through :mod:`wfjax.adjoint` (as :func:`max_force_model`: the same readings, reverse mode
+    through :mod:`wfjax.loop.adjoint` (as :func:`max_force_model`: the same readings, reverse mode
     only). vehicle, roughness, wheel_roughness: as :func:`max_force_model`.
     """
-    from .. import sensors as sensor_mod
+    from ..scenario import sensors as sensor_mod
 
     detector = detector or sensor_mod.Detector()
     program, law, window = _fit_program(reference, extent_bound, dict(
@@ -286,7 +286,7 @@ def history_model(t, speed: float, reference: Flat, contact: str = "hertz-trajec
 
     The simulation of :func:`wfjax.simulate` at ``speed`` [m/s] and ``impact_position`` [m],
     linearly interpolated at ``t``, which must lie inside the simulated window.
-    ``adjoint``: reverse mode through :mod:`wfjax.adjoint` (as :func:`max_force_model`).
+    ``adjoint``: reverse mode through :mod:`wfjax.loop.adjoint` (as :func:`max_force_model`).
     vehicle, roughness, wheel_roughness: as :func:`max_force_model`.
     """
     program, law, window = _fit_program(reference, extent_bound, dict(

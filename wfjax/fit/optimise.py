@@ -125,7 +125,7 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
         mode: ``"forward"`` (Jacobian by ``jacfwd``), ``"reverse"`` or ``"auto"`` (forward
             for <= 4 parameters except for ``"3d"`` with a measured profile). Reverse mode
             differentiates every kind of data through the time loop's adjoint
-            (:mod:`wfjax.adjoint`), except on a track with hanging sleepers (which the
+            (:mod:`wfjax.loop.adjoint`), except on a track with hanging sleepers (which the
             adjoint does not carry: plain autodiff there).
         checkpoint: see :func:`max_force_model` (reverse mode only).
         extent_bound: static bound of the flat's half extent [m] during the fit.
@@ -133,9 +133,9 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
             ``Track()``, Table 2 with R_R = 0.30 m, the default of every entry point; pass
             :meth:`Track.comparison` for the paper's R_R = 0.45 m); the track may have
             varying supports.
-        vehicle: a :class:`wfjax.vehicle.Vehicle` whose reference wheel carries the fitted
+        vehicle: a :class:`wfjax.model.vehicle.Vehicle` whose reference wheel carries the fitted
             flat (the data are that wheel's). roughness, wheel_roughness: rail (or rail-top
-            inputs such as :class:`wfjax.joint.Joint`) and wheel roughness, one realisation
+            inputs such as :class:`wfjax.Joint`) and wheel roughness, one realisation
             (as :func:`wfjax.simulate`).
         callback: called as ``callback(iteration, loss, flat)`` after every iteration.
 
@@ -353,7 +353,7 @@ def _armijo(loss, theta, precond_grad, value, grad, max_step, shrink=0.5, tries=
 
 
 def _hanging(track) -> bool:
-    from ..supports import hanging_sleepers
+    from ..model.supports import hanging_sleepers
 
     return track is not None and hanging_sleepers(track).size > 0
 

@@ -137,7 +137,7 @@ class ProfileParam:
                     extent_bound=self.extent_bound)
 
     def from_flat(self, flat: Flat) -> np.ndarray:
-        from ..geometry import profile_deviation
+        from ..model.geometry import profile_deviation
 
         z = np.asarray(profile_deviation(flat, self.grid()))
         amp, *_ = np.linalg.lstsq(self._basis(), z, rcond=None)

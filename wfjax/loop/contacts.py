@@ -7,9 +7,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import roughness as rough_mod
 from ..contact.newton import solve_contact_system, solve_small
 from ..contact.protocol import ContactLaw
+from ..scenario import roughness as rough_mod
 
 
 def pointwise(law: ContactLaw) -> bool:

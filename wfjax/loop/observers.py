@@ -13,7 +13,7 @@ as whether histories are kept, is static) with three methods, as ``optax`` compo
 Instruments (:class:`Sensors`, :class:`DetectorReadings`) split ``update`` into
 ``readout(reading, ctx) -> value``, linear in the modal state and the forces at fixed wheel
 positions, and ``reduce(state, value, reading, ctx) -> (state, {name: value})``, which may read the
-reading's step index and positions but not its modal state or forces: :mod:`wfjax.adjoint`
+reading's step index and positions but not its modal state or forces: :mod:`wfjax.loop.adjoint`
 transposes the readout at each step and differentiates the reduction over the recorded
 values.
 
@@ -33,8 +33,8 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-from .. import sensors as sensor_mod
 from ..params import _pytree
+from ..scenario import sensors as sensor_mod
 
 __all__ = ["Reading", "LoopContext", "Sensors", "DetectorReadings", "HangingSleepers",
            "OwnCompliance", "running_max", "running_min", "counted"]
@@ -61,7 +61,7 @@ class Reading(NamedTuple):
 class LoopContext(NamedTuple):
     """What observers may read of the run: ``model`` (the track's modal model, in the loop's
     precision), ``n_wheels``, ``real`` (the loop's float dtype) and ``supports`` (the hanging
-    sleepers' :class:`wfjax.supports.OneSidedSupports`, or None)."""
+    sleepers' :class:`wfjax.model.supports.OneSidedSupports`, or None)."""
 
     model: Any
     n_wheels: int
@@ -87,7 +87,7 @@ def running_min(acc, value, on):
 
 @_pytree(static=("history",))
 class Sensors:
-    """Readings at fixed rail positions (:class:`wfjax.sensors.SensorSpec`): their max and
+    """Readings at fixed rail positions (:class:`wfjax.scenario.sensors.SensorSpec`): their max and
     min over the counted steps (``sensor_max``, ``sensor_min`` [n_quantities, n_s]) and, with
     ``history``, the time histories (``sensors`` [n_steps, n_quantities, n_s])."""
 
@@ -120,7 +120,7 @@ class Sensors:
 
 @_pytree(static=("history",))
 class DetectorReadings:
-    """A wheel impact load detector (:class:`wfjax.sensors.DetectorSpec`): every wheel's
+    """A wheel impact load detector (:class:`wfjax.scenario.sensors.DetectorSpec`): every wheel's
     peak estimate per bay while it is between the bay's bridges (``detector_peak``
     [n_wheels, n_bays] N) and, with ``history``, the ungated estimate (``detector_load``
     [n_steps, n_bays] N)."""
@@ -172,7 +172,7 @@ class HangingSleepers:
 class OwnCompliance:
     """Each wheel's rail compliance within the step from the kept modes,
     Re sum_r w_r an_r phi_r^2 (``own_compliance`` [n_steps, n_wheels] m/N; for
-    :mod:`wfjax.adjoint`)."""
+    :mod:`wfjax.loop.adjoint`)."""
 
     def init(self, ctx: LoopContext):
         return ()

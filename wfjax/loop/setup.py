@@ -1,6 +1,6 @@
 """What the time loop computes before its scan: the discrete-step coefficients, the inputs in
 the loop's precision (:class:`LoopSetup`) and the static equilibrium it starts from
-(:class:`StaticStart`). :mod:`wfjax.loop.run` and :mod:`wfjax.adjoint` read the same ones."""
+(:class:`StaticStart`). :mod:`wfjax.loop.run` and :mod:`wfjax.loop.adjoint` read the same ones."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import track as track_mod
-from .._modal import discrete_step_coefficients
 from ..contact.newton import static_approach
+from ..model import track as track_mod
+from ..model.modal import discrete_step_coefficients
 from .contacts import roughness_inputs, static_force, static_support_forces
 from .structure import Structure, modal_loads, residual_matrix, shapes_fn
 
@@ -41,7 +41,7 @@ def cast_precision(tree, precision: str):
 
 class LoopSetup(NamedTuple):
     """What the time loop computes before its scan, in the loop's precision
-    (:func:`loop_setup`; :func:`time_loop` and :mod:`wfjax.adjoint` read the same one).
+    (:func:`loop_setup`; :func:`time_loop` and :mod:`wfjax.loop.adjoint` read the same one).
 
     Shapes: n = wheels, M = track modes, m = wheel modes. ``laws`` [n] (cast), ``struct``
     (cast), ``e_r, ap_r, an_r`` [M] (exp(pole dt) and first-order-hold weights of the

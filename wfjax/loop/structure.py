@@ -12,9 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import supports as supports_mod
-from .. import track as track_mod
-from .. import vehicle as vehicle_mod
+from ..model import supports as supports_mod
+from ..model import track as track_mod
+from ..model import vehicle as vehicle_mod
 from ..params import SimConfig, Track, Wheel
 
 
@@ -24,12 +24,12 @@ class Structure(NamedTuple):
     (:func:`structure`) ``wheel_poles``, ``wheel_residues``, ``axle_residues`` [n_wheels, n_w]
     and ``preload`` [n_wheels] N, one row per wheel (one wheel is a vehicle of one), and
     ``offsets`` [n_wheels] (rail coordinate of every wheel relative to the reference wheel
-    [m]), ``delays`` [n_wheels] (the flats' delays [m], :class:`wfjax.vehicle.Vehicle`) and
+    [m]), ``delays`` [n_wheels] (the flats' delays [m], :class:`wfjax.model.vehicle.Vehicle`) and
     ``residual_pairs`` [n_res, n_wheels, n_wheels] (static compliance of the truncated track
     modes between the wheels across one bay, or along the whole rail when the supports vary:
-    :func:`wfjax.vehicle.residual_pairs`; None for one wheel, whose own residual is the modal
+    :func:`wfjax.model.vehicle.residual_pairs`; None for one wheel, whose own residual is the modal
     model's residual table). ``supports``: the track's one-sided (hanging)
-    sleepers, :func:`wfjax.supports.one_sided_spec`, or None.
+    sleepers, :func:`wfjax.model.supports.one_sided_spec`, or None.
     """
 
     track: Any  # track.ModalModel
@@ -45,9 +45,9 @@ class Structure(NamedTuple):
 
 def structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
               cache_dir=None) -> Structure:
-    """:class:`Structure` of a :class:`wfjax.vehicle.Vehicle` (one wheel:
+    """:class:`Structure` of a :class:`wfjax.model.vehicle.Vehicle` (one wheel:
     ``Vehicle.single()``) with wheel models ``wheels`` ([n] :class:`Wheel`), placed on the
-    track by :func:`wfjax.vehicle.placement`; the track's modal model is cached on disk in
+    track by :func:`wfjax.model.vehicle.placement`; the track's modal model is cached on disk in
     ``cache_dir``."""
     model = track_mod.modal_model(track, max_frequency=config.track_max_frequency,
                                   cache_dir=cache_dir)
@@ -75,7 +75,7 @@ def node_major_shapes(model):
 def rail_terms(model, node_major, x):
     """(phi_r(x) [n_modes], residual compliance [m/N]) at rail position ``x`` [m].
 
-    Same interpolation as :func:`wfjax.track.mode_shapes_at` (tested equal), on node-major
+    Same interpolation as :func:`wfjax.model.track.mode_shapes_at` (tested equal), on node-major
     shapes so the per-step gather reads contiguous memory.
     """
     phi = track_mod.interpolate_nodal(model, node_major, x)
@@ -121,7 +121,7 @@ def cross_table(model, shapes_at, offsets, weight, x_bay):
     """[n_res, n, n] the rail's compliance within a step between different wheels,
     Re sum_r weight_r phi_r(x + o_i) phi_r(x + o_j) (zero diagonal), for the reference wheel
     at x = x_bay + model.residual_x: across one bay on a uniform track, along the whole rail
-    (``x_bay`` = 0) when the supports vary (read by :func:`wfjax.track.read_residual_table`).
+    (``x_bay`` = 0) when the supports vary (read by :func:`wfjax.model.track.read_residual_table`).
 
     These cross terms are about 1e-3 of a wheel's own step compliance (the rail's response
     within one step hardly reaches the next wheel), but summing them over the modes at every

@@ -12,7 +12,7 @@ an adjoint:
   :class:`Histories` (every step: :func:`wfjax.simulate` and the fits);
 - differentiation: :class:`Autodiff` (JAX's reverse and forward modes), :class:`Checkpointed`
   (the runs one after another under ``jax.checkpoint``), :class:`Adjoint` (the hand-written
-  reverse mode of :mod:`wfjax.adjoint`).
+  reverse mode of :mod:`wfjax.loop.adjoint`).
 
 Grids: :meth:`Program.sweep` (speeds x positions x flats x realisations, chunked and sharded
 over the devices, :mod:`wfjax.program.grid`), :meth:`Program.history` (one run),
@@ -40,7 +40,7 @@ from ..loop.run import StepOutput, run_scan
 from ..loop.structure import structure
 from ..results import summarise_run
 from ..scenario.description import Scenario
-from ..sensors import detector_spec, sensor_spec
+from ..scenario.sensors import detector_spec, sensor_spec
 from . import grid as grid_mod
 from .laws import (
     batch_groups,
@@ -84,8 +84,8 @@ class ProgramData(NamedTuple):
     ``laws``: the swept flats' laws stacked along a leading flat axis; ``others``: [n_wheels]
     the other wheels' fixed laws, None at the reference wheel; ``struct``:
     :class:`wfjax.loop.structure.Structure`; ``sensors``/``detector``: their specs or None;
-    ``roughness``: :class:`wfjax.roughness.LoopRoughness` (realisations along a leading axis)
-    or None; ``tracks``: support realisations' padded modal models or None.
+    ``roughness``: :class:`~wfjax.scenario.roughness.LoopRoughness` (realisations along a
+    leading axis) or None; ``tracks``: support realisations' padded modal models or None.
     """
 
     laws: Any
@@ -232,15 +232,15 @@ class Checkpointed:
 
 @dataclasses.dataclass(frozen=True)
 class Adjoint:
-    """The hand-written reverse mode of :mod:`wfjax.adjoint` (one ``custom_vjp`` for the
+    """The hand-written reverse mode of :mod:`wfjax.loop.adjoint` (one ``custom_vjp`` for the
     batch; reverse mode only). Not with the direct 3D mode or hanging sleepers (see
-    :mod:`wfjax.adjoint`), nor with support realisations; ``save`` must be
+    :mod:`wfjax.loop.adjoint`), nor with support realisations; ``save`` must be
     :class:`Histories`."""
 
     def batch(self, program: Program, data: ProgramData, law, runs: Run, save) -> dict:
         """As :meth:`Autodiff.batch` (the runs share one realisation and the instruments'
         settings of the first run)."""
-        from ..adjoint import run_adjoint_runs
+        from ..loop.adjoint import run_adjoint_runs
 
         if not isinstance(save, Histories) or data.tracks is not None:
             raise ValueError("the adjoint saves histories (Histories()) of one track")

@@ -19,12 +19,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import roughness as rough_mod
 from .._xla import to_device
 from ..contact.laws import prepare, prepare_family, resolve_mode_3d
 from ..contact.table_law import TableLaw, table_specs_3d
 from ..contact.tables import ContactTable, pad_columns
 from ..params import Flat, Material, SimConfig, Track, Wheel
+from ..scenario import roughness as rough_mod
 
 __all__ = ["BatchGroup", "batch_groups", "common_extent", "prepare_batch", "stack",
            "table_laws", "table_laws_like", "padded_models", "pick_model", "realisation",
@@ -153,10 +153,10 @@ def padded_models(tracks, config: SimConfig, cache_dir=None):
     ``elements_per_bay``, ``sleeper_spacing``; all uniform or all varying supports).
 
     Returns:
-        :class:`wfjax.track.ModalModel` with array fields [R, ...] (``sleeper_spacing`` and
+        :class:`wfjax.model.track.ModalModel` with array fields [R, ...] (``sleeper_spacing`` and
         ``element_phi`` shared).
     """
-    from .. import track as track_mod
+    from ..model import track as track_mod
 
     models = [track_mod.modal_model(tr, max_frequency=config.track_max_frequency,
                                     cache_dir=cache_dir) for tr in tracks]
@@ -213,16 +213,16 @@ def realisation(rough, index):
 
 def loop_roughness(rail=None, wheel=None, wheels=None, track: Track | None = None,
                    material: Material | None = None):
-    """The time loop's :class:`wfjax.roughness.LoopRoughness` (None when both are None) of
+    """The time loop's :class:`wfjax.scenario.roughness.LoopRoughness` (None when both are None) of
     a rail and a wheel roughness checked by :class:`wfjax.scenario.description.Scenario`.
 
     The contact filter's length (point-contact laws) is each wheel's static Hertz contact
-    length (:func:`wfjax.roughness.static_contact_length` at its preload, on the Hertz radius
-    sqrt(R_W R_R)), 13.1 mm for the default wheel and track: the patch the wheel rolls on between
-    impacts, where roughness excites it.
+    length (:func:`~wfjax.scenario.roughness.static_contact_length` at its preload, on the Hertz
+    radius sqrt(R_W R_R)), 13.1 mm for the default wheel and track: the patch the wheel rolls on
+    between impacts, where roughness excites it.
 
     Args:
-        rail: rail :class:`wfjax.roughness.Roughness` (``values [n]`` or, for
+        rail: rail :class:`wfjax.Roughness` (``values [n]`` or, for
             :func:`wfjax.sweep`'s Monte Carlo, ``[R, n]``) or None.
         wheel: wheel roughness (periodic) or None. wheels: [n_wheels] :class:`Wheel`
             (default: one default wheel). track, material: as :func:`wfjax.simulate`.

@@ -20,10 +20,10 @@ import jax
 import numpy as np
 
 from ..contact import registry
+from ..model.supports import hanging_sleepers
+from ..model.vehicle import Vehicle, check_on_track, placement
 from ..params import Flat, Material, SimConfig, Track, Wheel
-from ..roughness import Roughness
-from ..supports import hanging_sleepers
-from ..vehicle import Vehicle, check_on_track, placement
+from .roughness import Roughness
 from .windows import (
     check_impact_positions,
     check_rail_span,
@@ -40,7 +40,7 @@ __all__ = ["Scenario", "rail_roughness"]
 
 def rail_roughness(inputs) -> Roughness | None:
     """One rail :class:`Roughness` from ``inputs``: None, a Roughness, a rail-top input with
-    ``add_to(roughness | None) -> Roughness`` (e.g. :class:`wfjax.joint.Joint`), or a
+    ``add_to(roughness | None) -> Roughness`` (e.g. :class:`wfjax.Joint`), or a
     sequence of them (at most one Roughness; the others are added to it in turn)."""
     if inputs is None or isinstance(inputs, Roughness):
         return inputs
@@ -55,7 +55,7 @@ def rail_roughness(inputs) -> Roughness | None:
             continue
         if not hasattr(item, "add_to"):
             raise ValueError(f"roughness: expected a wfjax.Roughness or a rail-top input with "
-                             f"add_to (e.g. wfjax.joint.Joint), got {type(item).__name__}")
+                             f"add_to (e.g. wfjax.Joint), got {type(item).__name__}")
         rough = item.add_to(rough)
     return rough
 
@@ -77,7 +77,7 @@ class Scenario:
         wheel_roughness: periodic wheel :class:`Roughness` or None.
         tracks: [R] support realisations (:class:`Track`) or None.
         sensors: [n_s] sensor positions [m] or None; sensor_quantities: their quantities.
-        detector: :class:`wfjax.sensors.Detector` or None (static).
+        detector: :class:`wfjax.Detector` or None (static).
         per_wheel: whether results report every wheel (a vehicle was given), static.
     """
 
@@ -105,7 +105,7 @@ class Scenario:
         """A scenario from the entry points' arguments (defaults: the paper's Tables 1-2,
         E = 210 GPa, nu = 0.3, :class:`SimConfig` defaults, one wheel), checked.
 
-        ``roughness`` may also be a rail-top input such as :class:`wfjax.joint.Joint`, or a
+        ``roughness`` may also be a rail-top input such as :class:`wfjax.Joint`, or a
         sequence of them and one Roughness (:func:`rail_roughness`). Raises a one-line
         ``ValueError`` naming the argument for anything inconsistent.
         """

@@ -11,7 +11,7 @@ initial angular position of the wheel, ``angle0`` [rad]: with the wheel starting
 coordinate X_0 with the flat centre at angle ``angle0`` ahead of the contact point (rolling
 direction), the flat reaches the contact after rolling R * angle0, so
 impact_position = (X_0 + R * angle0) mod L_S. :func:`impact_position_from_angle` does that.
-On a track whose supports vary (:func:`wfjax.sleepers.is_uniform` false) every bay differs and
+On a track whose supports vary (:func:`wfjax.model.sleepers.is_uniform` false) every bay differs and
 ``impact_position`` is an absolute rail coordinate (x = 0 above the middle sleeper;
 ``docs/real_track.md``).
 """
@@ -24,9 +24,9 @@ import math
 import numpy as np
 
 from ..contact.laws import FLAT_MARGIN
+from ..model.sleepers import is_uniform
+from ..model.vehicle import placement
 from ..params import MAX_SPEED, Flat, SimConfig, Track
-from ..sleepers import is_uniform
-from ..vehicle import placement
 
 __all__ = ["RUN_IN_TIME", "RUN_OUT_TIME", "impact_position_from_angle", "simulation_window",
            "check_speed", "check_speeds", "check_impact_position", "check_impact_positions",
@@ -96,7 +96,8 @@ def check_impact_positions(positions, track: Track, name: str = "impact_position
                            ) -> np.ndarray:
     """``positions`` [n] [m] checked for ``track``: within one bay, ``[0, L_S)``, on a uniform
     track; absolute rail coordinates (x = 0 above the middle sleeper) within
-    ``|x| <= (n_bays // 2 - 1) L_S`` when the supports vary (:func:`wfjax.sleepers.is_uniform`:
+    ``|x| <= (n_bays // 2 - 1) L_S`` when the supports vary
+    (:func:`wfjax.model.sleepers.is_uniform`:
     every bay differs, so the impact's bay matters). One-line ``ValueError`` naming ``name``
     otherwise."""
     pos = np.atleast_1d(np.asarray(positions, dtype=float))

@@ -4,15 +4,16 @@ A :class:`wfjax.Track` carries its five support properties (:data:`SUPPORT_FIELD
 stiffness and damping, half-sleeper mass, ballast stiffness and damping) either as scalars
 (every sleeper alike: Table 2, the default) or as float arrays ``[n_bays - 1]``, one value per
 interior sleeper of the finite model, left to right. Sleeper ``i`` (0-based) sits at rail
-position ``x = (i + 1 - n_bays // 2) L_S`` (:func:`wfjax.sleepers.sleeper_positions`), the
+position ``x = (i + 1 - n_bays // 2) L_S`` (:func:`wfjax.model.sleepers.sleeper_positions`), the
 same numbering as
 ``ModalModel.sleeper_shapes``; the end sleepers under the clamped rail ends are not modelled.
 
 This module builds such tracks: :func:`with_supports` (explicit arrays), :func:`void_sleeper`
 (hanging sleepers) and :func:`scatter` (random lognormal scatter from a ``jax.random`` key);
-:mod:`wfjax.sleepers` reads them (:func:`~wfjax.sleepers.support_arrays`,
-:func:`~wfjax.sleepers.is_uniform`, :func:`~wfjax.sleepers.is_mirror_symmetric`). The FE
-assembly (:func:`wfjax.track.assemble`) and the modal model (:func:`wfjax.track.modal_model`,
+:mod:`wfjax.model.sleepers` reads them (:func:`~wfjax.model.sleepers.support_arrays`,
+:func:`~wfjax.model.sleepers.is_uniform`, :func:`~wfjax.model.sleepers.is_mirror_symmetric`). The FE
+assembly (:func:`wfjax.model.track.assemble`) and the modal model
+(:func:`wfjax.model.track.modal_model`,
 cached per track with the arrays in its key) take the per-sleeper values directly.
 
 A track whose supports vary is not periodic: rail positions are absolute coordinates
@@ -30,8 +31,8 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
+from ..params import SUPPORT_FIELDS, Track
 from . import track as track_mod
-from .params import SUPPORT_FIELDS, Track
 from .sleepers import check_track, n_sleepers, support_arrays
 
 __all__ = [
@@ -84,7 +85,7 @@ def void_sleeper(track: Track, index: int | Sequence[int], remaining: float = 0.
     """A track with hanging (void) sleepers at ``index``: the ballast support is removed.
 
     What changes: the ballast stiffness and damping under the sleeper(s) ``index`` (0-based,
-    see :func:`wfjax.sleepers.sleeper_positions`; the middle sleeper, above ``x = 0``, is
+    see :func:`wfjax.model.sleepers.sleeper_positions`; the middle sleeper, above ``x = 0``, is
     ``n_bays // 2 - 1``) are multiplied by ``remaining`` (default 0: no support at all).
     Why these: a hanging sleeper is one whose ballast has settled away from it, leaving a
     gap under it; it stays fastened to the rail, so its pad and its mass are kept and the
@@ -130,7 +131,7 @@ def hanging_sleeper(track: Track, index: int | Sequence[int], gap: float) -> Tra
 
     Args:
         track: the track to start from. index: sleeper index or indices in
-            ``[0, n_bays - 2]`` (:func:`wfjax.sleepers.sleeper_positions`). gap: g [m] in
+            ``[0, n_bays - 2]`` (:func:`wfjax.model.sleepers.sleeper_positions`). gap: g [m] in
             [0, 0.05] (one value for all, or one per index).
 
     Returns:
@@ -170,7 +171,7 @@ class OneSidedSupports(NamedTuple):
     (``ModalModel.sleeper_shapes``); ``gap`` [n_s] m; ``stiffness`` [n_s] N/m; ``damping``
     [n_s] N s/m; ``residual`` [n_s, n_s] m/N: static compliance of the truncated modes between
     the sleepers; ``residual_wheels`` [n_res, n_w, n_s] m/N: the same between the wheels (the
-    reference wheel on the residual grid, read by :func:`wfjax.track.read_residual_table`) and
+    reference wheel on the residual grid, read by :func:`wfjax.model.track.read_residual_table`) and
     the sleepers. Displacements are downwards, the support forces upwards on the sleepers.
     """
 

@@ -1,7 +1,7 @@
 """What instruments on the track read: rail and sleeper responses at fixed sensors, and a
 strain-gauge wheel impact load detector (``docs/detector.md``).
 
-Sensors are fixed rail positions x_s [m] (same coordinate as :mod:`wfjax.track`: x = 0 at the
+Sensors are fixed rail positions x_s [m] (same coordinate as :mod:`wfjax.model.track`: x = 0 at the
 middle sleeper). At each the time loop returns, from its own modal state (inside the same
 ``lax.scan``, no second pass over the history), the quantities of :data:`QUANTITIES`:
 
@@ -49,9 +49,9 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
 
-from . import track as track_mod
-from .params import Track, _pytree
-from .sleepers import support_arrays
+from ..model import track as track_mod
+from ..model.sleepers import support_arrays
+from ..params import Track, _pytree
 
 __all__ = ["QUANTITIES", "END_BAYS", "SensorSpec", "sensor_spec", "evaluate", "check_positions",
            "Detector", "DetectorSpec", "detector_spec", "detector_load"]
@@ -123,7 +123,7 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
     Args:
         positions: [n_s] rail positions [m] (:func:`check_positions`).
         track: the track (concrete numbers; the FE model is assembled for the statics).
-        model: its :class:`wfjax.track.ModalModel` (with ``sleeper_shapes``).
+        model: its :class:`wfjax.model.track.ModalModel` (with ``sleeper_shapes``).
         quantities: subset of :data:`QUANTITIES`, in any order.
 
     Returns:
@@ -136,7 +136,7 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
         raise ValueError(f"quantities must be among {QUANTITIES}, got {quantities!r}")
     if model.sleeper_shapes is None:
         raise ValueError("the modal model has no sleeper_shapes (rebuild it with "
-                         "wfjax.track.modal_model)")
+                         "wfjax.model.track.modal_model)")
     fe = track_mod.assemble(track)
     shapes = np.asarray(model.shapes)  # [m, n, 2]
     sl_shapes = np.asarray(model.sleeper_shapes)  # [m, n_sl]
@@ -211,7 +211,7 @@ def evaluate(spec: SensorSpec, model, q, force, x) -> jax.Array:
     """Sensor readings [n_quantities, n_s] from the track's modal state (pure ``jnp``).
 
     Args:
-        spec: :func:`sensor_spec`. model: the track's :class:`~wfjax.track.ModalModel`.
+        spec: :func:`sensor_spec`. model: the track's :class:`~wfjax.model.track.ModalModel`.
         q: complex [n_modes] modal states at this instant; force: contact force F [N] (or
             [n_wheels] forces); x: rail position of the contact [m] (or [n_wheels]).
     """

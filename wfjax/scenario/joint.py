@@ -3,7 +3,7 @@
 A dipped joint is the classic second source of impacts after wheel flats: the rail ends at
 a (fished or insulated) joint sag under traffic, so the running surface dips by a depth ``d``
 over a length ``l`` around the joint. :class:`Joint` describes the dip, adds it to a rail
-:class:`wfjax.roughness.Roughness` (:meth:`Joint.add_to`), which every entry point already
+:class:`wfjax.Roughness` (:meth:`Joint.add_to`), which every entry point already
 reads (``wf.simulate(..., roughness=joint.add_to(None))``), and gives the classic P2 force
 estimate of Jenkins et al. (1974) for comparison (:func:`jenkins_p2`, :meth:`Joint.p2`).
 See ``docs/joint.md``.
@@ -23,7 +23,7 @@ Shapes (``Joint.shape``), with ``u = (x - position) / length`` in ``[-1/2, 1/2]`
 Bounds (the joint's own, not roughness's 1 mm): depth in ``(0, MAX_DEPTH]`` (5 mm, as for
 flats: dipped joints are 0.5-3 mm deep), length in ``[MIN_LENGTH, MAX_LENGTH]`` (0.1-2 m),
 steepest slope at most :data:`MAX_SLOPE` (0.05 rad). Reasons in ``docs/joint.md``.
-:class:`wfjax.roughness.Roughness` itself holds profiles within ``roughness.MAX_AMPLITUDE``
+:class:`wfjax.Roughness` itself holds profiles within ``roughness.MAX_AMPLITUDE``
 (1 mm today): :meth:`Joint.add_to` says so in one line when a joint is deeper.
 """
 
@@ -35,7 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .params import MAX_FLAT_DEPTH, MAX_SPEED, Track, Wheel
+from ..params import MAX_FLAT_DEPTH, MAX_SPEED, Track, Wheel
 
 __all__ = ["Joint", "SHAPES", "MAX_DEPTH", "MIN_LENGTH", "MAX_LENGTH", "MAX_SLOPE",
            "MAX_POSITION", "SPACING", "MARGIN", "EquivalentTrack", "equivalent_track",
@@ -185,7 +185,7 @@ class Joint:
         """The rail roughness with this dip added.
 
         Args:
-            roughness: None, or a rail :class:`wfjax.roughness.Roughness` (``values [n]`` or
+            roughness: None, or a rail :class:`wfjax.Roughness` (``values [n]`` or
                 ``[R, n]``, not periodic; concrete arrays: this is input preparation, before
                 any ``jit``).
             span: None only: the rail span [m] ``(x_lo, x_hi)`` the new profile covers
@@ -195,7 +195,7 @@ class Joint:
                 ``roughness.MAX_SPACING``); a sample sits on the joint centre.
 
         Returns:
-            :class:`wfjax.roughness.Roughness`: None -> the dip alone, level rail elsewhere;
+            :class:`wfjax.Roughness`: None -> the dip alone, level rail elsewhere;
             a roughness -> the same grid (spacing, sample positions), extended by holding
             its end values (what it reads beyond its span) until it covers the dip plus
             :data:`MARGIN`, with the dip added to every realisation.
@@ -215,7 +215,7 @@ class Joint:
             x0 = self.position - below * dx
             return self._rail(R, x0, dx, self.profile(x0 + dx * np.arange(below + above + 1)))
         if not isinstance(roughness, R.Roughness) or roughness.periodic:
-            raise ValueError("Joint.add_to needs a rail roughness (wfjax.roughness.Roughness "
+            raise ValueError("Joint.add_to needs a rail roughness (wfjax.Roughness "
                              f"with periodic=False) or None, got {type(roughness).__name__}"
                              + (" (a wheel profile)" if getattr(roughness, "periodic", 0)
                                 else ""))
@@ -236,7 +236,7 @@ class Joint:
         if peak > R.MAX_AMPLITUDE:
             allowed = R.MAX_AMPLITUDE - (peak - self.depth)
             raise ValueError(
-                f"Joint.depth = {self.depth!r} m: wfjax.roughness.Roughness holds rail profiles "
+                f"Joint.depth = {self.depth!r} m: wfjax.Roughness holds rail profiles "
                 f"within +-{R.MAX_AMPLITUDE * 1e3:g} mm (roughness.MAX_AMPLITUDE) and this rail "
                 f"with the dip reaches {peak * 1e3:.4g} mm; allowed now: depth <= "
                 f"{max(allowed, 0.0) * 1e3:.4g} mm (the joint's own bound is "
@@ -295,7 +295,7 @@ class EquivalentTrack(NamedTuple):
 def equivalent_track(track: Track | None = None, unsprung_mass: float | None = None,
                      x: float = 0.0, iterations: int = 20) -> EquivalentTrack:
     """The track's equivalent mass, stiffness and damping at rail position ``x`` [m], read
-    from its own point receptance (:func:`wfjax.track.receptance`, the FE model's direct
+    from its own point receptance (:func:`wfjax.model.track.receptance`, the FE model's direct
     frequency-domain solve).
 
     The dynamic stiffness ``1 / alpha(f)`` of a mass on a spring and damper is
@@ -310,7 +310,7 @@ def equivalent_track(track: Track | None = None, unsprung_mass: float | None = N
             the default wheel's ``wheelset_mass + small_mass``). x: rail position [m].
         iterations: at most this many fixed-point steps (stops at 1e-9 relative change).
     """
-    from .track import receptance
+    from ..model.track import receptance
 
     track = track or Track()
     if unsprung_mass is None:

@@ -2,11 +2,12 @@
 
 A :class:`wfjax.Track` carries its five support properties (:data:`SUPPORT_FIELDS`) as scalars
 or as arrays ``[n_bays - 1]``, one value per interior sleeper of the finite model (see
-:mod:`wfjax.supports`, which builds such tracks). Sleeper ``i`` (0-based) sits at rail position
+:mod:`wfjax.model.supports`, which builds such tracks).
+Sleeper ``i`` (0-based) sits at rail position
 ``x = (i + 1 - n_bays // 2) L_S`` (:func:`sleeper_positions`). The FE assembly and the modal
-model (:mod:`wfjax.track`) read the supports through :func:`support_arrays`,
+model (:mod:`wfjax.model.track`) read the supports through :func:`support_arrays`,
 :func:`is_uniform` and :func:`is_mirror_symmetric`; this module imports no other of wfjax's
-models, so both :mod:`wfjax.track` and :mod:`wfjax.supports` build on it.
+models, so both :mod:`wfjax.model.track` and :mod:`wfjax.model.supports` build on it.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import math
 import jax
 import numpy as np
 
-from .params import SUPPORT_FIELDS, Track
+from ..params import SUPPORT_FIELDS, Track
 
 __all__ = [
     "check_track",

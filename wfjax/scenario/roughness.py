@@ -26,7 +26,7 @@ Limits (:data:`MAX_SPACING`, :data:`MAX_AMPLITUDE`): samples at most 1 mm apart,
 contact patch is about 10-12 mm long under a 118 kN wheel (the contact filter must average
 over ten samples or more) and the 2D bedding and direct 3D contact read the gap on 1 mm
 elements (``SimConfig.contact_element``); amplitudes at most 5 mm, the model's deepest flat,
-so a rail profile may carry a dipped joint (0.5-3 mm, :mod:`wfjax.joint`).
+so a rail profile may carry a dipped joint (0.5-3 mm, :mod:`wfjax.scenario.joint`).
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .params import _is_concrete, _pytree
-from .supports import as_key
-from .track import _check_positive_scalar
+from ..model.supports import as_key
+from ..model.track import _check_positive_scalar
+from ..params import _is_concrete, _pytree
 
 __all__ = [
     "Roughness",
@@ -568,7 +568,7 @@ def static_contact_length(preload, material, radius) -> float:
         preload: P [N] (scalar or [n_wheels]). material: :class:`wfjax.Material`.
         radius: equivalent radius [m].
     """
-    from .contact import hertz
+    from ..contact import hertz
 
     approach = hertz.approach_for_force(np.asarray(preload, dtype=float), material, radius)
     return np.asarray(2 * hertz.contact_radius(approach, radius))

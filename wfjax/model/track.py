@@ -39,10 +39,10 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
-from . import _cache
-from ._modal import complex_modes, discrete_step_coefficients, real_times_complex
-from ._xla import to_device
-from .params import SUPPORT_FIELDS, Track, concrete_positive_numbers
+from .. import _cache
+from .._xla import to_device
+from ..params import SUPPORT_FIELDS, Track, concrete_positive_numbers
+from .modal import complex_modes, discrete_step_coefficients, real_times_complex
 from .sleepers import is_mirror_symmetric, is_uniform, support_arrays
 
 __all__ = [
@@ -184,9 +184,9 @@ def assemble(track: Track) -> FEModel:
     """Assemble the sparse stiffness, mass and damping matrices of the track FE model.
 
     Per-sleeper supports (arrays ``[n_bays - 1]`` in the track's support fields, see
-    :mod:`wfjax.supports`) enter sleeper by sleeper; scalars are the same at every sleeper.
+    :mod:`wfjax.model.supports`) enter sleeper by sleeper; scalars are the same at every sleeper.
     A hanging sleeper (``ballast_gap > 0``) has no ballast here: its one-sided ballast is a
-    non-linear force solved in the time loop (:func:`wfjax.supports.one_sided_spec`).
+    non-linear force solved in the time loop (:func:`wfjax.model.supports.one_sided_spec`).
     """
     p = _track_numbers(track)
     nb, ne = int(track.n_bays), int(track.elements_per_bay)
@@ -334,7 +334,7 @@ class ModalModel(NamedTuple):
             by the shape functions in :func:`mode_shapes_at`).
         sleeper_shapes: complex [n_modes, n_bays - 1] the same modes' sleeper displacements
             (interior sleepers, left to right; sleeper ``i`` sits at ``(i + 1 - n_bays // 2)
-            L_S``), read by the sensors (:mod:`wfjax.sensors`).
+            L_S``), read by the sensors (:mod:`wfjax.scenario.sensors`).
     """
 
     poles: jax.Array
@@ -589,12 +589,12 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
 
     Method: undamped real modes of (K, M) below ``max_frequency`` (``scipy.linalg.eigh``),
     the non-proportional pad/ballast damping projected onto them, complex modes of the reduced
-    2n x 2n state-space system (:func:`wfjax._modal.complex_modes`), mode shapes mapped back
+    2n x 2n state-space system (:func:`wfjax.model.modal.complex_modes`), mode shapes mapped back
     to the rail nodes, and the static compliance of the truncated modes tabulated across one
     bay (``n_residual`` points). Speed independent; cached with :mod:`wfjax._cache` keyed by
     every track parameter, ``max_frequency``, ``n_residual`` and the wfjax version.
 
-    Supports that vary from sleeper to sleeper (:mod:`wfjax.supports`): the cache key holds
+    Supports that vary from sleeper to sleeper (:mod:`wfjax.model.supports`): the cache key holds
     the per-sleeper arrays; the symmetric/antisymmetric split is used only when the supports
     are mirror symmetric about ``x = 0``, else the full eigenproblem is solved; the residual
     is tabulated along the whole rail (``n_residual - 1`` intervals per bay) and read at

@@ -25,9 +25,9 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
 
-from ._modal import complex_modes, discrete_step_coefficients
-from ._xla import to_device
-from .params import Wheel, concrete_positive_numbers
+from .._xla import to_device
+from ..params import Wheel, concrete_positive_numbers
+from .modal import complex_modes, discrete_step_coefficients
 
 __all__ = [
     "WheelModal",

@@ -1,6 +1,6 @@
 """Complex (state-space) modes of damped linear systems, and their exact discrete-time update.
 
-Shared by :mod:`wfjax.wheel` and :mod:`wfjax.track`.
+Shared by :mod:`wfjax.model.wheel` and :mod:`wfjax.model.track`.
 
 For ``M q'' + C q' + K q = f`` with symmetric M, C, K the first-order form
 ``A z' = B z + [f; 0]`` with ``z = [q; q']``, ``A = [[C, M], [M, 0]]``, ``B = [[-K, 0], [0, M]]``

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .params import Flat, _is_concrete, new_flat_length
+from ..params import Flat, _is_concrete, new_flat_length
 
 MIN_WHEEL_RADIUS = 0.3  # m; sizes the trajectory's search window when the radius is traced
 

@@ -36,10 +36,10 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
 
+from .._xla import to_device
+from ..params import Flat, Track, Wheel
 from . import track as track_mod
 from . import wheel as wheel_mod
-from ._xla import to_device
-from .params import Flat, Track, Wheel
 
 __all__ = [
     "Vehicle",
@@ -266,7 +266,7 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
 
     Returns:
         float [n_res, n, n] (symmetric in the last two axes), read by
-        :func:`wfjax.track.read_residual_table`.
+        :func:`wfjax.model.track.read_residual_table`.
     """
     fe = track_mod.assemble(track)
     grid = np.asarray(model.residual_x)
@@ -282,7 +282,7 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
 
 def _static_pair_compliance(fe, x: np.ndarray) -> np.ndarray:
     """K^-1(x_ri, x_rj) [m/N], [n_res, n, n], for rail positions ``x`` [n_res, n] [m]
-    (:func:`wfjax.track.static_solve` with the unit loads at every position)."""
+    (:func:`wfjax.model.track.static_solve` with the unit loads at every position)."""
     n_res, n = x.shape
     b = track_mod._load_vector(fe, x.ravel())  # [n_dof, n_res * n], sparse
     u = track_mod.static_solve(fe, b)
@@ -297,7 +297,7 @@ def transfer_receptance(track: Track, model: track_mod.ModalModel, freqs, x_forc
     (exp(i omega t)), with the truncated modes' static coupling between the two points.
 
     The modal part is symmetric in the two points by construction; the direct
-    frequency-domain solve (:func:`wfjax.track.receptance` with ``x_response``) is the
+    frequency-domain solve (:func:`wfjax.model.track.receptance` with ``x_response``) is the
     independent reference of both the values and the reciprocity.
     """
     h = track_mod.modal_sum(model, freqs, float(x_force), float(x_response))

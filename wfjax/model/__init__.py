@@ -1,0 +1,1 @@
+"""Physics: wheel, track (modal model), supports, vehicle, flat geometry."""
