@@ -181,10 +181,13 @@ def test_written_toml_round_trips_exactly(tmp_path):
 
 
 # -- examples and docs ----------------------------------------------------------------------
+EXAMPLES = ROOT / "wfjax" / "examples"  # package data: `wfjax examples DIR` copies them
+
+
 def test_examples_resolve():
-    fig7 = C.resolve("sweep", str(ROOT / "examples" / "fig7.toml"), environ={})
+    fig7 = C.resolve("sweep", str(EXAMPLES / "fig7.toml"), environ={})
     assert fig7.model()[1] == wf.Track.comparison()
-    soft = C.resolve("sweep", str(ROOT / "examples" / "soft_pads_heavy_axle.toml"), environ={})
+    soft = C.resolve("sweep", str(EXAMPLES / "soft_pads_heavy_axle.toml"), environ={})
     wheel, track, _, _ = soft.model()
     assert float(wheel.preload) == pytest.approx(22.5e3 * 9.81 / 2, rel=1e-3)
     assert float(track.sleeper_spacing) == 0.6 and float(track.pad_stiffness) == 60e6

@@ -15,7 +15,8 @@ import os
 import sys
 
 SUBCOMMANDS = ("sweep", "simulate", "compare", "figures", "fit", "receptance", "geometry",
-               "detector", "config")
+               "detector", "config", "examples")
+VERSION_FLAGS = ("--version", "-V")
 
 
 def _available():
@@ -83,13 +84,17 @@ def add_options(parser: argparse.ArgumentParser, command: str) -> None:
             # no argparse ``choices``: the generated validation refuses a bad name with the
             # same one-line error (and exit status 2) as every other bad value
             kw.update(action=_Typed, metavar=option.metavar)
+        if not option.flag.startswith("-"):  # a positional argument, optional (``[DIR]``)
+            del kw["dest"]
+            kw["nargs"] = "?"
         parser.add_argument(option.flag, *option.aliases, **kw)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``wfjax`` command with every available subcommand."""
     parser = _Parser(
-        prog="wfjax", description="Wheel-flat impact forces (Pieringer, Kropp & Nielsen 2014)."
+        prog="wfjax", description="Wheel-flat impact forces (Pieringer, Kropp & Nielsen 2014).",
+        epilog="wfjax --version prints the version.",
     )
     sub = parser.add_subparsers(dest="command", required=True)
     for name, module in _available():
@@ -128,9 +133,18 @@ def expose_cpu_cores(count: int | None = None) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the ``wfjax`` command line; returns the exit status."""
+    """Run the ``wfjax`` command line; returns the exit status.
+
+    ``wfjax --version`` (or ``-V``) prints ``wfjax X.Y.Z`` (:data:`wfjax.__version__`, the
+    version the package was built with) and nothing else runs.
+    """
+    from . import __version__
     from .commands._common import NonFiniteResult
 
+    first = (sys.argv[1:] if argv is None else argv)[:1]
+    if first and first[0] in VERSION_FLAGS:
+        print(f"wfjax {__version__}")
+        return 0
     expose_cpu_cores()
     args = build_parser().parse_args(argv)
     enable_compilation_cache()

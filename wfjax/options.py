@@ -363,6 +363,10 @@ CLI_OPTIONS: tuple[Option, ...] = (
     Option("config", "no_comments", "bool", doc="omit the unit/range comment after every key",
            case=False, commands=("config",), flag="--no-comments", action="store_true",
            default=False),
+    # a positional argument (a flag without dashes): ``wfjax examples [DIR]``
+    Option("examples", "dir", "str", doc="directory to copy the example case files and the "
+           "measured profile into (created; an existing file is never overwritten)",
+           case=False, commands=("examples",), flag="dir", default="examples", metavar="DIR"),
 )
 
 OPTIONS: tuple[Option, ...] = RUN_OPTIONS + tuple(model_options()) + CLI_OPTIONS
