@@ -336,6 +336,10 @@ CLI_OPTIONS: tuple[Option, ...] = (
            action="append", default=[], dest="set_values", metavar="SECTION.KEY=VALUE"),
     Option("cli", "out", "str", doc="output directory", case=False, commands=COMMANDS,
            flag="--out", default=_OUT, metavar="DIR"),
+    Option("cli", "format", "strs", choices=("csv", "netcdf"),
+           doc="result tables: csv = sweep.csv, netcdf = sweep.nc (labelled dimensions, units, "
+           "case; needs wfjax[io]: docs/results.md) or csv,netcdf; JSON, NPZ, PNG always",
+           case=False, commands=("sweep",), flag="--format", default="csv", metavar="FORMAT"),
     _speeds("figures", doc="speeds of every figure: 'start:stop:step' or 'v1,v2' (default "
             "20:300:10; --fast: 40,100,160)", case=False, commands=("figures",)),
     Option("figures", "fast", "bool", doc="tiny sweeps (3 speeds, 2 positions, fewer depths) "

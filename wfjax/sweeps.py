@@ -21,6 +21,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from . import labelled
 from .params import Flat, Material, SimConfig, Track, Wheel
 from .program.core import compile_scenario
 from .program.grid import over_realisations
@@ -233,6 +234,25 @@ class SweepResult(NamedTuple):
     def to_json(self) -> str:
         """:meth:`summary` as JSON text."""
         return json.dumps(self.summary(), indent=2)
+
+    def to_xarray(self, case=None, provenance: dict | None = None):
+        """Every array as an ``xarray.Dataset`` with named dimensions (``flat``,
+        ``speed_kmh``, ``impact_position_mm``; ``wheel``, ``realisation``, ``quantity`` x
+        ``sensor_m``, ``bay`` where the sweep has them) in the CSV's units (kN, km/h, mm,
+        ms), the resolved ``case`` and the ``provenance`` as JSON attributes
+        (:func:`wfjax.labelled.to_xarray`). Needs ``wfjax[io]`` (xarray, pandas)."""
+        return labelled.to_xarray(self, case, provenance)
+
+    def to_dataframe(self, table: str = "runs", case=None, provenance: dict | None = None):
+        """One table as a long ``pandas.DataFrame``: ``"runs"`` (the rows and units of
+        :meth:`to_csv`), ``"wheels"``, ``"realisations"``, ``"sensors"`` or ``"detector"``
+        (:func:`wfjax.labelled.to_dataframe`). Needs ``wfjax[io]``."""
+        return labelled.to_dataframe(self, table, case, provenance)
+
+    def to_netcdf(self, path, case=None, provenance: dict | None = None) -> Path:
+        """Write :meth:`to_xarray`'s dataset to ``path`` (NetCDF 3, atomically; read it back
+        with :func:`wfjax.labelled.open_netcdf`). Needs ``wfjax[io]``."""
+        return labelled.to_netcdf(self, path, case, provenance)
 
 
 def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: str = "3d",

@@ -4,7 +4,8 @@ Flats: one kind (or ``--flat both``: a rounded and a new flat) at one depth or a
 depths (``--depths-mm 0.25:2:0.25``), with one length for all, one length per depth
 (``--lengths-mm``) or a length rule (``--length-factor 1.76``: l = 1.76 l0), or a measured
 profile (``--profile-csv``). All flats go to one :func:`wfjax.sweep` call and into one CSV,
-JSON, NPZ and PNG (one curve per flat).
+JSON, NPZ and PNG (one curve per flat); ``--format netcdf`` writes the labelled
+``sweep.nc`` (:mod:`wfjax.labelled`) instead of, or with (``csv,netcdf``), the CSV.
 """
 
 from __future__ import annotations
@@ -13,10 +14,12 @@ import time
 
 import numpy as np
 
+from .. import case as case_mod
 from ._common import (
     case_vehicle,
     check_finite,
     prepare_out,
+    provenance,
     resolve_case,
     save_figure,
     write_atomic,
@@ -24,6 +27,20 @@ from ._common import (
 )
 
 HELP = "speed sweep of max/min contact force over impact positions (default: Fig. 7, 3D contact)"
+INPUT_KEYS = ("flat.profile_csv", "roughness.rail_csv", "roughness.wheel_csv")
+
+
+def check_formats(formats: list[str]) -> None:
+    """Refuse (:class:`wfjax.case.CaseError`, one line: exit 2, before any work) a format
+    whose optional dependencies are missing: ``netcdf`` needs ``wfjax[io]``."""
+    if "netcdf" in formats:
+        from ..labelled import require
+
+        try:
+            require("--format netcdf")
+        except ImportError as exc:
+            raise case_mod.CaseError(str(exc)) from None
+
 
 def run(args) -> int:
     import importlib
@@ -34,6 +51,7 @@ def run(args) -> int:
     # matplotlib (0.3 s) imports while the sweep runs: only the figures at the end need it
     plotting_ahead = in_background(importlib.import_module, "wfjax.plotting")
     case = resolve_case(args, "sweep")
+    check_formats(args.format)
 
     speeds = case.speeds()
     positions = case["run.impact_positions"]
@@ -54,27 +72,51 @@ def run(args) -> int:
                    wheel_roughness=wheel_rough, tracks=tracks)
     elapsed = time.perf_counter() - t0
     plotting_ahead.result()
-    from ..plotting import percentile_band_figure, sweep_figure, sweep_wheels_figure
-
     check_finite("sweep", max_force=result.max_force, min_force=result.min_force)
-    write_atomic(out / "sweep.csv", result.to_csv())
-    extra = ", sweep_wheels.png" if vehicle is not None else ""
-    if result.realisation_max_force is not None:
-        write_atomic(out / "sweep_percentiles.csv", result.percentiles_to_csv())
-        save_figure(percentile_band_figure(result, preload=float(wheel.preload)),
-                    out / "sweep_band.png")
-        extra += ", sweep_percentiles.csv, sweep_band.png"
-    result.save_npz(out / "sweep.npz")
     summary = result.summary()
     summary["wall_time_s"] = elapsed
     summary["precision"] = case["config.precision"]
-    write_summary(out / "sweep.json", summary, case,
-                  {k: case.get(k) for k in ("flat.profile_csv", "roughness.rail_csv",
-                                            "roughness.wheel_csv")})
-    save_figure(sweep_figure(result, preload=float(wheel.preload)), out / "sweep.png")
-    if vehicle is not None:
-        save_figure(sweep_wheels_figure(result, preload=float(wheel.preload)),
-                    out / "sweep_wheels.png")
+    written = _write(out, result, summary, case, args.format, float(wheel.preload))
+    _report(summary, speeds)
+    print(f"  {elapsed:.1f} s; wrote {out}/{', '.join(written)}")
+    return 0
+
+
+def _write(out, result, summary: dict, case, formats: list[str], preload: float) -> list[str]:
+    """Write the sweep's files into ``out`` in ``formats``; returns their names.
+
+    ``preload``: the static wheel load [N] the figures mark.
+    """
+    from ..plotting import percentile_band_figure, sweep_figure, sweep_wheels_figure
+
+    written = []
+    band = result.realisation_max_force is not None
+    if "csv" in formats:
+        write_atomic(out / "sweep.csv", result.to_csv())
+        written.append("sweep.csv")
+        if band:
+            write_atomic(out / "sweep_percentiles.csv", result.percentiles_to_csv())
+            written.append("sweep_percentiles.csv")
+    inputs = {k: case.get(k) for k in INPUT_KEYS}
+    if "netcdf" in formats:
+        result.to_netcdf(out / "sweep.nc", case=case, provenance=provenance(case, inputs))
+        written.append("sweep.nc")
+    result.save_npz(out / "sweep.npz")
+    write_summary(out / "sweep.json", summary, case, inputs)
+    save_figure(sweep_figure(result, preload=preload), out / "sweep.png")
+    written += ["sweep.npz", "sweep.json", "sweep.png"]
+    if band:
+        save_figure(percentile_band_figure(result, preload=preload), out / "sweep_band.png")
+        written.append("sweep_band.png")
+    if result.wheel_max_force is not None:
+        save_figure(sweep_wheels_figure(result, preload=preload), out / "sweep_wheels.png")
+        written.append("sweep_wheels.png")
+    return written + ["case.toml"]
+
+
+def _report(summary: dict, speeds) -> None:
+    """Print the peak forces, loss-of-contact speeds, wheels and percentiles of ``summary``
+    (``speeds`` [m/s])."""
     for label, s in summary["flats"].items():
         loss = s["first_loss_of_contact_kmh"]
         loss_text = f"from {loss:.0f} km/h" if loss is not None else "none"
@@ -90,6 +132,3 @@ def run(args) -> int:
         print(f"  {label}: over {summary['realisations']} roughness realisations, max force "
               f"p50/p95/p99 {pct['p50'][j]:.1f} / {pct['p95'][j]:.1f} / {pct['p99'][j]:.1f} kN "
               f"at {speeds[j] * 3.6:.0f} km/h")
-    print(f"  {elapsed:.1f} s; wrote {out}/sweep.csv, sweep.json, sweep.npz, sweep.png{extra}, "
-          "case.toml")
-    return 0
