@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import wfjax as wf
-from wfjax.contact import kalker, tables
+from wfjax.contact import kalker, table_spec, tables
 
 MAT = wf.Material()
 R = 0.45
@@ -206,7 +206,7 @@ def table_builds(quick):
                    0.30)]
     out = []
     for name, flat, rr in cases:
-        spec = tables.table_spec(flat, R, rr, MAT)
+        spec = table_spec.table_spec(flat, R, rr, MAT)
         times, built = {}, {}
         for windows in (True, False):  # each solve on its overlap's window / the whole grid
             t0 = time.perf_counter()
@@ -214,8 +214,8 @@ def table_builds(quick):
                 tables.build_table_3d(flat, R, rr, MAT, spec=spec, windows=windows))
             times[windows] = time.perf_counter() - t0
         tab = built[True]
-        plan = tables.window_plan(spec, flat, tables._solve_positions(spec),
-                                  margin=tables.TABLE_WINDOW_MARGIN)
+        plan = windows.window_plan(spec, flat, tables._solve_positions(spec),
+                                  margin=windows.TABLE_WINDOW_MARGIN)
         out.append(dict(flat=name, seconds=times[True], whole_grid_seconds=times[False],
                         speedup=times[False] / times[True], grid=f"{spec.nx}x{spec.ny}",
                         window_sizes=plan.sizes, n_s=spec.n_s, n_t=spec.n_t,

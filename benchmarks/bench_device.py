@@ -54,7 +54,7 @@ from wfjax import fit
 from wfjax._compile_clock import compile_seconds
 from wfjax.cli import expose_cpu_cores
 from wfjax.commands.figures import fig7_flats
-from wfjax.contact import table_law, tables
+from wfjax.contact import table_law, table_spec, tables
 from wfjax.program import grid
 
 SECTIONS = ("table", "gradient", "default", "fig7", "fig8", "large-hertz", "large-3d")
@@ -145,7 +145,7 @@ def gradient_section(n_speeds: int):
 def table_section(element: float):
     flat = wf.Flat.rounded(0.9e-3, 0.1)
     batch = table_law.table_batch_size()
-    spec = tables.table_spec(flat, 0.45, 0.30, wf.Material(), element)
+    spec = table_spec.table_spec(flat, 0.45, 0.30, wf.Material(), element)
 
     def run(precision):
         t = tables.build_table_3d(flat, 0.45, 0.30, spec=spec, batch_size=batch)

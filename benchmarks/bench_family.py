@@ -26,7 +26,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import wfjax as wf  # noqa: E402
-from wfjax.contact import family, tables  # noqa: E402
+from wfjax.contact import family, interpolation, tables  # noqa: E402
 
 DEPTHS = np.arange(1, 9) * 0.25e-3
 LAMBDA = 1.76
@@ -43,12 +43,12 @@ def accuracy(fam, kind, d, h, n_s=801, n_t=60):
     tab = jax.block_until_ready(tables.build_table_3d(flat, element_size=h))
     t_exact = time.perf_counter() - t0
     s = np.linspace(float(tab.s_min), -float(tab.s_min), n_s)
-    on_t = np.asarray(jax.vmap(lambda x: tables.table_onset(tab, x))(s))
+    on_t = np.asarray(jax.vmap(lambda x: interpolation.table_onset(tab, x))(s))
     on_f = np.asarray(jax.jit(jax.vmap(family.family_column, (None, 0, None, None)))(
         fam, jnp.asarray(s), d, flat.length).onset)
     S, T = np.meshgrid(s, np.linspace(0.02, 1.0, n_t), indexing="ij")
     D = on_t[:, None] + float(tab.c_max) * T**2
-    f_t = np.asarray(jax.jit(jax.vmap(tables.table_force, (None, 0, 0)))(
+    f_t = np.asarray(jax.jit(jax.vmap(interpolation.table_force, (None, 0, 0)))(
         tab, jnp.asarray(D.ravel()), jnp.asarray(S.ravel())))
     f_f = np.asarray(jax.jit(jax.vmap(family.family_force, (None, 0, 0, None, None)))(
         fam, jnp.asarray(D.ravel()), jnp.asarray(S.ravel()), d, flat.length))

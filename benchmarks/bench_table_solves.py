@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import wfjax as wf
-from wfjax.contact import kalker, tables
+from wfjax.contact import kalker, table_spec, tables, windows
 
 FLATS = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
 MAT = wf.Material()
@@ -45,18 +45,18 @@ def counting_solver(size, h):
 def iterations(predict: bool):
     """(outer, CG) iterations over every solve of both tables, no sharing."""
     estar = float(kalker.combined_modulus(MAT)) if predict else 0.0
-    mat = tables._solver_inputs(MAT, np.float64)
+    mat = windows.solver_inputs(MAT, np.float64)
     outer = cg = 0
     for flat in FLATS:
-        spec = tables.table_spec(flat, 0.45, 0.30, MAT, 1e-3)
-        gaps, onsets = tables._column_gaps(spec, flat, tables._solve_positions(spec))
-        boxes = tables._boxes(spec, gaps - gaps.min(axis=(1, 2), keepdims=True),
-                              tables.TABLE_WINDOW_MARGIN)
-        sizes = tables._grid_sizes(spec, tables._merge_sizes(
-            tables.needed_sizes([boxes]), tables.MAX_WINDOW_SIZES, tables.COST_PER_WINDOW_SIZE))
-        plan = tables.assign_windows(spec, boxes, sizes)
+        spec = table_spec.table_spec(flat, 0.45, 0.30, MAT, 1e-3)
+        gaps, onsets = windows.column_gaps(spec, flat, tables._solve_positions(spec))
+        boxes = windows.boxes_from_gaps(spec, gaps - gaps.min(axis=(1, 2), keepdims=True),
+                              windows.TABLE_WINDOW_MARGIN)
+        sizes = tables._grid_sizes(spec, windows.merge_sizes(
+            windows.needed_sizes([boxes]), windows.MAX_WINDOW_SIZES, windows.COST_PER_WINDOW_SIZE))
+        plan = windows.assign_windows(spec, boxes, sizes)
         solvers = [counting_solver(size, spec.element_size) for size in plan.sizes]
-        cs = tables._compressions(spec)
+        cs = table_spec.compression_nodes(spec)
         for i in range(len(onsets)):
             gpz = np.zeros((3,) + gaps[i].shape)
             gpz[0] = gaps[i]
@@ -78,9 +78,9 @@ def iterations(predict: bool):
 def main():
     total = shared = 0
     for flat in FLATS:
-        spec = tables.table_spec(flat, 0.45, 0.30, MAT, 1e-3)
-        gaps, onsets = tables._column_gaps(spec, flat, tables._solve_positions(spec))
-        n = tables.shared_prefix(gaps, onsets, tables._compressions(spec))
+        spec = table_spec.table_spec(flat, 0.45, 0.30, MAT, 1e-3)
+        gaps, onsets = windows.column_gaps(spec, flat, tables._solve_positions(spec))
+        n = tables.shared_prefix(gaps, onsets, table_spec.compression_nodes(spec))
         total += len(onsets) * (spec.n_t - 1)
         shared += int(n.sum())
     print(f"solves: {total}, shared with the smooth-wheel column: {shared}", flush=True)

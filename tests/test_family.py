@@ -13,7 +13,7 @@ import pytest
 
 import wfjax as wf
 from wfjax import _cache
-from wfjax.contact import family, tables
+from wfjax.contact import family, interpolation, tables
 
 MAT = wf.Material()
 R = 0.45
@@ -49,10 +49,10 @@ def sample(tab, rng, n=40, lo=0.05, hi=0.95):
 
 
 vforce = jax.jit(jax.vmap(family.family_force, (None, 0, 0, None, None)))
-vonset_t = jax.jit(jax.vmap(tables.table_onset, (None, 0)))
+vonset_t = jax.jit(jax.vmap(interpolation.table_onset, (None, 0)))
 vonset_f = jax.jit(jax.vmap(lambda fam, s, d, length: family.family_column(fam, s, d, length)
                             .onset, (None, 0, None, None)))
-vtable = jax.jit(jax.vmap(tables.table_force, (None, 0, 0)))
+vtable = jax.jit(jax.vmap(interpolation.table_force, (None, 0, 0)))
 
 
 def test_spec_lattice_and_layout(rounded):
@@ -111,12 +111,12 @@ def test_two_stage_form_and_zero_below_onset(rounded):
     d, length = 0.7e-3, 1.76 * l0(0.7e-3)
     for s in (-0.03, 0.012, 0.2):
         col = family.family_column(rounded, s, d, length)
-        assert isinstance(col, tables.Column)
+        assert isinstance(col, interpolation.Column)
         for c in (0.1, 0.9):
             delta = float(col.onset) + c * float(col.c_max)
             assert float(family.family_force(rounded, delta, s, d, length)) == float(
-                tables.column_force(col, delta))
-        assert float(tables.column_force(col, float(col.onset) - 1e-7)) == 0.0
+                interpolation.column_force(col, delta))
+        assert float(interpolation.column_force(col, float(col.onset) - 1e-7)) == 0.0
         g = jax.grad(family.family_force, argnums=1)(rounded, float(col.onset) - 1e-7, s, d,
                                                      length)
         assert float(g) == 0.0
@@ -127,7 +127,7 @@ def test_far_from_flat_is_smooth_wheel(rounded):
     """Beyond the flat every node is the same smooth wheel: the family is exact there."""
     tab = exact(wf.Flat.rounded_relative(0.7e-3, 1.76))
     delta = 0.6 * float(tab.c_max)
-    f_far = float(tables.table_force(tab, delta, 1.0))
+    f_far = float(interpolation.table_force(tab, delta, 1.0))
     for d, lam in ((0.57e-3, 1.67), (1.05e-3, 1.85)):
         f = float(family.family_force(rounded, delta, 1.0, d, lam * l0(d)))
         assert f == pytest.approx(f_far, rel=1e-9)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax.contact import laws, table_law, tables
+from wfjax.contact import interpolation, laws, table_law, tables
 from wfjax.contact.protocol import ContactLaw
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
@@ -202,16 +202,16 @@ def test_widened_table_gives_the_same_forces():
     """pad_columns repeats the end columns: the same forces inside and beyond the s range."""
     table = table_law.cached_table_3d(wf.Flat.new(0.9e-3), 0.45, 0.3, wf.Material(), 2e-3)
     n = table.onset.shape[0]
-    wide = tables.pad_columns(table, n + 13)
+    wide = interpolation.pad_columns(table, n + 13)
     assert wide.force.shape == (n + 13, table.force.shape[1])
     s = np.concatenate([np.linspace(-0.09, 0.09, 37), [0.0, 1e-3, -0.0317]])
     for delta in (0.05e-3, 0.2e-3, 0.5e-3):
         for si in s:
-            f = float(tables.table_force(table, delta, si))
-            assert float(tables.table_force(wide, delta, si)) == pytest.approx(
+            f = float(interpolation.table_force(table, delta, si))
+            assert float(interpolation.table_force(wide, delta, si)) == pytest.approx(
                 f, rel=1e-12, abs=1e-9)
     with pytest.raises(ValueError, match="n_s"):
-        tables.pad_columns(table, n - 1)
+        interpolation.pad_columns(table, n - 1)
 
 
 @pytest.mark.slow
@@ -274,7 +274,7 @@ def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
     whole = law.on_whole_grid()
     layout = law.layout
     for s, c in [(-0.06, 1e-4), (-0.02, 3e-4), (0.0, 2e-4), (0.03, 2 * layout.c_max)]:
-        delta = float(tables.table_onset(law.table, s)) + c
+        delta = float(interpolation.table_onset(law.table, s)) + c
         p0 = jnp.zeros((layout.nx, layout.ny))
         f_w = float(law._evaluate(s, delta, p0)[0])
         gap = kalker.gap_3d(flat, s, layout.x, layout.y, layout.wheel_radius,

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-from wfjax.contact import kalker, tables
+from wfjax.contact import interpolation as ip
+from wfjax.contact import kalker, table_spec, tables, windows
 
 MAT = wf.Material()
 R = 0.45
@@ -18,7 +19,7 @@ FLAT = wf.Flat.rounded(0.9e-3, 0.1)
 @pytest.fixture(scope="module")
 def coarse():
     """A fast table: 1.5 mm elements and columns, up to 300 kN."""
-    spec = tables.table_spec(FLAT, R, R, MAT, element_size=1.5e-3, max_force=300e3, n_t=12)
+    spec = table_spec.table_spec(FLAT, R, R, MAT, element_size=1.5e-3, max_force=300e3, n_t=12)
     return spec, tables.build_table_3d(FLAT, R, R, MAT, spec=spec)
 
 
@@ -42,9 +43,9 @@ def test_table_matches_direct_solves(coarse):
     rng = np.random.default_rng(3)
     for _ in range(6):
         s = rng.uniform(-spec.s_max, spec.s_max)
-        delta = float(tables.table_onset(tab, s)) + spec.c_max * rng.uniform(0.1, 0.9)
+        delta = float(ip.table_onset(tab, s)) + spec.c_max * rng.uniform(0.1, 0.9)
         f_dir = float(direct(spec, FLAT, delta, s).force)
-        f_tab = float(tables.table_force(tab, delta, s))
+        f_tab = float(ip.table_force(tab, delta, s))
         assert abs(f_tab - f_dir) <= 0.01 * max(f_dir, 50e3)
 
 
@@ -53,9 +54,9 @@ def test_far_from_flat_is_smooth_wheel_and_hertz(coarse):
     delta = 0.1093e-3
     smooth = direct(spec, wf.Flat.none(), delta, 0.0)
     for s in (-spec.s_max, -1.0, spec.s_max + 0.3):
-        assert float(tables.table_force(tab, delta, s)) == pytest.approx(
+        assert float(ip.table_force(tab, delta, s)) == pytest.approx(
             float(smooth.force), rel=2e-3)
-    assert float(tables.table_onset(tab, -1.0)) == pytest.approx(0.0, abs=1e-12)
+    assert float(ip.table_onset(tab, -1.0)) == pytest.approx(0.0, abs=1e-12)
     assert float(smooth.force) == pytest.approx(118e3, rel=0.02)  # Hertz at 1.5 mm elements
 
 
@@ -63,52 +64,52 @@ def test_continuous_in_s_and_zero_below_onset(coarse):
     spec, tab = coarse
     s = jnp.linspace(-spec.s_max, spec.s_max, 4001)
     delta = 0.12e-3
-    f = jax.vmap(lambda si: tables.table_force(tab, delta, si))(s)
+    f = jax.vmap(lambda si: ip.table_force(tab, delta, si))(s)
     step = float(s[1] - s[0])
     slope_bound = float(jnp.max(jnp.abs(jnp.diff(f)))) / step
     assert slope_bound < 1e11  # N/m: no jumps (a jump of 1 kN would give 1.4e11)
-    onset = jax.vmap(lambda si: tables.table_onset(tab, si))(s)
-    below = jax.vmap(tables.table_force, in_axes=(None, 0, 0))(tab, onset - 1e-6, s)
+    onset = jax.vmap(lambda si: ip.table_onset(tab, si))(s)
+    below = jax.vmap(ip.table_force, in_axes=(None, 0, 0))(tab, onset - 1e-6, s)
     assert float(jnp.max(below)) == 0.0
 
 
 def test_gradients_vmap_jit(coarse):
     spec, tab = coarse
     s, delta = -0.04, 0.15e-3
-    g = jax.grad(tables.table_force, argnums=1)(tab, delta, s)
+    g = jax.grad(ip.table_force, argnums=1)(tab, delta, s)
     eps = 1e-9
-    fd = (tables.table_force(tab, delta + eps, s) - tables.table_force(tab, delta - eps, s)) / (
+    fd = (ip.table_force(tab, delta + eps, s) - ip.table_force(tab, delta - eps, s)) / (
         2 * eps)
     assert float(g) == pytest.approx(float(fd), rel=1e-5)
     # zero force, zero (finite) gradient below the onset
-    g0 = jax.grad(tables.table_force, argnums=1)(tab, -1e-3, s)
+    g0 = jax.grad(ip.table_force, argnums=1)(tab, -1e-3, s)
     assert float(g0) == 0.0
     # stiffness at a node agrees with the solver's dF/d delta
     j, i = 8, spec.n_s // 2 + 10
     c = spec.c_max * (j / (spec.n_t - 1)) ** 2
     si = float(spec.s[i])
     d = float(tab.onset[i]) + c
-    k_tab = jax.grad(tables.table_force, argnums=1)(tab, d + 1e-12, si)
+    k_tab = jax.grad(ip.table_force, argnums=1)(tab, d + 1e-12, si)
     assert float(k_tab) == pytest.approx(float(direct(spec, FLAT, d, si).stiffness), rel=1e-3)
     # vmap == loop, jit == eager, grad w.r.t. the table arrays exists
     ds = jnp.linspace(0.05e-3, 0.3e-3, 5)
     ss = jnp.linspace(-0.06, 0.01, 5)
-    fb = jax.jit(jax.vmap(tables.table_force, in_axes=(None, 0, 0)))(tab, ds, ss)
+    fb = jax.jit(jax.vmap(ip.table_force, in_axes=(None, 0, 0)))(tab, ds, ss)
     for k in range(5):
-        assert float(fb[k]) == pytest.approx(float(tables.table_force(tab, ds[k], ss[k])),
+        assert float(fb[k]) == pytest.approx(float(ip.table_force(tab, ds[k], ss[k])),
                                              rel=1e-12)
-    gt = jax.grad(tables.table_force)(tab, delta, s)
+    gt = jax.grad(ip.table_force)(tab, delta, s)
     assert float(jnp.abs(gt.force).sum()) > 0
 
 
 def test_gradient_to_flat_depth_through_build():
-    spec = tables.table_spec(FLAT, R, R, MAT, element_size=1.5e-3, max_force=300e3, n_t=6,
+    spec = table_spec.table_spec(FLAT, R, R, MAT, element_size=1.5e-3, max_force=300e3, n_t=6,
                              ds=12e-3)
 
     def f(depth):
         flat = wf.Flat("rounded", depth=depth, length=0.1)
         tab = tables.build_table_3d(flat, R, R, MAT, spec=spec)
-        return tables.table_force(tab, tables.table_onset(tab, -0.03) + 0.1e-3, -0.03)
+        return ip.table_force(tab, ip.table_onset(tab, -0.03) + 0.1e-3, -0.03)
 
     g = jax.grad(f)(0.9e-3)
     eps = 1e-8
@@ -119,11 +120,11 @@ def test_gradient_to_flat_depth_through_build():
 
 def test_bad_input():
     with pytest.raises(ValueError, match="element_size"):
-        tables.table_spec(FLAT, R, R, MAT, element_size=-1e-3)
+        table_spec.table_spec(FLAT, R, R, MAT, element_size=-1e-3)
     with pytest.raises(ValueError, match="ds"):
-        tables.table_spec(FLAT, R, R, MAT, ds=0.0)
+        table_spec.table_spec(FLAT, R, R, MAT, ds=0.0)
     with pytest.raises(ValueError, match="n_t"):
-        tables.table_spec(FLAT, R, R, MAT, n_t=2)
+        table_spec.table_spec(FLAT, R, R, MAT, n_t=2)
 
 
 @pytest.mark.slow
@@ -136,7 +137,7 @@ def test_bad_input():
 ])
 def test_full_resolution_table_accuracy(flat, rail_radius, limit):
     """1 mm table vs direct solves: <= 0.5 % of max(F, 50 kN) over s and c up to 600 kN."""
-    spec = tables.table_spec(flat, R, rail_radius, MAT)
+    spec = table_spec.table_spec(flat, R, rail_radius, MAT)
     tab = tables.build_table_3d(flat, R, rail_radius, MAT, spec=spec)
     assert float(tab.converged) == 1.0
     assert float(tab.force[:, -1].min()) > 600e3
@@ -144,9 +145,9 @@ def test_full_resolution_table_accuracy(flat, rail_radius, limit):
     errs = []
     for _ in range(30):
         s = rng.uniform(-spec.s_max, spec.s_max)
-        delta = float(tables.table_onset(tab, s)) + spec.c_max * rng.uniform(0.02, 0.8)
+        delta = float(ip.table_onset(tab, s)) + spec.c_max * rng.uniform(0.02, 0.8)
         f_dir = float(direct(spec, flat, delta, s).force)
-        f_tab = float(tables.table_force(tab, delta, s))
+        f_tab = float(ip.table_force(tab, delta, s))
         errs.append(abs(f_tab - f_dir) / max(f_dir, 50e3))
     assert max(errs) <= limit, f"max error {max(errs):.4f}"
     assert math.isfinite(max(errs))
@@ -158,19 +159,19 @@ def test_column_two_stage_equals_table_force(coarse):
     rng = np.random.default_rng(5)
     for _ in range(5):
         s = rng.uniform(-spec.s_max, spec.s_max)
-        col = tables.table_column(tab, s)
-        assert float(col.onset) == float(tables.table_onset(tab, s))
+        col = ip.table_column(tab, s)
+        assert float(col.onset) == float(ip.table_onset(tab, s))
         for c in (-1e-5, 0.0, 0.3 * spec.c_max, 0.9 * spec.c_max):
             delta = float(col.onset) + c
-            f2 = float(tables.column_force(col, delta))
-            assert f2 == float(tables.table_force(tab, delta, s))
+            f2 = float(ip.column_force(col, delta))
+            assert f2 == float(ip.table_force(tab, delta, s))
             assert f2 >= 0.0
-        g = jax.grad(tables.column_force, argnums=1)(col, float(col.onset) + 0.5 * spec.c_max)
+        g = jax.grad(ip.column_force, argnums=1)(col, float(col.onset) + 0.5 * spec.c_max)
         eps = 1e-9
         d0 = float(col.onset) + 0.5 * spec.c_max
-        fd = (tables.column_force(col, d0 + eps) - tables.column_force(col, d0 - eps)) / (2 * eps)
+        fd = (ip.column_force(col, d0 + eps) - ip.column_force(col, d0 - eps)) / (2 * eps)
         assert float(g) == pytest.approx(float(fd), rel=1e-5)
-        assert float(jax.grad(tables.column_force, argnums=1)(col, float(col.onset) - 1e-6)) == 0
+        assert float(jax.grad(ip.column_force, argnums=1)(col, float(col.onset) - 1e-6)) == 0
 
 
 @pytest.mark.parametrize("flat, rail_radius", [
@@ -184,11 +185,11 @@ def test_column_two_stage_equals_table_force(coarse):
 def test_windowed_build_equals_whole_grid(flat, rail_radius):
     """Each solve on the window around its rigid overlap is the whole-grid problem: the
     forces agree to 1e-9 relative (tight CG tolerance, so the solver's own error is below)."""
-    spec = tables.table_spec(flat, R, rail_radius, MAT, element_size=1.5e-3,
+    spec = table_spec.table_spec(flat, R, rail_radius, MAT, element_size=1.5e-3,
                              max_force=300e3, n_t=8)
-    plan = tables.window_plan(spec, flat, spec.s)
+    plan = windows.window_plan(spec, flat, spec.s)
     assert max(wx * wy for wx, wy in plan.sizes) < spec.nx * spec.ny  # windows are smaller
-    assert len(plan.sizes) <= tables.MAX_WINDOW_SIZES
+    assert len(plan.sizes) <= windows.MAX_WINDOW_SIZES
     whole = tables.build_table_3d(flat, R, rail_radius, MAT, spec=spec, tol=1e-12,
                                   windows=False)
     windowed = tables.build_table_3d(flat, R, rail_radius, MAT, spec=spec, tol=1e-12)
@@ -229,16 +230,16 @@ def test_shared_solves_equal_the_columns_own(coarse):
     to 1e-9 of the force: the sharing is exact, not an approximation."""
     spec, _ = coarse
     s = tables._solve_positions(spec)
-    gaps, onsets = tables._column_gaps(spec, FLAT, s)
-    cs = tables._compressions(spec)
+    gaps, onsets = windows.column_gaps(spec, FLAT, s)
+    cs = table_spec.compression_nodes(spec)
     shared = tables.shared_prefix(gaps, onsets, cs)
     assert shared[0] == 0 and shared[-1] == 0 and shared[-2] == len(cs)  # centre, reference
     i = int(np.flatnonzero((shared > 0) & (shared < len(cs)))[0])  # partly shared
-    boxes = tables._boxes(spec, gaps - gaps.min(axis=(1, 2), keepdims=True), 0)
-    sizes = tables._merge_sizes(tables.needed_sizes([boxes]), 2, 0.0)
-    plan = tables.assign_windows(spec, boxes, tables._grid_sizes(spec, sizes))
-    solvers = [tables.window_solver(size, spec.element_size, 1e-12) for size in plan.sizes]
-    mat = tables._solver_inputs(MAT, np.float64)
+    boxes = windows.boxes_from_gaps(spec, gaps - gaps.min(axis=(1, 2), keepdims=True), 0)
+    sizes = windows.merge_sizes(windows.needed_sizes([boxes]), 2, 0.0)
+    plan = windows.assign_windows(spec, boxes, tables._grid_sizes(spec, sizes))
+    solvers = [windows.window_solver(size, spec.element_size, 1e-12) for size in plan.sizes]
+    mat = windows.solver_inputs(MAT, np.float64)
     estar = float(kalker.combined_modulus(MAT))
 
     def column(k, n_shared=0, reference=None, keep=False):
@@ -263,10 +264,10 @@ def test_merge_sizes_covers_every_solve_within_the_limit():
     needed = {(int(a), int(b)): int(c) for a, b, c in zip(
         rng.integers(2, 80, 60), rng.integers(2, 70, 60), rng.integers(1, 40, 60), strict=True)}
     for max_sizes in (1, 2, 4):
-        merged = np.array(tables._merge_sizes(needed, max_sizes, 5e7))
+        merged = np.array(windows.merge_sizes(needed, max_sizes, 5e7))
         assert len(merged) <= max_sizes
         for a, b in needed:
             assert np.any((merged[:, 0] >= a) & (merged[:, 1] >= b))
     top = tuple(int(v) for v in np.max(np.array(list(needed)), axis=0))
-    assert tables._merge_sizes(needed, 4, np.inf) == [top]
-    assert sorted(tables._merge_sizes(needed, len(needed), -np.inf)) == sorted(needed)
+    assert windows.merge_sizes(needed, 4, np.inf) == [top]
+    assert sorted(windows.merge_sizes(needed, len(needed), -np.inf)) == sorted(needed)

@@ -10,7 +10,7 @@ fusions, for the same run time and results to the last bits of float64 rounding
 main job ~1.5 s shorter). The option names a CPU code generator only; other backends ignore it.
 
 ``SOLVER_COMPILER_OPTIONS`` goes to the 3D window solvers of the table builds on the CPU
-(:func:`wfjax.contact.tables.window_solver`): LLVM's optimisation level 1 instead of 2 and the
+(:func:`wfjax.contact.windows.window_solver`): LLVM's optimisation level 1 instead of 2 and the
 classic emitters compile each in ~0.2 CPU-s less (0.85-0.94 against 0.98-1.27 CPU-s) and
 solve as fast (1.56-1.58 against 1.57-1.73 ms on a 45 x 50 window); a cold default sweep
 compiles three. The time loops gain nothing from level 1 (within noise).

@@ -30,7 +30,7 @@ import numpy as np
 
 from .._xla import to_device
 from ..params import Flat, Material, SimConfig, Track, Wheel, _pytree
-from . import tables
+from . import interpolation, table_spec, windows
 from .newton import bracketed_newton
 from .table_law import TableLaw, cached_table_3d
 
@@ -45,11 +45,11 @@ class Direct3DLaw(TableLaw):
     """A Kalker solve per Newton iterate near the flat; the exact table elsewhere.
 
     Attributes:
-        table: the flat's :class:`wfjax.contact.tables.ContactTable` (far field, start).
+        table: the flat's :class:`wfjax.contact.interpolation.ContactTable` (far field, start).
         flat: the flat (concrete: it fixes the grid). material: wheel and rail material.
         window_index, window_x0, window_y0: [n_s, n_t] the window (size index, first grid
             indices) of every column and tabulated compression (node 0: node 1's).
-        layout (static): the table's :class:`wfjax.contact.tables.TableSpec` (grid, reach).
+        layout (static): the table's :class:`wfjax.contact.table_spec.TableSpec` (grid, reach).
         window_sizes (static): the windows' sizes (wx, wy) [elements].
     """
 
@@ -59,7 +59,7 @@ class Direct3DLaw(TableLaw):
     window_index: Any
     window_x0: Any
     window_y0: Any
-    layout: tables.TableSpec
+    layout: table_spec.TableSpec
     window_sizes: tuple
 
     def init_state(self):
@@ -84,12 +84,12 @@ class Direct3DLaw(TableLaw):
         n_s, n_t = self.window_index.shape
         j = jnp.clip(jnp.round((s + layout.s_max) / (2 * layout.s_max) * (n_s - 1)), 0,
                      n_s - 1).astype(jnp.int32)
-        c = delta + rough_eq - tables.table_onset(self.table, s)
+        c = delta + rough_eq - interpolation.table_onset(self.table, s)
         k = jnp.clip(jnp.ceil(jnp.sqrt(jnp.maximum(c, 0.0) / layout.c_max) * (n_t - 1)), 1,
                      n_t - 1).astype(jnp.int32)
 
         def solve_on(nx, ny, i0, j0):
-            res, gap, full, _ = tables.window_solve(layout, self.flat, self.material, s, delta,
+            res, gap, full, _ = windows.window_solve(layout, self.flat, self.material, s, delta,
                                                     (nx, ny), (i0, j0), pressure, KALKER_TOL,
                                                     rough_x=rough_x)
             # The window holds the contact unless the overlap {gap < delta} reaches its edge.
@@ -134,13 +134,13 @@ def prepare_direct(flat: Flat, wheel: Wheel, track: Track, material: Material,
                    config: SimConfig, cache_dir=None) -> Direct3DLaw:
     """The direct 3D law of a concrete ``flat`` (its table through the on-disk cache)."""
     radius, rail_radius = float(wheel.radius), float(track.rail_head_radius)
-    layout = tables.table_spec(flat, radius, rail_radius, material,
+    layout = table_spec.table_spec(flat, radius, rail_radius, material,
                                element_size=config.contact_element)
     table = cached_table_3d(flat, radius, rail_radius, material, config.contact_element,
                             cache_dir)
     # Two window sizes: every size is one more compiled Kalker solver inside the Newton loop
     # (about 3-4 s of compilation each here), and a direct run is usually a single run.
-    plan = tables.window_plan(layout, flat, layout.s, max_sizes=DIRECT_WINDOW_SIZES)
+    plan = windows.window_plan(layout, flat, layout.s, max_sizes=DIRECT_WINDOW_SIZES)
 
     def per_node(a):  # [n_s, n_t - 1] -> [n_t]: node 0 (F = 0) takes node 1's window
         return to_device(np.concatenate([a[:, :1], a], axis=1))

@@ -34,8 +34,8 @@ Interpolation (documented scheme)
   (1.4 x the Hertz approach at ``max_force``) and n_t for every node.
 * A query (s, d, l) reads each node at a node position s_node (Catmull-Rom over 4 of the
   node's columns) and at the same physical compression c, so the node columns combine into
-  one :class:`wfjax.contact.tables.Column` without resampling along t. Far from the flat every
-  node is the same smooth wheel at fixed c, so the combination is exact there. (Fixed
+  one :class:`~wfjax.contact.interpolation.Column` without resampling along t. Far from the
+  flat every node is the same smooth wheel at fixed c, so the combination is exact there. (Fixed
   *scaled* compression c/d would need each node to cover its neighbours' scaled range: up to
   r^2 times the compression, and a larger grid, for a node ratio r.) Rounded flats
   (``s_map="scaled"``): the same scaled position, s_node = (s / half) half_node. New flats
@@ -113,7 +113,7 @@ import numpy as np
 from .._parallel import core_pool, map_per_core
 from .._xla import to_device
 from ..params import MAX_FLAT_DEPTH, Flat, Material
-from . import kalker, tables
+from . import interpolation, kalker, table_spec, tables, windows
 
 __all__ = ["FamilySpec", "FlatFamily", "family_spec", "build_family", "family_column",
            "family_force", "DEPTH_STEPS_PER_OCTAVE", "LENGTH_FACTOR_ORIGIN",
@@ -429,7 +429,7 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
             grids.append((len(x), len(y)))
             half = _node_half(kind, depth, flat.length, wheel_radius)
             # Beyond half + sqrt(2 R_W c_max) the flat is outside every rigid overlap: the
-            # column is the smooth wheel (as in tables.table_spec).
+            # column is the smooth wheel (as in table_spec.table_spec).
             reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
             step = max(1, round(ds * half / h)) if ds > 0 else 1
             steps.append(step)
@@ -485,7 +485,7 @@ class _SharedBuilder:
 
     The nodes share a grid (the largest node grid: it holds every node's overlaps, and with
     windows its size costs nothing) and one set of window sizes (merged over all their
-    solves); each size's solver (:func:`wfjax.contact.tables.window_solver`) compiles once,
+    solves); each size's solver (:func:`wfjax.contact.windows.window_solver`) compiles once,
     in parallel on the process's core pool, and serves every node (and every table of the
     process with that window).
     """
@@ -493,37 +493,37 @@ class _SharedBuilder:
     def __init__(self, spec: FamilySpec, indices, material: Material, tol: float):
         self.geometry = {i: _node_geometry(spec, i) for i in indices}
         self.n = max(len(g[3]) for g in self.geometry.values())
-        self.tspec = tables.TableSpec(
+        self.tspec = table_spec.TableSpec(
             nx=max(spec.grids[i][0] for i in indices), ny=max(spec.grids[i][1] for i in indices),
             element_size=spec.element_size, s_max=(self.n - 1) * spec.element_size,
             n_s=self.n, c_max=spec.c_max, n_t=spec.n_t, symmetric=True,
             wheel_radius=spec.wheel_radius, rail_head_radius=spec.rail_head_radius)
         self.gaps, boxes, self.shared = {}, {}, {}
-        cs = tables._compressions(self.tspec)
+        cs = table_spec.compression_nodes(self.tspec)
         for i, (_, _, flat, s) in self.geometry.items():
-            gaps, onsets = tables._column_gaps(self.tspec, flat, s)
+            gaps, onsets = windows.column_gaps(self.tspec, flat, s)
             self.gaps[i] = gaps, onsets
             self.shared[i] = tables.shared_prefix(gaps, onsets, cs)
-            boxes[i] = tables._boxes(self.tspec, gaps - gaps.min(axis=(1, 2), keepdims=True),
-                                     tables.WINDOW_MARGIN)
+            rel = gaps - gaps.min(axis=(1, 2), keepdims=True)
+            boxes[i] = windows.boxes_from_gaps(self.tspec, rel, windows.WINDOW_MARGIN)
         solved = [tables.solved_mask(self.shared[i], len(cs)) for i in boxes]
-        self.sizes = tuple(tables._merge_sizes(tables.needed_sizes(list(boxes.values()), solved),
+        self.sizes = tuple(windows.merge_sizes(windows.needed_sizes(list(boxes.values()), solved),
                                                FAMILY_WINDOW_SIZES,
-                                               tables.COST_PER_WINDOW_SIZE))
-        self.plans = {i: tables.assign_windows(self.tspec, b, self.sizes)
+                                               windows.COST_PER_WINDOW_SIZE))
+        self.plans = {i: windows.assign_windows(self.tspec, b, self.sizes)
                       for i, b in boxes.items()}
         dtype = next(iter(self.gaps.values()))[0].dtype
-        self.material = tables._solver_inputs(material, dtype)
+        self.material = windows.solver_inputs(material, dtype)
         self.estar = float(kalker.combined_modulus(material))
         pool = core_pool()
-        self.solvers = [pool.submit(tables.window_solver, size, spec.element_size, tol, dtype)
+        self.solvers = [pool.submit(windows.window_solver, size, spec.element_size, tol, dtype)
                         for size in self.sizes]
 
     def __call__(self, idx: int):
         gaps, onsets = self.gaps[idx]
         plan, shared = self.plans[idx], self.shared[idx]
         solvers = [c.result() for c in self.solvers]
-        cs = tables._compressions(self.tspec)
+        cs = table_spec.compression_nodes(self.tspec)
 
         def column(i, reference=None, keep=False):
             return tables._solve_column(solvers, self.sizes, gaps[i], onsets[i], cs,
@@ -534,7 +534,7 @@ class _SharedBuilder:
         last = len(onsets) - 1  # the smooth wheel: solved first, the others share its solves
         reference = column(last, keep=bool(np.any(shared)))
         solved = [column(i, reference) for i in range(last)] + [reference]
-        force, slope = tables._column_outputs(self.tspec, np.stack([c.force for c in solved]),
+        force, slope = table_spec.column_outputs(self.tspec, np.stack([c.force for c in solved]),
                                               np.stack([c.stiffness for c in solved]))
         return onsets, np.asarray(force), np.asarray(slope), all(c.converged for c in solved)
 
@@ -744,17 +744,17 @@ def _exact_onset(spec: FamilySpec, s, depth, half, n_coarse: int = 129, n_fine: 
     return jnp.min(g1d(jnp.concatenate(candidates)))
 
 
-def family_column(family: FlatFamily, s, depth, length=None) -> tables.Column:
+def family_column(family: FlatFamily, s, depth, length=None) -> interpolation.Column:
     """The compression column at flat position ``s`` [m] of the flat (depth, length).
 
-    ``tables.column_force(family_column(family, s, depth, length), delta)`` is the force.
+    ``interpolation.column_force(family_column(family, s, depth, length), delta)`` is the force.
     Pure jnp: ``jit``/``vmap``/``grad`` with respect to s, depth [m] and length [m] (rounded
     flats; ignored for new flats). Geometry outside the family's range is clamped to it:
     lambda = length / l0(depth) and the depth are each clamped to their node range (zero
     gradient beyond); beyond the tabulated s range the end columns (smooth wheel) apply.
 
     Returns:
-        :class:`wfjax.contact.tables.Column` (onset [m], c_max [m], force [n_t] N,
+        :class:`wfjax.contact.interpolation.Column` (onset [m], c_max [m], force [n_t] N,
         slope [n_t] N).
     """
     spec = family.spec
@@ -769,25 +769,25 @@ def family_column(family: FlatFamily, s, depth, length=None) -> tables.Column:
                    n_s - 1.0)  # [m_d, m_l]
     c = jnp.clip(jnp.floor(u_s), 0, n_s - 2).astype(jnp.int32)
     # Catmull-Rom weights of columns c-1, c, c+1, c+2 (clamped at the ends): [m_d, m_l, 4].
-    w_s = jnp.moveaxis(tables.catmull_rom_weights(u_s - c), 0, -1)
+    w_s = jnp.moveaxis(interpolation.catmull_rom_weights(u_s - c), 0, -1)
     i_s = jnp.clip(c[..., None] + jnp.arange(-1, 3), 0, n_s - 1)
     ix = (i_d[:, None, None], i_l[None, :, None], i_s)
     if spec.onset == "columns":
         h = spec.element_size
         u = s / h
         i0 = jnp.floor(u)
-        wo = tables.catmull_rom_weights(u - i0)
+        wo = interpolation.catmull_rom_weights(u - i0)
         sj = (i0 + jnp.arange(-1, 3)) * h
         onset = jnp.sum(wo * jax.vmap(lambda si: _exact_onset(spec, si, depth, half))(sj))
     else:
         onset = _exact_onset(spec, s, depth, half)
     force = jnp.einsum("i,j,ijk,ijkt->t", w_d, w_l, w_s, family.force[ix])
     slope = jnp.einsum("i,j,ijk,ijkt->t", w_d, w_l, w_s, family.slope[ix])
-    return tables.Column(onset=onset, c_max=family.c_max, force=force, slope=slope)
+    return interpolation.Column(onset=onset, c_max=family.c_max, force=force, slope=slope)
 
 
 def family_force(family: FlatFamily, delta, s, depth, length=None):
     """Contact force F [N] at approach ``delta`` [m], flat position ``s`` [m] of the flat
     (depth [m], length [m]); ``column_force(family_column(...), delta)``. Scalars in, scalar
     out (``vmap`` for batches)."""
-    return tables.column_force(family_column(family, s, depth, length), delta)
+    return interpolation.column_force(family_column(family, s, depth, length), delta)

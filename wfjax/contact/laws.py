@@ -39,7 +39,7 @@ from ..params import (
     _is_concrete,
     _pytree,
 )
-from . import hertz, registry, tables, winkler
+from . import hertz, interpolation, registry, winkler
 from .direct3d import prepare_direct
 from .protocol import ContactLaw
 from .table_law import TableLaw, cached_table_3d
@@ -148,7 +148,7 @@ class ParametricLaw(TableLaw):
     the exact table costs.
 
     Attributes:
-        table: :class:`wfjax.contact.tables.ContactTable` of the flat, from the family.
+        table: :class:`wfjax.contact.interpolation.ContactTable` of the flat, from the family.
         depth, length: the flat's depth and length [m] (traced leaves: ``vmap`` and ``grad``).
     """
 
@@ -175,7 +175,7 @@ def parametric_law(family, depth, length) -> ParametricLaw:
     n = math.ceil(reach / spec.element_size)
     s_j = jnp.arange(-n, n + 1) * spec.element_size
     columns = jax.vmap(lambda sj: family_mod.family_column(family, sj, depth, length))(s_j)
-    table = tables.ContactTable(
+    table = interpolation.ContactTable(
         s_min=jnp.asarray(-n * spec.element_size), ds=jnp.asarray(spec.element_size),
         c_max=family.c_max, onset=columns.onset, force=columns.force, slope=columns.slope,
         converged=family.converged)

@@ -1,6 +1,6 @@
 """The exact 3D table of one flat as a contact law, and the on-disk cache of such tables.
 
-:class:`TableLaw` evaluates F3D(delta, s) from a :class:`wfjax.contact.tables.ContactTable`;
+:class:`TableLaw` evaluates F3D(delta, s) from a :class:`wfjax.contact.interpolation.ContactTable`;
 the parametric family (:class:`wfjax.contact.laws.ParametricLaw`) and the direct 3D mode
 (:class:`wfjax.contact.direct3d.Direct3DLaw`) build on it. :func:`cached_table_3d` and
 :func:`cached_tables_3d` build the tables through the on-disk cache (:mod:`wfjax._cache`).
@@ -16,7 +16,7 @@ import numpy as np
 
 from .._xla import to_device
 from ..params import Flat, Material, _is_concrete, _pytree
-from . import tables
+from . import interpolation, table_spec, tables
 from .protocol import ContactLaw
 
 __all__ = [
@@ -45,16 +45,16 @@ ACCELERATOR_TABLE_BATCH_SIZE = 32
 class TableLaw(ContactLaw):
     """3D contact through the exact table F3D(delta, s) of one flat (:mod:`.tables`).
 
-    Attributes: table: :class:`wfjax.contact.tables.ContactTable`.
+    Attributes: table: :class:`wfjax.contact.interpolation.ContactTable`.
     """
 
     table: Any
 
     def point(self, s):
-        return tables.table_column(self.table, s)
+        return interpolation.table_column(self.table, s)
 
     def point_force(self, point, delta):
-        return tables.column_force(point, delta)
+        return interpolation.column_force(point, delta)
 
 
 def table_batch_size(platform: str | None = None) -> int:
@@ -91,10 +91,10 @@ def _own_extent(flats) -> list:
 
 def table_specs_3d(flats, wheel_radius: float, rail_head_radius: float, material: Material,
                    element_size: float) -> list:
-    """The layouts (:class:`wfjax.contact.tables.TableSpec`) of the tables
+    """The layouts (:class:`wfjax.contact.table_spec.TableSpec`) of the tables
     :func:`cached_tables_3d` builds for ``flats`` (concrete; R_W, R_R [m], element size [m]),
     known before they are built: a sweep compiles its program for their shapes meanwhile."""
-    return [tables.table_spec(f, wheel_radius, rail_head_radius, material, element_size)
+    return [table_spec.table_spec(f, wheel_radius, rail_head_radius, material, element_size)
             for f in _own_extent(flats)]
 
 
@@ -125,4 +125,4 @@ def cached_tables_3d(flats, wheel_radius: float, rail_head_radius: float,
         for i, table in zip(missing, built, strict=True):
             arrays[i] = {k: np.asarray(v) for k, v in table._asdict().items()}
             _cache.store(paths[i], arrays[i])
-    return [tables.ContactTable(**{k: to_device(v) for k, v in a.items()}) for a in arrays]
+    return [interpolation.ContactTable(**{k: to_device(v) for k, v in a.items()}) for a in arrays]

@@ -92,11 +92,10 @@ class TracedLaw:
         wheel = sc.reference_wheel
         spec3d = family = None
         if sc.contact == "3d" and reference.kind == "profile":
-            from ..contact import tables
+            from ..contact.table_spec import table_spec
 
-            spec3d = tables.table_spec(reference, float(wheel.radius),
-                                       float(sc.track.rail_head_radius), sc.material,
-                                       element_size=sc.config.contact_element)
+            spec3d = table_spec(reference, float(wheel.radius), float(sc.track.rail_head_radius),
+                                sc.material, element_size=sc.config.contact_element)
         elif sc.contact == "3d":
             depths, factors = fit_range(reference, float(wheel.radius))
             family = prepare_family_range(reference.kind, depths, factors, wheel, sc.track,

@@ -20,9 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._xla import to_device
+from ..contact.interpolation import ContactTable, pad_columns
 from ..contact.laws import prepare, prepare_family, resolve_mode_3d
 from ..contact.table_law import TableLaw, table_specs_3d
-from ..contact.tables import ContactTable, pad_columns
 from ..params import Flat, Material, SimConfig, Track, Wheel
 from ..scenario import roughness as rough_mod
 
@@ -124,7 +124,7 @@ def stack(trees):
 
 def table_laws(tables) -> TableLaw:
     """The laws of a group's exact 3D tables ([n_flats] :class:`ContactTable`), each widened
-    to the most columns among them (:func:`wfjax.contact.tables.pad_columns`), stacked."""
+    to the most columns among them (:func:`wfjax.contact.interpolation.pad_columns`), stacked."""
     n_s = max(int(t.onset.shape[0]) for t in tables)
     return jax.tree.map(lambda *xs: to_device(np.stack([np.asarray(x) for x in xs])),
                         *[TableLaw(pad_columns(t, n_s)) for t in tables])

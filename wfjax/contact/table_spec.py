@@ -1,0 +1,176 @@
+"""A contact table's grid: where its columns sit along the flat position s, its compression axis
+t = sqrt(c / c_max), and the rigid contact onset delta0(s) that the compression c = delta -
+delta0(s) is counted from (the parametrisation is described in :mod:`wfjax.contact.tables`)."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..params import Flat, Material
+from . import kalker
+
+_DEFAULT_MATERIAL = Material()
+
+
+class TableSpec(NamedTuple):
+    """Static layout of a contact table (hashable; concrete numbers).
+
+    Attributes:
+        nx, ny: contact grid (odd; element centred on the nominal contact point).
+        element_size: square element side [m].
+        s_max: the table spans s in [-s_max, s_max] [m].
+        n_s: number of s nodes (odd; s = 0 is a node).
+        c_max: largest tabulated compression [m].
+        n_t: number of nodes along t = sqrt(c / c_max).
+        symmetric: solve s >= 0 only and mirror (symmetric flats).
+        wheel_radius, rail_head_radius: R_W, R_R [m].
+    """
+
+    nx: int
+    ny: int
+    element_size: float
+    s_max: float
+    n_s: int
+    c_max: float
+    n_t: int
+    symmetric: bool
+    wheel_radius: float
+    rail_head_radius: float
+
+    @property
+    def x(self) -> np.ndarray:
+        """[nx] element centres along x [m]."""
+        return (np.arange(self.nx) - (self.nx - 1) / 2) * self.element_size
+
+    @property
+    def y(self) -> np.ndarray:
+        """[ny] element centres along y [m]."""
+        return (np.arange(self.ny) - (self.ny - 1) / 2) * self.element_size
+
+    @property
+    def s(self) -> np.ndarray:
+        """[n_s] flat positions of the columns [m]."""
+        return np.linspace(-self.s_max, self.s_max, self.n_s)
+
+
+def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
+               material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
+               max_force: float = 600e3, ds: float | None = None, n_t: int = 16,
+               max_compression: float | None = None) -> TableSpec:
+    """Choose the layout of a contact table for ``flat`` (concrete inputs).
+
+    Args:
+        flat: the flat (concrete depth and length).
+        wheel_radius, rail_head_radius: R_W, R_R [m].
+        material: wheel and rail material.
+        element_size: square contact element side [m].
+        max_force: largest force the table must cover [N]; the compression range is
+            1.4 x the Hertz approach at this force unless ``max_compression`` [m] is given
+            (the sharp edges of a new flat are softer than Hertz: 1.25 x covered only 593 kN).
+        ds: column spacing [m]; default ``element_size``.
+        n_t: nodes along the compression axis.
+
+    Returns:
+        :class:`TableSpec`.
+    """
+    h = float(element_size)
+    if not math.isfinite(h) or h <= 0:
+        raise ValueError(f"element_size must be > 0 m, got {element_size!r}")
+    ds = h if ds is None else float(ds)
+    if not math.isfinite(ds) or ds <= 0:
+        raise ValueError(f"ds must be > 0 m, got {ds!r}")
+    if int(n_t) < 4:
+        raise ValueError(f"n_t must be >= 4, got {n_t!r}")
+    _, _, d_hertz, _ = kalker.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
+                                             material)
+    c_max = 1.4 * d_hertz if max_compression is None else float(max_compression)
+    x, y = kalker.contact_grid(flat, wheel_radius, rail_head_radius, material,
+                               max_compression=c_max, max_force=max_force, element_size=h)
+    half = 0.0 if flat.kind == "none" else flat.half_extent
+    # Beyond |s| = half + sqrt(2 R_W c_max) the flat is outside the rigid overlap of every
+    # tabulated compression, so the column equals the smooth wheel exactly.
+    reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
+    n_half = max(1, math.ceil(reach / ds))
+    return TableSpec(nx=len(x), ny=len(y), element_size=h, s_max=n_half * ds,
+                     n_s=2 * n_half + 1, c_max=c_max, n_t=int(n_t),
+                     symmetric=flat.kind in ("new", "rounded", "none"),
+                     wheel_radius=float(wheel_radius), rail_head_radius=float(rail_head_radius))
+
+
+def rigid_onset(spec: TableSpec, flat: Flat, s, xp=jnp):
+    """Continuum rigid contact onset min_x' gap(x', 0; s) [m] (smooth in s; differentiable).
+
+    The minimum over y is at y = 0 (the flat's transverse arcs follow the rail head), so a 1D
+    search suffices: a grid at 1/8 element across the contact grid, refined to 1/256 element
+    around its minimiser (the minimiser is held fixed for the gradient: envelope theorem), and
+    the chord ends of a new flat (corners of the gap). ``xp``: jnp (traceable) or np (a
+    concrete flat's leaves and s; ``s`` may then be [n], the onsets [n]).
+    """
+    from ..model.geometry import _deviation
+
+    hold = jax.lax.stop_gradient if xp is jnp else np.asarray
+    s = xp.asarray(s)[..., None]
+    rw = spec.wheel_radius
+    half = (spec.nx - 1) / 2 * spec.element_size
+    step = spec.element_size / 8
+
+    def g1d(x):  # [..., m] gap along y = 0 at x [..., m]
+        return rw - xp.sqrt(rw**2 - x**2) + _deviation(flat, x + s, xp)
+
+    xs = np.arange(-8 * (spec.nx - 1) // 2, 8 * (spec.nx - 1) // 2 + 1) * step
+    x0 = hold(xp.asarray(xs)[xp.argmin(g1d(xs), axis=-1)])[..., None]
+    xf = xp.clip(x0 + np.linspace(-step, step, 65), -half, half)
+    onset = xp.min(g1d(hold(xf)), axis=-1)
+    if flat.kind == "new":
+        # The chord ends are corners of the gap, often its minimum: a grid minimum misses a
+        # corner by up to |slope| x spacing (~0.4 um at 2 mm elements). They move with the
+        # depth and keep their gradient.
+        edge = flat.wheel_radius * xp.arccos(1.0 - flat.depth / flat.wheel_radius)
+        ends = xp.clip(xp.concatenate([edge - s, -edge - s], axis=-1), -half, half)
+        onset = xp.minimum(onset, xp.min(g1d(ends), axis=-1))
+    return onset
+
+
+def whole_grid_column(spec: TableSpec, flat: Flat, material: Material, s, tol: float):
+    """Forces, stiffnesses and convergence along the t axis for one flat position s
+    (every solve on the whole table grid)."""
+    x, y = spec.x, spec.y
+    h = spec.element_size
+    gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
+    onset = rigid_onset(spec, flat, s)
+    cfg = kalker._Config(spec.nx, spec.ny, h, h, "fft", tol, 1000)
+
+    def step(carry, c):
+        p_prev, z_prev = carry
+        r, z = kalker._solve_impl(cfg, gap, material, onset + c, None, p_prev, 50, True, False,
+                                  z_init=z_prev)
+        return (r.pressure, z), (r.force, r.stiffness, r.diagnostics.converged)
+
+    p0 = jnp.zeros((spec.nx, spec.ny), gap.dtype)
+    _, (f, k, ok) = jax.lax.scan(step, (p0, p0), jnp.asarray(compression_nodes(spec)))
+    return (onset,) + column_outputs(spec, f, k) + (jnp.all(ok),)
+
+
+def compression_nodes(spec: TableSpec) -> np.ndarray:
+    """[n_t - 1] compressions c_j = c_max t_j^2 of the solved t nodes (t_0 = 0 is F = 0)."""
+    return spec.c_max * np.linspace(0.0, 1.0, spec.n_t)[1:] ** 2
+
+
+def array_module(a):
+    """numpy for host arrays (the concrete builds: no op-by-op compilations), else jnp."""
+    return np if isinstance(a, np.ndarray) else jnp
+
+
+def column_outputs(spec: TableSpec, f, k):
+    """Node forces and slopes dF/du [..., n_t] from the solved forces f and stiffnesses k
+    [..., n_t - 1]."""
+    xp = array_module(f)
+    t = np.linspace(0.0, 1.0, spec.n_t)[1:]
+    zero = xp.zeros(f.shape[:-1] + (1,), f.dtype)
+    return (xp.concatenate([zero, f], axis=-1),
+            xp.concatenate([zero, k * 2 * spec.c_max * t / (spec.n_t - 1)], axis=-1))
