@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import wfjax as wf
-from wfjax.contact import kalker, table_spec, tables
+from wfjax.contact import geometry3d, kalker, table_spec, tables
 
 MAT = wf.Material()
 R = 0.45
@@ -66,7 +66,7 @@ def grid(n, half=HALF, half_x=None):
 
 def wfjax_cold(n, repeats):
     x, y, h = grid(n)
-    g = kalker.gap_3d(wf.Flat.none(), 0.0, x, y, R, R)
+    g = geometry3d.gap_3d(wf.Flat.none(), 0.0, x, y, R, R)
     f = jax.jit(lambda g: kalker.solve(g, h, h, MAT, force=F, tol=TOL, stiffness=False,
                                        validate=False))
     t0 = time.perf_counter()
@@ -106,7 +106,7 @@ def tamaas_cold(n, repeats):
 
     tm.set_log_level(tm.LogLevel.error)
     x, y, h = grid(n)
-    g = np.asarray(kalker.gap_3d(wf.Flat.none(), 0.0, x, y, R, R))
+    g = np.asarray(geometry3d.gap_3d(wf.Flat.none(), 0.0, x, y, R, R))
     times = [tamaas_solve(g, h)[0] for _ in range(repeats)]
     _, model = tamaas_solve(g, h)
     p = np.asarray(model.traction).reshape(2 * n, 2 * n)
@@ -119,7 +119,7 @@ def sequence(n, steps=20):
     s_values = jnp.asarray(-0.058 + 0.5e-3 * np.arange(steps))
 
     def gap(s):
-        return kalker.gap_3d(flat, s, x, y, R, R)
+        return geometry3d.gap_3d(flat, s, x, y, R, R)
 
     @jax.jit
     def warm(s_values):
@@ -163,7 +163,7 @@ def contact_case(quick):
     x_all, y_all = np.arange(-400, 401) * h, np.arange(-120, 121) * h
     rows = []
     for s in np.linspace(-0.06, 0.0, 4 if quick else 10):
-        g = np.asarray(kalker.gap_3d(flat, s, x_all, y_all, R, rr))
+        g = np.asarray(geometry3d.gap_3d(flat, s, x_all, y_all, R, rr))
         inside = g - g.min() < 0.15e-3
         ii, jj = np.nonzero(inside.any(1))[0], np.nonzero(inside.any(0))[0]
         g = jnp.asarray(g[ii[0] - 2:ii[-1] + 3, jj[0] - 2:jj[-1] + 3])

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import wfjax as wf
-from wfjax.contact import kalker, table_spec, tables, windows
+from wfjax.contact import influence, kalker, table_spec, tables, windows
 
 FLATS = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
 MAT = wf.Material()
@@ -44,7 +44,7 @@ def counting_solver(size, h):
 
 def iterations(predict: bool):
     """(outer, CG) iterations over every solve of both tables, no sharing."""
-    estar = float(kalker.combined_modulus(MAT)) if predict else 0.0
+    estar = float(influence.combined_modulus(MAT)) if predict else 0.0
     mat = windows.solver_inputs(MAT, np.float64)
     outer = cg = 0
     for flat in FLATS:

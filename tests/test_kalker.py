@@ -9,7 +9,7 @@ import pytest
 from scipy.special import ellipe, ellipk
 
 import wfjax as wf
-from wfjax.contact import kalker
+from wfjax.contact import geometry3d, influence, kalker
 
 MAT = wf.Material()
 ESTAR = 210e9 / (2 * (1 - 0.3**2))
@@ -28,7 +28,7 @@ def hertz_sphere(force, radius):
 def smooth_gap(h, half, rail_radius=R):
     n = int(round(half / h))
     x = np.arange(-n, n + 1) * h
-    return kalker.gap_3d(wf.Flat.none(), 0.0, x, x, R, rail_radius), x
+    return geometry3d.gap_3d(wf.Flat.none(), 0.0, x, x, R, rail_radius), x
 
 
 def moments(p, x, y, h):
@@ -57,22 +57,22 @@ def love_reference(x, y, a, b):
 
 def test_influence_kernel_matches_love_formula():
     dx, dy = 1e-3, 2e-3
-    k = np.asarray(kalker.influence_kernel(4, 3, dx, dy, MAT))
+    k = np.asarray(influence.influence_kernel(4, 3, dx, dy, MAT))
     for i, j in [(0, 0), (1, 0), (0, 2), (3, 2), (2, 1)]:
         ref = love_reference(i * dx, j * dy, dx / 2, dy / 2) / (math.pi * ESTAR)
         assert k[i + 3, j + 2] == pytest.approx(ref, rel=1e-10)
         assert k[3 - i, 2 - j] == pytest.approx(ref, rel=1e-10)  # symmetric
     # centre of a square element: 8 a asinh(1) / (pi E*) (Johnson Sec. 3.2)
-    kc = np.asarray(kalker.influence_kernel(1, 1, 2e-3, 2e-3, MAT))[0, 0]
+    kc = np.asarray(influence.influence_kernel(1, 1, 2e-3, 2e-3, MAT))[0, 0]
     assert kc == pytest.approx(8e-3 * math.asinh(1) / (math.pi * ESTAR), rel=1e-12)
 
 
 def test_dense_and_fft_operators_agree():
     nx, ny, dx, dy = 11, 7, 1e-3, 1.5e-3
     p = np.random.default_rng(0).uniform(0, 1e9, (nx, ny))
-    u_fft = kalker.make_operator(nx, ny, dx, dy, MAT)(jnp.asarray(p))
-    u_dense = kalker.make_operator(nx, ny, dx, dy, MAT, method="dense")(jnp.asarray(p))
-    c = np.asarray(kalker.dense_matrix(nx, ny, dx, dy, MAT))
+    u_fft = influence.make_operator(nx, ny, dx, dy, MAT)(jnp.asarray(p))
+    u_dense = influence.make_operator(nx, ny, dx, dy, MAT, method="dense")(jnp.asarray(p))
+    c = np.asarray(influence.dense_matrix(nx, ny, dx, dy, MAT))
     assert np.allclose(c, c.T, rtol=0, atol=1e-14 * np.abs(c).max())
     u_mat = (c @ p.ravel()).reshape(nx, ny)
     scale = np.abs(u_mat).max()
@@ -122,10 +122,10 @@ def test_refinement_converges_towards_hertz():
 
 def test_elliptic_hertz_formulas():
     # circular limit and the ratio relation (independent of the implementation's root find)
-    ax, ay, d, p0 = kalker.elliptic_hertz(F_STATIC, R, R * (1 + 1e-9), MAT)
+    ax, ay, d, p0 = geometry3d.elliptic_hertz(F_STATIC, R, R * (1 + 1e-9), MAT)
     d_h, a_h, p0_h = hertz_sphere(F_STATIC, R)
     assert ax == pytest.approx(a_h, rel=1e-6) and d == pytest.approx(d_h, rel=1e-6)
-    ax, ay, d, p0 = kalker.elliptic_hertz(F_STATIC, R, 0.30, MAT)
+    ax, ay, d, p0 = geometry3d.elliptic_hertz(F_STATIC, R, 0.30, MAT)
     m = 1 - (ay / ax) ** 2
     k, e = ellipk(m), ellipe(m)
     assert (e / (1 - m) - k) / (k - e) == pytest.approx(R / 0.30, rel=1e-9)
@@ -135,7 +135,7 @@ def test_elliptic_hertz_formulas():
 def test_elliptic_contact_rail_radius_030():
     h = 0.5e-3
     gap, x = smooth_gap(h, 11e-3, rail_radius=0.30)
-    ax_h, ay_h, d_h, _ = kalker.elliptic_hertz(F_STATIC, R, 0.30, MAT)
+    ax_h, ay_h, d_h, _ = geometry3d.elliptic_hertz(F_STATIC, R, 0.30, MAT)
     res = kalker.solve(gap, h, h, MAT, force=F_STATIC)
     assert float(res.approach) == pytest.approx(d_h, rel=0.01)
     ax, ay = moments(res.pressure, x, x, h)
@@ -154,7 +154,7 @@ def test_complementarity_and_modes_agree():
     for res in (res_f, res_a):
         assert float(res.diagnostics.residual) < 1e-7
         p = np.asarray(res.pressure)
-        c = np.asarray(kalker.dense_matrix(*gap.shape, h, h, MAT))
+        c = np.asarray(influence.dense_matrix(*gap.shape, h, h, MAT))
         d = np.asarray(gap) - float(res.approach) + (c @ p.ravel()).reshape(p.shape)
         assert p.min() >= 0
         assert d.min() > -1e-9 * float(res.approach)
@@ -203,7 +203,7 @@ def test_preconditioned_cg_same_solution_fewer_iterations():
     flat = wf.Flat.rounded(0.9e-3, 0.1)
     x = np.arange(-60, 61) * h
     y = np.arange(-30, 31) * h
-    gap = kalker.gap_3d(flat, -0.03, x, y, 0.45, 0.30)
+    gap = geometry3d.gap_3d(flat, -0.03, x, y, 0.45, 0.30)
     out = {}
     for precondition in (False, True):
         cfg = kalker._Config(len(x), len(y), h, h, "fft", 1e-10, 1000, precondition)
@@ -222,10 +222,10 @@ def test_flat_far_away_is_smooth_wheel():
     h = 1e-3
     x = np.arange(-12, 13) * h
     flat = wf.Flat.rounded(0.9e-3, 0.1)
-    g_far = kalker.gap_3d(flat, -0.2, x, x, R, R)
-    g_smooth = kalker.gap_3d(wf.Flat.none(), 0.0, x, x, R, R)
+    g_far = geometry3d.gap_3d(flat, -0.2, x, x, R, R)
+    g_smooth = geometry3d.gap_3d(wf.Flat.none(), 0.0, x, x, R, R)
     assert np.array_equal(np.asarray(g_far), np.asarray(g_smooth))
-    g_on = kalker.gap_3d(flat, 0.0, x, x, R, R)
+    g_on = geometry3d.gap_3d(flat, 0.0, x, x, R, R)
     assert float(g_on[12, 12]) == pytest.approx(0.9e-3, rel=1e-12)  # flat centre: depth d
     res = kalker.solve(g_far, h, h, MAT, force=F_STATIC)
     assert float(res.approach) == pytest.approx(hertz_sphere(F_STATIC, R)[0], rel=0.01)
@@ -237,7 +237,7 @@ def test_force_continuous_in_s_through_flat_edge():
     flat = wf.Flat.rounded(0.9e-3, 0.1)
 
     def force(s):
-        g = kalker.gap_3d(flat, s, x, x[10:-10], R, R)
+        g = geometry3d.gap_3d(flat, s, x, x[10:-10], R, R)
         return float(kalker.solve(g, h, h, MAT, approach=0.11e-3).force)
 
     s_values = -0.05 - 0.012 + np.arange(0, 24) * 1e-3  # contact edge passes the flat edge
@@ -258,7 +258,7 @@ def _flat_gap(depth, s, h):
     """Gap [m] of a rounded flat (l = 100 mm) on a 41 x 25 grid of h-sized elements."""
     x = np.arange(-20, 21) * h
     y = np.arange(-12, 13) * h
-    return kalker.gap_3d(wf.Flat("rounded", depth=depth, length=0.1), s, x, y, R, 0.30)
+    return geometry3d.gap_3d(wf.Flat("rounded", depth=depth, length=0.1), s, x, y, R, 0.30)
 
 
 def _flat_force(depth, s, delta, h=1e-3):
@@ -299,7 +299,7 @@ def test_jit_and_vmap_batched_equals_looped():
 
     @jax.jit
     def solve_at(s, delta):
-        g = kalker.gap_3d(flat, s, x, x, R, R)
+        g = geometry3d.gap_3d(flat, s, x, x, R, R)
         r = kalker.solve(g, h, h, MAT, approach=delta)
         return r.force, r.stiffness, r.diagnostics.converged
 
@@ -316,7 +316,7 @@ def test_jit_and_vmap_batched_equals_looped():
 def test_solve_inside_scan_with_warm_start():
     h = 1e-3
     x = np.arange(-15, 16) * h
-    g = kalker.gap_3d(wf.Flat.none(), 0.0, x, x, R, R)
+    g = geometry3d.gap_3d(wf.Flat.none(), 0.0, x, x, R, R)
 
     def step(p, delta):
         r = kalker.solve(g, h, h, MAT, approach=delta, p_init=p)
@@ -350,7 +350,7 @@ def test_bad_input_raises():
     with pytest.raises(ValueError, match="too small"):
         kalker.solve(tiny, h, h, MAT, force=F_STATIC)
     with pytest.raises(ValueError, match="element_size"):
-        kalker.contact_grid(wf.Flat.none(), R, R, MAT, element_size=5e-3)
+        geometry3d.contact_grid(wf.Flat.none(), R, R, MAT, element_size=5e-3)
 
 
 def test_non_convergence_reported_not_nan():
@@ -367,9 +367,9 @@ def test_non_convergence_reported_not_nan():
 
 def test_contact_grid_contains_contact():
     flat = wf.Flat.new(0.9e-3)
-    x, y = kalker.contact_grid(flat, R, 0.30, MAT, max_force=300e3, element_size=1.2e-3)
+    x, y = geometry3d.contact_grid(flat, R, 0.30, MAT, max_force=300e3, element_size=1.2e-3)
     assert len(x) % 2 == 1 and x[len(x) // 2] == 0.0
     for s in (0.0, -0.02):
-        g = kalker.gap_3d(flat, s, x, y, R, 0.30)
+        g = geometry3d.gap_3d(flat, s, x, y, R, 0.30)
         res = kalker.solve(g, 1.2e-3, 1.2e-3, MAT, force=300e3)  # validates containment
         assert bool(res.diagnostics.converged)

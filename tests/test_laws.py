@@ -263,7 +263,7 @@ def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
     """The direct 3D mode solves each iterate on a window of its overlap: the same forces as
     on the whole grid, through an impact, and beyond the table's compression range (where the
     window falls back to the whole grid)."""
-    from wfjax.contact import direct3d, kalker
+    from wfjax.contact import direct3d, geometry3d, kalker
 
     wheel, track = wf.Wheel(), wf.Track.comparison()
     config = dataclasses.replace(wf.SimConfig(), contact_element=2.5e-3,
@@ -277,7 +277,7 @@ def test_direct_mode_windows_equal_the_whole_grid(tmp_path):
         delta = float(interpolation.table_onset(law.table, s)) + c
         p0 = jnp.zeros((layout.nx, layout.ny))
         f_w = float(law._evaluate(s, delta, p0)[0])
-        gap = kalker.gap_3d(flat, s, layout.x, layout.y, layout.wheel_radius,
+        gap = geometry3d.gap_3d(flat, s, layout.x, layout.y, layout.wheel_radius,
                             layout.rail_head_radius)
         ref = kalker.solve(gap, layout.element_size, layout.element_size, wf.Material(),
                            approach=delta, tol=direct3d.KALKER_TOL, validate=False)

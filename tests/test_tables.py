@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import wfjax as wf
+from wfjax.contact import geometry3d, influence, kalker, table_spec, tables, windows
 from wfjax.contact import interpolation as ip
-from wfjax.contact import kalker, table_spec, tables, windows
 
 MAT = wf.Material()
 R = 0.45
@@ -25,7 +25,7 @@ def coarse():
 
 def direct(spec, flat, delta, s):
     h = spec.element_size
-    g = kalker.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius, spec.rail_head_radius)
+    g = geometry3d.gap_3d(flat, s, spec.x, spec.y, spec.wheel_radius, spec.rail_head_radius)
     return kalker.solve(g, h, h, MAT, approach=delta, validate=False)
 
 
@@ -240,7 +240,7 @@ def test_shared_solves_equal_the_columns_own(coarse):
     plan = windows.assign_windows(spec, boxes, tables._grid_sizes(spec, sizes))
     solvers = [windows.window_solver(size, spec.element_size, 1e-12) for size in plan.sizes]
     mat = windows.solver_inputs(MAT, np.float64)
-    estar = float(kalker.combined_modulus(MAT))
+    estar = float(influence.combined_modulus(MAT))
 
     def column(k, n_shared=0, reference=None, keep=False):
         return tables._solve_column(solvers, plan.sizes, gaps[k], onsets[k], cs,

@@ -113,7 +113,7 @@ import numpy as np
 from .._parallel import core_pool, map_per_core
 from .._xla import to_device
 from ..params import MAX_FLAT_DEPTH, Flat, Material
-from . import interpolation, kalker, table_spec, tables, windows
+from . import geometry3d, influence, interpolation, kalker, table_spec, tables, windows
 
 __all__ = ["FamilySpec", "FlatFamily", "family_spec", "build_family", "family_column",
            "family_force", "DEPTH_STEPS_PER_OCTAVE", "LENGTH_FACTOR_ORIGIN",
@@ -414,7 +414,7 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
         s_map = "edges" if kind == "new" else "scaled"
     if s_map not in S_MAPS:
         raise ValueError(f"s_map must be one of {S_MAPS}, got {s_map!r}")
-    _, _, d_hertz, _ = kalker.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
+    _, _, d_hertz, _ = geometry3d.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
                                              material)
     c_max = 1.4 * d_hertz
     grids, columns, steps = [], [], []
@@ -423,7 +423,7 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
             depth = lattice_depth(k)
             lam_j = lattice_length_factor(j)
             flat = _node_flat(kind, depth, lam_j, wheel_radius)
-            x, y = kalker.contact_grid(flat, wheel_radius, rail_head_radius, material,
+            x, y = geometry3d.contact_grid(flat, wheel_radius, rail_head_radius, material,
                                        max_compression=c_max, max_force=max_force,
                                        element_size=h)
             grids.append((len(x), len(y)))
@@ -514,7 +514,7 @@ class _SharedBuilder:
                       for i, b in boxes.items()}
         dtype = next(iter(self.gaps.values()))[0].dtype
         self.material = windows.solver_inputs(material, dtype)
-        self.estar = float(kalker.combined_modulus(material))
+        self.estar = float(influence.combined_modulus(material))
         pool = core_pool()
         self.solvers = [pool.submit(windows.window_solver, size, spec.element_size, tol, dtype)
                         for size in self.sizes]

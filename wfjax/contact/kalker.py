@@ -41,27 +41,20 @@ Theory Appl. 162 (2014).
 from __future__ import annotations
 
 import functools
-import math
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..model import geometry
-from ..params import Flat, Material
+from ..params import Material
+from .influence import check_element_size, combined_modulus, unit_operator, unit_preconditioner
 
 __all__ = [
     "Diagnostics",
     "KalkerResult",
     "combined_modulus",
-    "influence_kernel",
-    "dense_matrix",
-    "make_operator",
     "solve",
-    "gap_3d",
-    "contact_grid",
-    "elliptic_hertz",
 ]
 
 _DEFAULT_MATERIAL = Material()
@@ -73,199 +66,6 @@ MIN_ELEMENTS_ACROSS = 6  # elements across the contact required by the eager val
 # ----------------------------------------------------------------------------------------
 # Influence coefficients
 # ----------------------------------------------------------------------------------------
-
-
-def combined_modulus(material: Material):
-    """E* [Pa] of two bodies of ``material``: 1/E* = 2 (1 - nu^2) / E."""
-    return material.youngs_modulus / (2.0 * (1.0 - material.poisson_ratio**2))
-
-
-def _love_term(u, v):
-    """u asinh(v/|u|) + v asinh(u/|v|), the part of Love's f(u, v) that survives the sum.
-
-    Love's f(u, v) = u ln(v + r) + v ln(u + r) with r = sqrt(u^2 + v^2). Writing
-    ln(v + r) = asinh(v/|u|) + ln|u| the ln|u| and ln|v| pieces cancel in the four-corner sum,
-    leaving this form, which has no cancellation and is 0 for u = 0 or v = 0.
-    """
-    au, av = np.abs(u), np.abs(v)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = np.where(au > 0, u * np.arcsinh(v / np.where(au > 0, au, 1.0)), 0.0)
-        t2 = np.where(av > 0, v * np.arcsinh(u / np.where(av > 0, av, 1.0)), 0.0)
-    return t1 + t2
-
-
-@functools.lru_cache(maxsize=64)
-def _unit_kernel(nx: int, ny: int, dx: float, dy: float) -> np.ndarray:
-    """[2nx-1, 2ny-1] displacement [m] per unit q = p/E* at offsets (i dx, j dy), |i| < nx."""
-    x = np.arange(-(nx - 1), nx) * dx
-    y = np.arange(-(ny - 1), ny) * dy
-    X, Y = np.meshgrid(x, y, indexing="ij")
-    a, b = dx / 2, dy / 2
-    w = (
-        _love_term(X + a, Y + b)
-        - _love_term(X + a, Y - b)
-        - _love_term(X - a, Y + b)
-        + _love_term(X - a, Y - b)
-    )
-    return w / math.pi
-
-
-def _fft_length(n: int) -> int:
-    """Smallest even 2^a 3^b 5^c >= 2n - 1: the FFT length of an exact linear convolution.
-
-    Any length >= 2n - 1 embeds the (2n-1)-point kernel without wrap-around; 5-smooth lengths
-    avoid the slow prime-factor FFTs of 2n (2 x 79 = 158 took 0.60 ms per 2D transform pair,
-    160 took 0.19 ms; 2.2x faster on average over n = 41..125 on the 2-core CPU).
-    """
-    return _smooth_even(max(2 * int(n) - 1, 2))
-
-
-def _smooth_even(m: int) -> int:
-    """Smallest even 2^a 3^b 5^c >= m."""
-    m = int(m)
-    while True:
-        k = m
-        for p in (2, 3, 5):
-            while k % p == 0:
-                k //= p
-        if k == 1 and m % 2 == 0:
-            return m
-        m += 1
-
-
-@functools.lru_cache(maxsize=64)
-def _unit_kernel_fft(nx: int, ny: int, dx: float, dy: float) -> np.ndarray:
-    """rfft2 of the circulant embedding [mx, my] of the unit kernel (exact linear convolution).
-
-    mx, my = :func:`_fft_length` (>= 2n - 1, so the offsets -(n-1)..(n-1) never overlap).
-    """
-    k = _unit_kernel(nx, ny, dx, dy)
-    mx, my = _fft_length(nx), _fft_length(ny)
-    emb = np.zeros((mx, my))
-    ix = np.r_[np.arange(nx), np.arange(-nx + 1, 0)]  # offsets stored at index i mod mx
-    iy = np.r_[np.arange(ny), np.arange(-ny + 1, 0)]
-    emb[np.ix_(ix % mx, iy % my)] = k[np.ix_(ix + nx - 1, iy + ny - 1)]
-    return np.fft.rfft2(emb)
-
-
-def influence_kernel(nx: int, ny: int, dx: float, dy: float, material: Material):
-    """Influence coefficients [m/Pa] of a uniformly loaded rectangular element (Love 1929).
-
-    Args:
-        nx, ny: grid size (elements) along x and y.
-        dx, dy: element size [m] along x and y.
-        material: wheel and rail material (combined compliance 1/E* = 2(1-nu^2)/E).
-
-    Returns:
-        [2nx-1, 2ny-1] array K: the combined displacement at an element centre offset by
-        (i dx, j dy) from a loaded element, per unit pressure, at index (i + nx-1, j + ny-1).
-    """
-    dx, dy = _check_element_size(dx, dy)
-    return jnp.asarray(_unit_kernel(int(nx), int(ny), dx, dy)) / combined_modulus(material)
-
-
-def dense_matrix(nx: int, ny: int, dx: float, dy: float, material: Material):
-    """Dense influence matrix C [m/Pa], shape [nx*ny, nx*ny] (row-major flattening of [nx, ny]).
-
-    For small grids and as the test reference of :func:`make_operator`.
-    """
-    dx, dy = _check_element_size(dx, dy)
-    k = _unit_kernel(int(nx), int(ny), dx, dy)
-    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-    i, j = i.ravel(), j.ravel()
-    c = k[i[:, None] - i[None, :] + nx - 1, j[:, None] - j[None, :] + ny - 1]
-    return jnp.asarray(c) / combined_modulus(material)
-
-
-def _fft_apply(khat, q, nx: int, ny: int, shape: tuple[int, int] | None = None):
-    """Exact (non-periodic) convolution of q [..., nx, ny] with the embedded kernel.
-
-    The 2D transform pair of ``rfft2``/``irfft2`` taken one axis at a time: the real
-    transforms along y run on the nx rows that hold q (the zero-padded rows transform to
-    zero) and back on the nx rows that are kept, half the rows of the embedding; 17-18 %
-    faster than ``rfft2``/``irfft2`` on 32 x 27 to 72 x 63 windows, same result to 4e-16.
-    ``shape``: the transform size (default :func:`_fft_length` of nx, ny: the exact
-    embedding; the preconditioner's smaller torus otherwise).
-    """
-    mx, my = (_fft_length(nx), _fft_length(ny)) if shape is None else shape
-    qhat = jnp.fft.fft(jnp.fft.rfft(q, n=my, axis=-1), n=mx, axis=-2)
-    rows = jnp.fft.ifft(qhat * khat, axis=-2)[..., :nx, :]
-    return jnp.fft.irfft(rows, n=my, axis=-1)[..., :ny]
-
-
-def make_operator(nx: int, ny: int, dx: float, dy: float, material: Material | None = None,
-                  method: str = "fft"):
-    """Matrix-free influence operator p [nx, ny] (Pa) -> u = C p [nx, ny] (m).
-
-    Args:
-        nx, ny: grid size; dx, dy: element size [m].
-        material: combined compliance 1/E* = 2(1-nu^2)/E; ``None`` gives the unit operator
-            (E* = 1, i.e. displacement per unit p/E*).
-        method: ``"fft"`` (zero-padded 2D FFT, exact linear convolution) or ``"dense"``.
-
-    Returns:
-        A pure function of a [..., nx, ny] array (batch dimensions allowed for ``"fft"``).
-    """
-    dx, dy = _check_element_size(dx, dy)
-    scale = 1.0 if material is None else 1.0 / combined_modulus(material)
-    base = _unit_operator(int(nx), int(ny), dx, dy, method)
-    return lambda p: base(p) * scale
-
-
-def _unit_operator(nx: int, ny: int, dx: float, dy: float, method: str):
-    if method == "fft":
-        khat = jnp.asarray(_unit_kernel_fft(nx, ny, dx, dy))
-        return lambda q: _fft_apply(khat, q, nx, ny)
-    if method == "dense":
-        k = _unit_kernel(nx, ny, dx, dy)
-        i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-        i, j = i.ravel(), j.ravel()
-        c = jnp.asarray(k[i[:, None] - i[None, :] + nx - 1, j[:, None] - j[None, :] + ny - 1])
-        return lambda q: (c @ q.reshape(-1)).reshape(nx, ny)
-    raise ValueError(f"method must be 'fft' or 'dense', got {method!r}")
-
-
-PRECONDITIONER_FLOOR = 1e-3  # spectrum values below this x its maximum are raised to it
-
-
-def _torus_length(n: int) -> int:
-    """Smallest even 5-smooth length >= n (1 for n = 1): the preconditioner's period, at most
-    2n - 2, so its wrapped kernel needs only the offsets |i| < n the grid has."""
-    return 1 if n <= 1 else _smooth_even(n)
-
-
-@functools.lru_cache(maxsize=64)
-def _inverse_kernel_fft(nx: int, ny: int, dx: float, dy: float) -> np.ndarray:
-    """1 / (the real spectrum of the unit kernel wrapped on the (mx, my) torus,
-    :func:`_torus_length`), floored (see the preconditioner)."""
-    k = _unit_kernel(nx, ny, dx, dy)
-    offsets = []
-    for n in (nx, ny):
-        m = np.arange(_torus_length(n))
-        offsets.append(np.where(m <= len(m) // 2, m, m - len(m)) + n - 1)
-    khat = np.fft.rfft2(k[np.ix_(*offsets)]).real  # symmetric kernel: the spectrum is real
-    return 1.0 / np.maximum(khat, PRECONDITIONER_FLOOR * khat.max())
-
-
-def _unit_preconditioner(nx: int, ny: int, dx: float, dy: float):
-    """An approximate inverse of the unit influence operator on the whole grid: Strang's
-    circulant preconditioner, the inverse of the kernel wrapped on a torus of about the grid's
-    size (offsets |i| <= m / 2 of the kernel, Strang, Stud. Appl. Math. 74 (1986); for 2D
-    Toeplitz blocks R. Chan & Jin, SIAM J. Sci. Stat. Comput. 13 (1992)); q is zero-padded to
-    the torus and cut back, so the preconditioner is symmetric positive.
-
-    The influence kernel is a smoothing operator (symbol ~ 1/|k|), so CG on C_AA converges in
-    O(sqrt(condition)) ~ grid-size iterations; multiplying by this inverse (symbol ~ |k|)
-    removes most of that growth (the idea of Vollebregt's FFT-based preconditioner, J. Comput.
-    Phys. 257 (2014)). On the torus of about n x n its FFT pair costs a quarter of the
-    operator's on the exact (2n) embedding, and it converges at least as fast as the inverse
-    of that embedding did: the default sweep's table builds, 43,500 CG iterations -> 40,500.
-    The wrapped kernel's spectrum can dip below zero; it is floored at PRECONDITIONER_FLOOR
-    of its maximum.
-    """
-    inv = jnp.asarray(_inverse_kernel_fft(nx, ny, dx, dy))
-    shape = (_torus_length(nx), _torus_length(ny))
-    return lambda r: _fft_apply(inv, r, nx, ny, shape)
 
 
 # ----------------------------------------------------------------------------------------
@@ -380,11 +180,11 @@ class _Config(NamedTuple):
     precondition: bool = True
 
     def op(self):
-        return _unit_operator(self.nx, self.ny, self.dx, self.dy, self.method)
+        return unit_operator(self.nx, self.ny, self.dx, self.dy, self.method)
 
     def prec(self):
         """The CG preconditioner (None: plain CG)."""
-        return (_unit_preconditioner(self.nx, self.ny, self.dx, self.dy) if self.precondition
+        return (unit_preconditioner(self.nx, self.ny, self.dx, self.dy) if self.precondition
                 else None)
 
 
@@ -605,19 +405,6 @@ def _is_concrete_tree(tree) -> bool:
     return all(_is_concrete(v) for v in jax.tree_util.tree_leaves(tree))
 
 
-def _check_element_size(dx, dy) -> tuple[float, float]:
-    out = []
-    for name, v in (("dx", dx), ("dy", dy)):
-        if not _is_concrete(v):
-            raise ValueError(f"{name} must be a concrete number (static element size), "
-                             "got a tracer")
-        v = float(v)
-        if not math.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} (element size) must be > 0 m and finite, got {v!r} m")
-        out.append(v)
-    return out[0], out[1]
-
-
 def _validate_inputs(gap, approach, force, p_init):
     if gap.ndim != 2 or min(gap.shape) < 2:
         raise ValueError(
@@ -695,7 +482,7 @@ def solve(gap, dx: float, dy: float, material: Material = _DEFAULT_MATERIAL, app
     """
     if (approach is None) == (force is None):
         raise ValueError("pass exactly one of approach= (m) or force= (N)")
-    dx, dy = _check_element_size(dx, dy)
+    dx, dy = check_element_size(dx, dy)
     gap = jnp.asarray(gap) if not isinstance(gap, jax.core.Tracer) else gap
     _validate_inputs(gap, approach, force, p_init)
     if not (0 < tol < 1):
@@ -722,130 +509,3 @@ def _solve_jit(cfg, gap, material, approach, force, p_init, max_iter, stiffness,
 # ----------------------------------------------------------------------------------------
 
 
-def gap_3d(flat: Flat, s, x, y, wheel_radius, rail_head_radius):
-    """Undeformed gap [m] between a cylindrical wheel with a 3D flat and a straight rail.
-
-    gap(x', y) = (R_W - sqrt(R_W^2 - x'^2)) + (R_R - sqrt(R_R^2 - y^2))
-                 + flat_surface(flat, x' + s, y, R_R)
-
-    The wheel is a cylinder (exact circle of radius R_W in x, no transverse curvature); the
-    rail is straight in x with a transverse head radius R_R; the flat's transverse arcs use
-    the same R_R (see :func:`wfjax.model.geometry.flat_surface`).
-
-    Args:
-        flat: the flat (its leaves are differentiable).
-        s: wheel position [m] relative to the position where the flat centre is at the nominal
-            contact point (s < 0 before the flat arrives). Scalar, differentiable.
-        x: [nx] rail coordinates x' [m] relative to the nominal contact point (positive in the
-            travel direction), element centres.
-        y: [ny] transverse coordinates [m], element centres.
-        wheel_radius: R_W [m]. rail_head_radius: R_R [m].
-
-    Returns:
-        [nx, ny] gap [m] (>= 0; 0 at the nominal contact point of a smooth wheel).
-    """
-    return _gap(flat, s, jnp.asarray(x), jnp.asarray(y), wheel_radius, rail_head_radius, jnp)
-
-
-def _gap(flat: Flat, s, x, y, wheel_radius, rail_head_radius, xp):
-    """:func:`gap_3d` with array module ``xp`` (np: a concrete flat's leaves, no compiling);
-    ``s`` may be [n] (then [n, nx, ny])."""
-    s = xp.asarray(s)[..., None]
-    zx = wheel_radius - xp.sqrt(wheel_radius**2 - x**2)
-    zy = rail_head_radius - xp.sqrt(rail_head_radius**2 - y**2)
-    return zx[:, None] + zy[None, :] + geometry._surface(flat, x + s, y, rail_head_radius, xp)
-
-
-def elliptic_hertz(force, radius_x, radius_y, material: Material = _DEFAULT_MATERIAL):
-    """Elliptic Hertz contact of two bodies with principal relative radii R_x, R_y (concrete).
-
-    Relative curvatures A = 1/(2 R_x), B = 1/(2 R_y). Johnson (1985) Sec. 4.2: with semi-axes
-    a (along the smaller curvature), b and e^2 = 1 - b^2/a^2,
-    B/A = ((a/b)^2 E(e) - K(e)) / (K(e) - E(e)), a^3 = 3 F (K - E) / (2 pi E* e^2 A_min),
-    delta = 3 F K(e) / (2 pi a E*), p0 = 3 F / (2 pi a b).
-
-    Args:
-        force: F [N]; radius_x, radius_y: relative radii of curvature [m] along x and y;
-        material: both bodies.
-
-    Returns:
-        (semi_axis_x [m], semi_axis_y [m], approach [m], max_pressure [Pa]) as floats.
-    """
-    from scipy.special import ellipe, ellipk
-
-    estar = float(combined_modulus(material))
-    A, B = 1 / (2 * float(radius_x)), 1 / (2 * float(radius_y))
-    lo, hi = min(A, B), max(A, B)
-    F = float(force)
-    ratio = hi / lo
-    if abs(ratio - 1) < 1e-12:
-        a = (3 * F / (8 * estar * lo)) ** (1 / 3)
-        return a, a, a * a * 2 * lo, 3 * F / (2 * math.pi * a * a)
-
-    def f(m):  # m = e^2 (scipy's parameter)
-        k, e = ellipk(m), ellipe(m)
-        return (e / (1 - m) - k) / (k - e) - ratio
-
-    # B/A grows monotonically with m: bisection (importing scipy.optimize for brentq took
-    # 0.1-0.9 s of a cold sweep's table thread)
-    lo_m, hi_m = 1e-12, 1 - 1e-15
-    while hi_m - lo_m > 1e-15 * (1 + hi_m):
-        mid = 0.5 * (lo_m + hi_m)
-        lo_m, hi_m = (mid, hi_m) if f(mid) < 0 else (lo_m, mid)
-    m = 0.5 * (lo_m + hi_m)
-    k, e = ellipk(m), ellipe(m)
-    a = (3 * F * (k - e) / (2 * math.pi * estar * m * lo)) ** (1 / 3)
-    b = a * math.sqrt(1 - m)
-    delta = 3 * F * k / (2 * math.pi * a * estar)
-    p0 = 3 * F / (2 * math.pi * a * b)
-    ax, ay = (a, b) if A <= B else (b, a)
-    return ax, ay, delta, p0
-
-
-def contact_grid(flat: Flat, wheel_radius: float, rail_head_radius: float,
-                 material: Material = _DEFAULT_MATERIAL, max_compression: float | None = None,
-                 max_force: float = 600e3, element_size: float = 1e-3, margin: int = 2):
-    """Element centres (x [nx], y [ny]) [m] of a grid that contains every contact up to a load.
-
-    The contact lies inside the rigid overlap {gap < delta} (displacements are >= 0), and
-    gap >= x'^2/(2 R_W) (approximately) and >= y^2/(2 R_R), while min(gap) <= depth. So a
-    compression c = delta - min(gap) keeps the contact within |x'| <= sqrt(2 R_W (d + c)) and
-    |y| <= sqrt(2 R_R (d + c)) for every flat position s. The grid is symmetric with an
-    element centred on the nominal contact point (odd counts) plus ``margin`` elements.
-
-    Args:
-        flat: the flat (concrete depth).
-        wheel_radius, rail_head_radius: R_W, R_R [m].
-        material: for the Hertz estimate.
-        max_compression: largest c [m]; default 1.5 x the Hertz approach at ``max_force``.
-        max_force: force [N] used for the default compression and the resolution check.
-        element_size: square element side [m].
-        margin: extra elements on each side.
-
-    Returns:
-        (x, y) numpy arrays of element centres [m].
-
-    Raises:
-        ValueError: non-positive element size, or fewer than 6 elements across the smooth
-            Hertz contact at ``max_force`` / 4 (too coarse to resolve the contact).
-    """
-    h = float(element_size)
-    if not math.isfinite(h) or h <= 0:
-        raise ValueError(f"element_size must be > 0 m, got {element_size!r}")
-    ax, ay, dH, _ = elliptic_hertz(max_force, wheel_radius, rail_head_radius, material)
-    ax8, ay8, _, _ = elliptic_hertz(max_force / 4, wheel_radius, rail_head_radius, material)
-    if 2 * min(ax8, ay8) / h < MIN_ELEMENTS_ACROSS:
-        raise ValueError(
-            f"element_size {h * 1e3:.3g} mm too coarse: the Hertz contact at "
-            f"{max_force / 4e3:.3g} kN is only {2 * min(ax8, ay8) * 1e3:.3g} mm wide; need "
-            f"element_size <= {2 * min(ax8, ay8) / MIN_ELEMENTS_ACROSS * 1e3:.3g} mm"
-        )
-    c = 1.5 * dH if max_compression is None else float(max_compression)
-    d = float(np.max(np.asarray(flat.depth))) if flat.kind != "none" else 0.0
-    half_x = math.sqrt(2 * float(wheel_radius) * (d + c))
-    half_y = math.sqrt(2 * float(rail_head_radius) * (d + c))
-    nx_half = math.ceil(half_x / h) + margin
-    ny_half = math.ceil(half_y / h) + margin
-    x = np.arange(-nx_half, nx_half + 1) * h
-    y = np.arange(-ny_half, ny_half + 1) * h
-    return x, y

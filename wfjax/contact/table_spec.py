@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..params import Flat, Material
-from . import kalker
+from . import geometry3d, kalker
 
 _DEFAULT_MATERIAL = Material()
 
@@ -86,10 +86,10 @@ def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float =
         raise ValueError(f"ds must be > 0 m, got {ds!r}")
     if int(n_t) < 4:
         raise ValueError(f"n_t must be >= 4, got {n_t!r}")
-    _, _, d_hertz, _ = kalker.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
+    _, _, d_hertz, _ = geometry3d.elliptic_hertz(max_force, wheel_radius, rail_head_radius,
                                              material)
     c_max = 1.4 * d_hertz if max_compression is None else float(max_compression)
-    x, y = kalker.contact_grid(flat, wheel_radius, rail_head_radius, material,
+    x, y = geometry3d.contact_grid(flat, wheel_radius, rail_head_radius, material,
                                max_compression=c_max, max_force=max_force, element_size=h)
     half = 0.0 if flat.kind == "none" else flat.half_extent
     # Beyond |s| = half + sqrt(2 R_W c_max) the flat is outside the rigid overlap of every
@@ -141,7 +141,7 @@ def whole_grid_column(spec: TableSpec, flat: Flat, material: Material, s, tol: f
     (every solve on the whole table grid)."""
     x, y = spec.x, spec.y
     h = spec.element_size
-    gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
+    gap = geometry3d.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
     onset = rigid_onset(spec, flat, s)
     cfg = kalker._Config(spec.nx, spec.ny, h, h, "fft", tol, 1000)
 

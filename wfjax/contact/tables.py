@@ -55,7 +55,7 @@ import numpy as np
 from .._parallel import core_pool
 from .._xla import to_device
 from ..params import Flat, Material
-from . import kalker
+from . import influence, kalker
 from .interpolation import ContactTable
 from .table_spec import (
     TableSpec,
@@ -218,7 +218,7 @@ def _build_windowed(specs, flats, material: Material, tol: float,
              for spec, b in zip(specs, boxes, strict=True)]
     dtype = gaps[0][0].dtype
     mat = solver_inputs(material, dtype)
-    estar = float(kalker.combined_modulus(material))
+    estar = float(influence.combined_modulus(material))
     pool = core_pool()
     h = {spec.element_size for spec in specs}.pop()
     compiled = {size: pool.submit(window_solver, size, h, tol, dtype)

@@ -16,7 +16,7 @@ import numpy as np
 
 from .._xla import SOLVER_COMPILER_OPTIONS, cpu_only, to_device
 from ..params import Flat, Material
-from . import kalker
+from . import geometry3d, influence, kalker
 from .table_spec import (
     TableSpec,
     compression_nodes,
@@ -70,7 +70,7 @@ COST_PER_WINDOW_SIZE = 5e7
 @functools.lru_cache(maxsize=8)
 def _fft_lengths(n_max: int) -> np.ndarray:
     """[n_max + 1] FFT length of a window of n elements, n = 0..n_max."""
-    return np.array([kalker._fft_length(max(n, 1)) for n in range(n_max + 1)])
+    return np.array([influence.fft_length(max(n, 1)) for n in range(n_max + 1)])
 
 
 def solve_cost(wx, wy):
@@ -84,7 +84,7 @@ def solve_cost(wx, wy):
 def _size_ladder(n: int) -> tuple[int, ...]:
     """Window lengths worth using along an axis of n elements: for each FFT length the largest
     window it serves (a longer window costs nothing more in FFTs), and n itself."""
-    return tuple(sorted({min(n, (kalker._fft_length(w) + 1) // 2) for w in range(1, n + 1)}))
+    return tuple(sorted({min(n, (influence.fft_length(w) + 1) // 2) for w in range(1, n + 1)}))
 
 
 def merge_sizes(needed: dict[tuple[int, int], int], max_sizes: int,
@@ -136,7 +136,7 @@ def column_gaps(spec: TableSpec, flat: Flat, s_values) -> tuple[np.ndarray, np.n
     positions ``s_values`` [n] [m] of a concrete flat, in NumPy (nothing to compile)."""
     flat = jax.tree.map(np.asarray, flat)
     s_values = np.asarray(s_values, dtype=float)
-    return (kalker._gap(flat, s_values, spec.x, spec.y, spec.wheel_radius,
+    return (geometry3d._gap(flat, s_values, spec.x, spec.y, spec.wheel_radius,
                         spec.rail_head_radius, np), rigid_onset(spec, flat, s_values, np))
 
 
@@ -260,7 +260,7 @@ def window_solve(spec: TableSpec, flat: Flat, material: Material, s, approach, s
     h = spec.element_size
     x = jax.lax.dynamic_slice(jnp.asarray(spec.x), (i0,), (wx,))
     y = jax.lax.dynamic_slice(jnp.asarray(spec.y), (j0,), (wy,))
-    gap = kalker.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
+    gap = geometry3d.gap_3d(flat, s, x, y, spec.wheel_radius, spec.rail_head_radius)
     if rough_x is not None:
         gap = gap - jax.lax.dynamic_slice(rough_x, (i0,), (wx,))[:, None]
     cfg = kalker._Config(wx, wy, h, h, "fft", tol, 1000)
