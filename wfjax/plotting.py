@@ -1,10 +1,14 @@
-"""Matplotlib figures of wfjax results (headless: the Agg backend is selected here)."""
+"""Matplotlib figures of wfjax results (headless: the Agg backend is selected here, except
+in a Jupyter kernel, whose inline backend shows the figures in the notebook)."""
 
 from __future__ import annotations
 
+import sys
+
 import matplotlib
 
-matplotlib.use("Agg")
+if "ipykernel" not in sys.modules:
+    matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
