@@ -10,6 +10,8 @@
   reference links to autorefs, whose "Could not find cross-reference target" would fail the
   strict build: those warnings are dropped for targets that are not dotted Python names
   (``wfjax.foo``); an unresolved reference to a dotted name still fails the build.
+* The docstrings' Sphinx roles (``:class:`wfjax.Flat```, ``:func:`~wfjax.sweeps.sweep```),
+  which Markdown shows literally, are rendered as the code they mark.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from mkdocs.structure.files import File
 INCLUDE = re.compile(r"<!-- include: (?P<path>[^#>\s]+)(?:#(?P<section>[^>]+?))? -->")
 
 
+ROLE = re.compile(r":(?:class|func|meth|attr|data|mod|exc|obj|const):<code>~?")
 UNRESOLVED = re.compile(r"Could not find cross-reference target '(?P<target>[^']*)'")
 DOTTED = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+")
 
@@ -73,3 +76,7 @@ def on_page_markdown(markdown, page, config, files):
         return section(text, match["section"].strip()) if match["section"] else text
 
     return INCLUDE.sub(include, markdown)
+
+
+def on_page_content(html, page, config, files):
+    return ROLE.sub("<code>", html)

@@ -81,6 +81,8 @@ def test_every_page_is_built(site):
         assert (site / page).is_file(), page
     for notebook in (ROOT / "notebooks").glob("*.ipynb"):
         assert (site / "notebooks" / notebook.stem / "index.html").is_file(), notebook.name
+    api = (site / "api" / "index.html").read_text()
+    assert "<code>wfjax.Flat</code>" in api and ":class:<code>" not in api  # roles rendered
 
 
 def test_included_pages_carry_their_source(site):
