@@ -1,0 +1,339 @@
+"""The identification's forward model: detector readings [N] of wheels with flats, through the
+program core (:func:`wfjax.program.core.compile_scenario`, ``Program`` data, the batched runs
+of :class:`wfjax.program.core.Autodiff`).
+
+Two levels:
+
+* :func:`build_table`: the **response table** of one wheel at one speed. One single-wheel
+  scenario with a wide detector (bays -2..+2 around the impact bay), compiled once; one
+  ``vmap``-ed batch per flat shape over lengths x in-bay impact positions x nuisance
+  realisations (rail roughness of the ISO 3095 limit class, and support scatter, each
+  realisation its own program's data). The track is periodic in the sleeper spacing L_S, so
+  an impact at rail coordinate x = q L_S + u reads in detector bay k what the table holds at
+  bay offset k - q and position u (:func:`predict`): the phase is a grid over a whole wheel
+  circumference, evaluated from one bay's runs.
+* :func:`coupled_readings`: several wheels of a bogie on one track, every wheel its own
+  flat and impact coordinate (the vehicle's ``flat_delays``), run in full: the synthetic
+  passages of the validation, and the neighbour correction of the factorised inference.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import logging
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._cache import load_or_build
+from ..params import Flat, Material, SimConfig, Track, Wheel
+from ..program.core import Autodiff, Histories, Run, compile_scenario
+from ..scenario.description import Scenario
+from ..scenario.sensors import Detector
+from ..scenario.windows import batch_windows
+
+__all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "ResponseTable", "flat_of", "build_table",
+           "predict", "coupled_readings", "identification_config"]
+
+_log = logging.getLogger(__name__)
+SMOOTH_DEPTH = 5e-6  # m: a round wheel's stand-in flat (new, l0 = 4 mm): no impact
+SHAPES = (("new", 0.0), ("rounded", 1.6), ("rounded", 2.0))  # (kind, l / l0 of rounded)
+TABLE_LENGTHS = np.array([5, 12, 20, 28, 36, 45, 55, 65, 75, 87, 100, 115, 130]) * 1e-3  # m
+REACH = 2  # bays either side of the impact bay the table holds
+ROUGHNESS_SPAN = 24.0  # m of generated rail roughness, centred on x = 0
+
+
+def identification_config(config: SimConfig | None = None) -> SimConfig:
+    """``config`` (default :class:`SimConfig`) with the track modes to 20 kHz, as ``wfjax
+    detector`` (the crib shear converges at 15 kHz and above, docs/convergence.md)."""
+    return dataclasses.replace(config or SimConfig(), track_max_frequency=20e3)
+
+
+def flat_of(kind: str, length, length_factor: float, wheel_radius: float,
+            extent_bound: float | None = None) -> Flat:
+    """The flat of ``kind`` and length ``length`` [m] (traceable): new, depth l^2 / (8 R);
+    rounded of l / l0 = ``length_factor``, depth (l / factor)^2 / (8 R)."""
+    if kind == "new":
+        return Flat("new", depth=length**2 / (8 * wheel_radius), length=length,
+                    wheel_radius=wheel_radius, extent_bound=extent_bound)
+    depth = (length / length_factor) ** 2 / (8 * wheel_radius)
+    return Flat("rounded", depth=depth, length=length, wheel_radius=wheel_radius,
+                extent_bound=extent_bound)
+
+
+def depth_of(kind: str, length, length_factor: float, wheel_radius: float):
+    """Depth [m] of :func:`flat_of`'s flat (numpy broadcasting)."""
+    l0 = length if kind == "new" else length / length_factor
+    return np.asarray(l0) ** 2 / (8 * wheel_radius)
+
+
+@dataclasses.dataclass(frozen=True)
+class ResponseTable:
+    """One wheel's detector response at one speed.
+
+    Attributes:
+        speed: v [m/s]. sleeper_spacing: L_S [m]. wheel_radius: R [m].
+        shapes: [S] (kind, l / l0) of the flat shapes. lengths: [L] flat lengths [m].
+        offsets: [J] impact positions u within a bay [m], j L_S / J.
+        readings: [S, L, J, R, 2 REACH + 1] bay readings [N] at bay offsets -REACH..REACH
+            from the impact bay, over R nuisance realisations.
+        peak: [S, L, J, R] the wheel's peak contact force [N] after the run-in.
+    """
+
+    speed: float
+    sleeper_spacing: float
+    wheel_radius: float
+    shapes: tuple
+    lengths: np.ndarray
+    offsets: np.ndarray
+    readings: np.ndarray
+    peak: np.ndarray
+
+    @property
+    def n_realisations(self) -> int:
+        return int(self.readings.shape[3])
+
+
+def _nuisance_programs(ref: Flat, contact: str, detector: Detector, track: Track,
+                       wheel: Wheel, material: Material, config: SimConfig,
+                       n_rough: int, n_supports: int, scatter_cv: float, seed: int, cache_dir):
+    """[n_supports] (program, device data) of the single wheel, each with ``n_rough`` rail
+    roughness realisations (ISO 3095 limit) and its own support scatter (the first: none
+    when ``n_supports`` is 1)."""
+    from ..model.supports import scatter
+    from ..scenario import roughness as rough_mod
+
+    out = []
+    for k in range(n_supports):
+        tr = track if (n_supports == 1 or scatter_cv <= 0) else scatter(
+            track, seed + 1000 + k, scatter_cv)
+        rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, seed + k, ROUGHNESS_SPAN,
+                                   x_start=-ROUGHNESS_SPAN / 2, n_realisations=n_rough)
+        sc = Scenario.of(ref, contact, wheel=wheel, track=tr, material=material,
+                         config=config, detector=detector, roughness=rough)
+        prog = compile_scenario(sc, cache_dir)
+        data = jax.tree.map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a,
+                            prog.data)
+        out.append((prog, data))
+    return out
+
+
+def _runs(program, window: Flat, speed: float, positions: np.ndarray, n_rough: int) -> Run:
+    """[J x R] runs (positions x realisations) of one speed; sets ``program.n_steps``."""
+    n_steps, dt, s0, run_in = batch_windows(window, np.array([speed]), program.scenario.config)
+    program.n_steps = int(n_steps)
+    pp = np.repeat(positions, n_rough)
+    rr = np.tile(np.arange(n_rough), positions.size)
+    n = pp.size
+    cols = (np.zeros(n, int), np.full(n, speed), np.full(n, dt[0]), pp + s0[0], pp,
+            np.full(n, run_in[0]), np.full(n, n_steps), rr)
+    return Run(*(jnp.asarray(c) for c in cols))
+
+
+@functools.partial(jax.jit, static_argnames=("key",))
+def _table_batch(data, runs, lengths, factor, key):
+    """[n_lengths, B, n_bays] detector peaks and [n_lengths, B] peak forces [N] of the flats
+    of ``lengths`` [m] (shape ``key``'s kind, l / l0 = ``factor`` traced)."""
+    program, law_of = _PROGRAMS[key]
+    kind, radius, bound = key[1], key[2], key[3]
+
+    def one(length):
+        law = law_of(flat_of(kind, length, factor, radius, bound))
+        out = Autodiff().batch(program, data, law, runs, Histories(instruments=False))
+        after = jnp.arange(out["force"].shape[1])[None, :] >= runs.run_in[:, None]
+        return out["detector_peak"][:, 0], jnp.max(jnp.where(after, out["force"][..., 0], 0.0),
+                                                    axis=-1)
+
+    return jax.lax.map(one, lengths)
+
+
+# (contact, kind, radius, bound, statics, support scatter) -> (a program of them, its traced
+# law): the jitted batch's static part; every program of one key shares the compiled batch
+_PROGRAMS: dict = {}
+
+
+def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: float = 0.1,
+                calibration: float = 1.0, shapes=SHAPES, lengths=TABLE_LENGTHS,
+                n_offsets: int = 8, n_roughness: int = 3, n_supports: int = 1,
+                scatter_cv: float = 0.1, seed: int = 0, wheel: Wheel | None = None,
+                track: Track | None = None, material: Material | None = None,
+                config: SimConfig | None = None, cache_dir=None, progress=None
+                ) -> ResponseTable:
+    """The :class:`ResponseTable` of one wheel at ``speed`` [m/s] (cached on disk).
+
+    Runs S shapes x L ``lengths`` [m] x ``n_offsets`` in-bay impact positions x
+    (``n_roughness`` x ``n_supports``) nuisance realisations; ``progress(done, total)`` is
+    called after every shape and support realisation.
+    """
+    from ..contact.registry import check
+    from ..fit.models import TracedLaw
+
+    check(contact)
+    wheel, track = wheel or Wheel(), track or Track()
+    material, config = material or Material(), identification_config(config)
+    key = dict(speed=float(speed), contact=contact, g=float(gauge_offset),
+               c=float(calibration), shapes=[list(s) for s in shapes],
+               lengths=np.asarray(lengths), j=int(n_offsets), r=int(n_roughness),
+               s=int(n_supports), cv=float(scatter_cv), seed=int(seed), wheel=repr(wheel),
+               track=repr(track), material=repr(material), config=repr(config), v=1)
+    ls = float(track.sleeper_spacing)
+    offsets = np.arange(n_offsets) * ls / n_offsets
+    radius = float(wheel.radius)
+
+    def build():
+        det = Detector(2 * REACH + 1, -REACH, float(gauge_offset), float(calibration))
+        total, done = len(shapes) * n_supports, 0
+        reads = np.zeros((len(shapes), len(lengths), n_offsets, n_supports, n_roughness,
+                          2 * REACH + 1))
+        peaks = np.zeros(reads.shape[:-1])
+        bound = max(float(flat_of(kind, float(np.max(lengths)), factor, radius).half_extent)
+                    for kind, factor in shapes)
+        first = flat_of(shapes[0][0], float(np.max(lengths)), shapes[0][1], radius, bound)
+        programs = _nuisance_programs(first, contact, det, track, wheel, material, config,
+                                      n_roughness, n_supports, scatter_cv, seed, cache_dir)
+        for s, (kind, factor) in enumerate(shapes):
+            ref = flat_of(kind, float(np.max(lengths)), factor, radius, bound)
+            for k, (prog, data) in enumerate(programs):
+                runs = _runs(prog, prog.scenario.window_flat(ref), float(speed), offsets,
+                             n_roughness)
+                pkey = (contact, kind, radius, bound, prog.statics, n_supports > 1)
+                if pkey not in _PROGRAMS:
+                    _PROGRAMS[pkey] = (prog, TracedLaw.of(prog.scenario, ref, cache_dir))
+                r, p = _table_batch(data, runs, jnp.asarray(lengths), float(factor), pkey)
+                shape = (len(lengths), n_offsets, n_roughness)
+                reads[s, :, :, k] = np.asarray(r).reshape(shape + (-1,))
+                peaks[s, :, :, k] = np.asarray(p).reshape(shape)
+                done += 1
+                if progress:
+                    progress(done, total)
+        return {"readings": reads.reshape(reads.shape[:3] + (-1, 2 * REACH + 1)),
+                "peak": peaks.reshape(peaks.shape[:3] + (-1,))}
+
+    arrays = load_or_build("identify-table", key, build, cache_dir)
+    return ResponseTable(float(speed), ls, radius, tuple(tuple(s) for s in shapes),
+                         np.asarray(lengths, float), offsets, arrays["readings"],
+                         arrays["peak"])
+
+
+def phase_grid(table: ResponseTable, bays: np.ndarray) -> np.ndarray:
+    """[P] impact rail coordinates x [m] (x = 0: the sleeper at the start of bay 0), the
+    table's in-bay positions over one wheel circumference 2 pi R starting a bay before the
+    detector's first bay ``bays[0]``."""
+    ls, j = table.sleeper_spacing, table.offsets.size
+    circumference = 2 * math.pi * table.wheel_radius
+    x0 = (int(bays[0]) - 1) * ls
+    n = int(round(circumference / (ls / j)))
+    return x0 + np.arange(n) * ls / j
+
+
+def predict(table: ResponseTable, bays, lengths, phases) -> np.ndarray:
+    """Readings [S, n_len, P, R, n_bays] N of one wheel in detector ``bays`` (absolute bay
+    indices) for every shape, ``lengths`` [n_len] m (linear interpolation in the table's
+    lengths, clamped) and impact coordinate ``phases`` [P] m on :func:`phase_grid`.
+
+    Bays farther than ``REACH`` from the impact bay read the table's shortest flat (the
+    wheel is as good as round there)."""
+    bays = np.asarray(bays, int)
+    ls, nj = table.sleeper_spacing, table.offsets.size
+    idx = np.rint(np.asarray(phases) / (ls / nj)).astype(int)
+    q, j = np.floor_divide(idx, nj), np.mod(idx, nj)
+    rel = bays[None, :] - q[:, None]  # [P, n_bays]
+    far = np.abs(rel) > REACH
+    m = np.clip(rel, -REACH, REACH) + REACH
+    t = table.readings  # [S, L, J, R, M]
+    # the far bays read the smooth row
+    near = t[:, :, j[:, None], :, m]  # [P, n_bays, S, L, R]
+    smooth = t[:, :1, j[:, None], :, m]
+    vals = np.where(far[:, :, None, None, None], smooth, near)
+    vals = np.moveaxis(vals, (0, 1), (3, 4))  # [S, L, R, P, n_bays]
+    w, i0 = _interp_weights(table.lengths, lengths)
+    out = vals[:, i0] * (1 - w)[None, :, None, None, None] + \
+        vals[:, i0 + 1] * w[None, :, None, None, None]
+    return np.moveaxis(out, 2, 3)  # [S, n_len, P, R, n_bays]
+
+
+def predict_peak(table: ResponseTable, lengths) -> np.ndarray:
+    """Peak contact force [S, n_len, J, R] N at ``lengths`` [m] (interpolated, clamped)."""
+    w, i0 = _interp_weights(table.lengths, lengths)
+    p = table.peak
+    return p[:, i0] * (1 - w)[None, :, None, None] + p[:, i0 + 1] * w[None, :, None, None]
+
+
+def _interp_weights(grid: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
+    """(weights [n], lower indices [n]) of linear interpolation in ``grid``, clamped."""
+    x = np.clip(np.asarray(x, float), grid[0], grid[-1])
+    i0 = np.clip(np.searchsorted(grid, x, side="right") - 1, 0, grid.size - 2)
+    return (x - grid[i0]) / (grid[i0 + 1] - grid[i0]), i0
+
+
+@functools.partial(jax.jit, static_argnames=("statics",))
+def _coupled_batch(data, law, runs, statics):
+    """Detector peaks [B, n_wheels, n_bays] and peak forces [B, n_wheels] [N] of ``runs``."""
+    holder = _Statics(statics)
+    out = Autodiff().batch(holder, data, law, runs, Histories(instruments=False))
+    after = jnp.arange(out["force"].shape[1])[None, :, None] >= runs.run_in[:, None, None]
+    return out["detector_peak"], jnp.max(jnp.where(after, out["force"], 0.0), axis=1)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Statics:
+    statics: tuple
+
+
+def coupled_readings(flats, impacts, positions, speed: float, detector: Detector,
+                     contact: str = "hertz-trajectory", roughness=None,
+                     track: Track | None = None, wheel: Wheel | None = None,
+                     material: Material | None = None, config: SimConfig | None = None,
+                     cache_dir=None) -> tuple[np.ndarray, np.ndarray]:
+    """Readings [n, n_bays] N and peak contact forces [n] N of ``n`` coupled wheels (a bogie)
+    on one track, every wheel with its own flat, in one run.
+
+    Args:
+        flats: [n] :class:`Flat` per wheel (a round wheel: ``flat_of("new", 4e-3, ...)`` or
+            any flat of depth :data:`SMOOTH_DEPTH`).
+        impacts: [n] rail coordinate [m] where each wheel's flat strikes (x = 0 the sleeper at
+            the start of bay 0), within the detector's reach.
+        positions: [n] distance of each wheel behind the group's leading wheel [m].
+        speed: v [m/s]. detector: the :class:`Detector` (absolute bays).
+        roughness: one rail :class:`wfjax.Roughness` realisation (values [n]) or None.
+        track: the track (may carry support scatter).
+    """
+    from ..contact.laws import prepare
+    from ..model.vehicle import Vehicle
+
+    wheel, track = wheel or Wheel(), track or Track()
+    material, config = material or Material(), identification_config(config)
+    positions = np.asarray(positions, float)
+    impacts = np.asarray(impacts, float)
+    offsets = positions[0] - positions
+    delays = impacts - impacts[0] - offsets
+    ref = flats[0]
+    vehicle = Vehicle(tuple(positions), flats=tuple(flats), flat_wheel=0,
+                      flat_delays=tuple(delays))
+    sc = Scenario.of(ref, contact, wheel=wheel, track=track, material=material, config=config,
+                     vehicle=vehicle, detector=detector, roughness=roughness)
+    prog = compile_scenario(sc, cache_dir)
+    data = jax.tree.map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a, prog.data)
+    a, b = detector.gauges(float(track.sleeper_spacing))
+    ls = float(track.sleeper_spacing)
+    # a window fixed by the detector and the layout (one compiled step count for every phase):
+    # every wheel starts a bay and a run-in before the first gauge and ends past the last
+    lead_in = max(config.run_in, 0.3)
+    x0 = min(float(a[0]) - ls - 2 * math.pi * float(wheel.radius), float(a[0])) - lead_in
+    x1 = float(b[-1]) + 0.3 + float(positions[-1] - positions[0])
+    dt = config.time_step_for(float(speed))
+    n_steps = int(math.ceil((x1 - x0) / (speed * dt))) + 1
+    run_in = int(np.floor(0.5 * 0.02 / dt))
+    run = Run(*(jnp.asarray([c]) for c in (0, float(speed), dt, x0, float(impacts[0]), run_in,
+                                           n_steps, 0)))
+    law = prepare(contact, ref, sc.reference_wheel, sc.track, material, sc.config, cache_dir)
+    statics = (n_steps, sc.config.newton_iterations, sc.config.precision)
+    t0 = time.perf_counter()
+    peaks, force = _coupled_batch(data, law, run, statics)
+    peaks.block_until_ready()
+    _log.debug("coupled run %.1f s", time.perf_counter() - t0)
+    return np.asarray(peaks[0]), np.asarray(force[0])

@@ -1,0 +1,173 @@
+"""The posterior of every wheel's flat: a grid over (shape, length) x phase, marginalised over
+the nuisance realisations of the response table.
+
+Noise model: every reading y_b = mu_b (1 + e_b), e_b ~ N(0, sigma^2) independent, with
+sigma^2 = noise^2 + model^2 (``noise``: the detector's relative noise, default 3 %; ``model``:
+the emulator's own relative error, default 2 %). The likelihood of a wheel in one passage is
+
+    p(y | shape, l) = 1 / (P R) sum_phase sum_r prod_b N(y_b; mu_b(shape, l, phase, r),
+                                                      (sigma mu_b)^2)
+
+(uniform phase over one wheel circumference, the R roughness/support realisations equally
+likely); passages of the same wheel multiply. Prior: P(new) = ``p_new``, the rounded shapes
+share the rest; length uniform on the grid [0, ``max_length``].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.special import logsumexp
+from scipy.stats import chi2
+
+from . import forward as fwd
+
+__all__ = ["Prior", "WheelPosterior", "loglik_grid", "posterior", "weighted_quantile"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Prior:
+    """Prior and grid: ``p_new`` P(kind = new); lengths 0..``max_length`` [m] in steps of
+    ``length_step`` [m] (uniform)."""
+
+    p_new: float = 0.5
+    max_length: float = 0.13
+    length_step: float = 0.002
+
+    def lengths(self) -> np.ndarray:
+        """[n_len] the length grid [m]."""
+        return np.arange(0.0, self.max_length + 1e-12, self.length_step)
+
+    def log_shapes(self, shapes) -> np.ndarray:
+        """[S] log prior of each (kind, factor) shape."""
+        n_round = sum(1 for k, _ in shapes if k == "rounded")
+        return np.log([self.p_new if k == "new" else (1 - self.p_new) / n_round
+                       for k, _ in shapes])
+
+
+def loglik_grid(table: fwd.ResponseTable, bays, readings, lengths, sigma: float,
+                peak_only: bool = False, correction=None):
+    """(log-likelihood [S, n_len, P, R], chi2 [S, n_len, P, R], phases [P] m) of one wheel's
+    ``readings`` [n_bays] N (or [1] its peak when ``peak_only``) under the relative Gaussian
+    of total relative standard deviation ``sigma``; ``correction`` [n_bays] N is added to the
+    prediction (the neighbours' effect)."""
+    phases = fwd.phase_grid(table, bays)
+    mu = fwd.predict(table, bays, lengths, phases)  # [S, L, P, R, n_bays]
+    if correction is not None:
+        mu = mu + np.asarray(correction)[None, None, None, None, :]
+    if peak_only:
+        mu = mu.max(axis=-1, keepdims=True)
+    y = np.asarray(readings, float)
+    sd = sigma * mu
+    z = (y - mu) / sd
+    c2 = np.sum(z**2, axis=-1)
+    ll = -0.5 * c2 - np.sum(np.log(sd), axis=-1) - 0.5 * y.size * np.log(2 * np.pi)
+    return ll, c2, phases
+
+
+def weighted_quantile(values, weights, q) -> np.ndarray:
+    """Quantiles ``q`` of the discrete distribution ``values`` x ``weights`` (midpoint
+    interpolation of the CDF)."""
+    v, w = np.ravel(values), np.ravel(weights)
+    order = np.argsort(v, kind="stable")
+    v, w = v[order], w[order] / np.sum(w)
+    cdf = np.cumsum(w) - 0.5 * w
+    return np.interp(q, cdf, v)
+
+
+@dataclasses.dataclass
+class WheelPosterior:
+    """One wheel's posterior on the grid.
+
+    Attributes:
+        shapes: [S] (kind, l / l0). lengths: [n_len] m. wheel_radius: R [m].
+        weights: [S, n_len] posterior probabilities (sum 1).
+        phases: per passage [P] impact coordinates [m]; phase_weights: per passage [P].
+        ppc_p: posterior-predictive p-value of the readings' chi-square (every passage).
+        best_fit: per passage [n_bays] the readings [N] of the posterior mode.
+    """
+
+    shapes: tuple
+    lengths: np.ndarray
+    wheel_radius: float
+    weights: np.ndarray
+    phases: list
+    phase_weights: list
+    ppc_p: float
+    best_fit: list
+    best: tuple = ()
+
+    def depths(self) -> np.ndarray:
+        """[S, n_len] depth [m] of each grid flat."""
+        return np.stack([fwd.depth_of(k, self.lengths, f or 1.0, self.wheel_radius)
+                         for k, f in self.shapes])
+
+    def p_kind(self, kind: str) -> float:
+        """P(kind) (``"new"`` or ``"rounded"``)."""
+        return float(sum(self.weights[i].sum() for i, (k, _) in enumerate(self.shapes)
+                         if k == kind))
+
+    def p_length_at_least(self, length: float) -> float:
+        """P(l >= ``length`` [m])."""
+        return float(self.weights[:, self.lengths >= length - 1e-12].sum())
+
+    def length_quantiles(self, q) -> np.ndarray:
+        """Length quantiles [m]."""
+        return weighted_quantile(np.broadcast_to(self.lengths, self.weights.shape),
+                                 self.weights, q)
+
+    def depth_quantiles(self, q) -> np.ndarray:
+        """Depth quantiles [m]."""
+        return weighted_quantile(self.depths(), self.weights, q)
+
+    def interval(self, what: str, level: float) -> tuple[float, float]:
+        """Central ``level`` interval of ``"length"`` or ``"depth"`` [m]."""
+        q = [(1 - level) / 2, (1 + level) / 2]
+        lo, hi = (self.length_quantiles if what == "length" else self.depth_quantiles)(q)
+        return float(lo), float(hi)
+
+    def phase(self, passage: int = 0) -> tuple[float, float]:
+        """(the most probable impact coordinate [m], its posterior probability)."""
+        w = self.phase_weights[passage]
+        i = int(np.argmax(w))
+        return float(self.phases[passage][i]), float(w[i])
+
+
+def posterior(tables, bays, readings, prior: Prior = Prior(), noise: float = 0.03,
+              model: float = 0.02, peak_only: bool = False, corrections=None
+              ) -> WheelPosterior:
+    """The :class:`WheelPosterior` of one wheel seen in passages ``p``: ``tables[p]`` (its
+    speed's :class:`~wfjax.identify.forward.ResponseTable`), detector ``bays[p]``,
+    ``readings[p]`` [n_bays] N (or [1] peak), ``corrections[p]`` [n_bays] N or None."""
+    lengths = prior.lengths()
+    sigma = float(np.hypot(noise, model))
+    total = prior.log_shapes(tables[0].shapes)[:, None] * np.ones(lengths.size)
+    parts = []
+    for p, table in enumerate(tables):
+        corr = None if corrections is None else corrections[p]
+        ll, c2, phases = loglik_grid(table, bays[p], readings[p], lengths, sigma, peak_only,
+                                     corr)
+        n_pr = ll.shape[2] * ll.shape[3]
+        total = total + logsumexp(ll, axis=(2, 3)) - np.log(n_pr)
+        parts.append((ll, c2, phases))
+    w = np.exp(total - logsumexp(total))
+    phases, phase_w, p_values, fits = [], [], [], []
+    s_best, l_best = np.unravel_index(int(np.argmax(w)), w.shape)
+    for p, (ll, c2, ph) in enumerate(parts):
+        joint = ll + np.log(np.maximum(w, 1e-300))[:, :, None, None] - (
+            logsumexp(ll, axis=(2, 3))[:, :, None, None])
+        jw = np.exp(joint - logsumexp(joint))  # [S, L, P, R] posterior of (theta, phase, r)
+        phases.append(ph)
+        phase_w.append(jw.sum(axis=(0, 1, 3)))
+        n = np.size(readings[p])
+        p_values.append(float(np.sum(jw * chi2.sf(c2, n))))
+        i_p = int(np.argmax(jw[s_best, l_best].sum(axis=-1)))
+        mu = fwd.predict(tables[p], bays[p], lengths[[l_best]], ph[[i_p]])[s_best, 0, 0]
+        mu = mu.mean(axis=0) + (0 if corrections is None or corrections[p] is None
+                                else np.asarray(corrections[p]))
+        fits.append(mu.max(keepdims=True) if peak_only else mu)
+    best = (tables[0].shapes[s_best], float(lengths[l_best]),
+            [float(ph[int(np.argmax(pw))]) for ph, pw in zip(phases, phase_w, strict=True)])
+    return WheelPosterior(tables[0].shapes, lengths, tables[0].wheel_radius, w, phases,
+                          phase_w, float(min(p_values)), fits, best)

@@ -1,0 +1,201 @@
+""":func:`identify`: every wheel's flat from the passages, factorised over the wheels.
+
+Iteration 0: every wheel on its own grid (shape x length x phase x nuisance realisation,
+:mod:`wfjax.identify.inference`), its neighbours absent. Iterations 1..``coupling_iterations``:
+every bogie (wheels closer than ``GROUP_GAP``) is run coupled on one track
+(:func:`wfjax.identify.forward.coupled_readings`) with its wheels at their current estimates,
+and so is every wheel alone; their difference, the neighbours' effect on each wheel's
+readings, is added to that wheel's prediction and its grid posterior recomputed. No joint
+grid over the wheels is ever formed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from ..params import Wheel
+from . import forward as fwd
+from . import rules as rules_mod
+from .inference import Prior, WheelPosterior, posterior
+from .passage import Passage
+
+__all__ = ["identify", "Identification", "WheelResult", "GROUP_GAP", "MISFIT_P"]
+
+GROUP_GAP = 4.0  # m: wheels closer than this are coupled (a bogie)
+MISFIT_P = 1e-3  # posterior-predictive p-value below which a passage is not explained
+
+
+@dataclasses.dataclass
+class WheelResult:
+    """One wheel's answer (SI units; see :meth:`row` for the reported fields)."""
+
+    wheel: int
+    post: WheelPosterior
+    max_reading: float
+    flagged: bool
+    p_flag: float
+    p_exceed: float | None
+    decisions: dict
+    misfit: bool
+
+    def row(self) -> dict[str, Any]:
+        """The wheel's line of ``identify.csv`` (mm, kN, probabilities)."""
+        p = self.post
+        lq = p.length_quantiles([0.05, 0.5, 0.95]) * 1e3
+        dq = p.depth_quantiles([0.05, 0.5, 0.95]) * 1e3
+        x, px = p.phase(0)
+        out = {"wheel": self.wheel, "flagged": self.flagged, "p_flag": self.p_flag,
+               "p_new": p.p_kind("new"), "p_rounded": p.p_kind("rounded"),
+               "length_median_mm": lq[1], "length_5_mm": lq[0], "length_95_mm": lq[2],
+               "depth_median_mm": dq[1], "depth_5_mm": dq[0], "depth_95_mm": dq[2],
+               "impact_x_m": x, "p_impact_x": px, "max_reading_kN": self.max_reading / 1e3,
+               "p_peak_exceeds": self.p_exceed, "ppc_p": p.ppc_p, "misfit": self.misfit}
+        out.update({f"decision_{k}": v for k, v in self.decisions.items()})
+        return out
+
+
+@dataclasses.dataclass
+class Identification:
+    """:func:`identify`'s answer: ``wheels`` [n] :class:`WheelResult` and the settings."""
+
+    wheels: list
+    settings: dict
+    tables: list
+    passages: list
+
+    def rows(self) -> list[dict]:
+        return [w.row() for w in self.wheels]
+
+
+def _groups(positions: np.ndarray) -> list[list[int]]:
+    """Wheels in bogies: consecutive wheels closer than :data:`GROUP_GAP`."""
+    out = [[0]]
+    for i in range(1, positions.size):
+        if positions[i] - positions[i - 1] < GROUP_GAP:
+            out[-1].append(i)
+        else:
+            out.append([i])
+    return out
+
+
+def _estimate_flat(post: WheelPosterior, radius: float):
+    (kind, factor), length, _ = post.best
+    return fwd.flat_of(kind, max(length, 0.005), factor or 1.0, radius)
+
+
+def _corrections(passage: Passage, posts, settings: dict, radius: float):
+    """[n_wheels, n_bays] N: coupled minus single-wheel readings at the current estimates."""
+    from ..scenario import roughness as rough_mod
+
+    det = passage.detector()
+    rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, settings["seed"] + 7919,
+                               fwd.ROUGHNESS_SPAN, x_start=-fwd.ROUGHNESS_SPAN / 2)
+    out = np.zeros((passage.n_wheels, det.n_bays))
+    kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"])
+    p_index = settings["passage_index"]
+    for group in _groups(passage.positions):
+        if len(group) < 2:
+            continue
+        flats = [_estimate_flat(posts[i], radius) for i in group]
+        impacts = [posts[i].best[2][p_index] for i in group]
+        pos = passage.positions[group] - passage.positions[group[0]]
+        both, _ = fwd.coupled_readings(flats, impacts, pos, passage.speed, det, **kw)
+        for j, i in enumerate(group):
+            alone, _ = fwd.coupled_readings([flats[j]], [impacts[j]], [0.0], passage.speed,
+                                            det, **kw)
+            out[i] = both[j] - alone[0]
+    return out
+
+
+def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: float = 0.03,
+             model: float = 0.02, prior: Prior = Prior(), flag_length: float = 0.02,
+             flag_probability: float = 0.9, line_speed: float | None = None,
+             force_level: float = 350e3, user_rule=None, coupling_iterations: int = 1,
+             table_options: dict | None = None, wheel: Wheel | None = None, seed: int = 0,
+             cache_dir=None, progress=None) -> Identification:
+    """Every wheel's flat from detector ``passages`` (:func:`wfjax.identify.read_passages`).
+
+    Args:
+        passages: [n_p] :class:`Passage` of one train (the same wheels in each).
+        contact: the identification's contact model (``"hertz-trajectory"``: fast).
+        noise: relative standard deviation of a reading (the detector's); model: the
+            emulator's relative error; both enter the relative Gaussian noise model.
+        prior: :class:`Prior` (kind probability, length grid [m]).
+        flag_length [m], flag_probability: flagged when P(l >= flag_length) >= probability.
+        line_speed: speed [m/s] of P(peak contact force > ``force_level`` [N]) (default: the
+            first passage's speed).
+        user_rule: a :class:`wfjax.identify.rules.RuleSet` or None.
+        coupling_iterations: neighbour-correction sweeps (0: wheels independent).
+        table_options: keyword arguments of :func:`wfjax.identify.forward.build_table`.
+        progress: ``progress(stage: str, done, total)`` or None.
+
+    Returns:
+        :class:`Identification`.
+    """
+    wheel = wheel or Wheel()
+    opts = dict(table_options or {}, contact=contact, wheel=wheel, seed=seed,
+                cache_dir=cache_dir)
+    speeds = sorted({round(p.speed, 9) for p in passages})
+    line = float(line_speed or passages[0].speed)
+    tables = {}
+    for v in sorted(set(speeds) | {round(line, 9)}):
+        g = passages[0].gauge_offset
+        tables[v] = fwd.build_table(v, gauge_offset=g, calibration=passages[0].calibration,
+                                    progress=progress and (lambda d, t, v=v: progress(
+                                        f"response table {v * 3.6:.0f} km/h", d, t)), **opts)
+    ptables = [tables[round(p.speed, 9)] for p in passages]
+    bays = [p.detector_bays() for p in passages]
+    n = passages[0].n_wheels
+    peak_only = passages[0].peak_only
+    kw = dict(prior=prior, noise=noise, model=model, peak_only=peak_only)
+    corr = [[None] * len(passages) for _ in range(n)]
+    posts = [posterior(ptables, bays, [p.readings[i] for p in passages], corrections=None, **kw)
+             for i in range(n)]
+    settings = dict(contact=contact, seed=seed, cache_dir=cache_dir)
+    for it in range(coupling_iterations if n > 1 else 0):
+        for k, p in enumerate(passages):
+            c = _corrections(p, posts, settings | {"passage_index": k}, float(wheel.radius))
+            for i in range(n):
+                corr[i][k] = c[i]
+        posts = [posterior(ptables, bays, [p.readings[i] for p in passages],
+                           corrections=corr[i], **kw) for i in range(n)]
+        if progress:
+            progress("neighbour corrections", it + 1, coupling_iterations)
+    line_table = tables[round(line, 9)]
+    results = [_result(i, posts[i], passages, line_table, force_level, flag_length,
+                       flag_probability, user_rule) for i in range(n)]
+    return Identification(results, dict(
+        contact=contact, noise=noise, model=model, prior=dataclasses.asdict(prior),
+        flag_length_m=flag_length, flag_probability=flag_probability, line_speed_ms=line,
+        force_level_N=force_level, coupling_iterations=coupling_iterations,
+        misfit_p=MISFIT_P, seed=seed, table_options={k: v for k, v in opts.items()
+                                                     if k not in ("wheel", "cache_dir")},
+        user_rule=None if user_rule is None else dataclasses.asdict(user_rule)),
+        [tables[k] for k in sorted(tables)], passages)
+
+
+def p_peak_exceeds(post: WheelPosterior, table: fwd.ResponseTable, level: float) -> float:
+    """P(the wheel's peak contact force at the table's speed > ``level`` [N]) under the
+    posterior (impact position and nuisance realisations averaged)."""
+    peak = fwd.predict_peak(table, post.lengths)  # [S, L, J, R]
+    return float(np.sum(post.weights * (peak > level).mean(axis=(2, 3))))
+
+
+def _result(i, post, passages, line_table, level, flag_length, flag_p, user_rule):
+    max_reading = float(max(np.max(p.readings[i]) for p in passages))
+    p_flag = post.p_length_at_least(flag_length)
+    sets = [rules_mod.TRAFIKVERKET, rules_mod.FRA] + ([user_rule] if user_rule else [])
+    decisions = {r.name: rules_mod.decide(r, max_reading, lambda x: post.p_length_at_least(
+        x + 1e-9)) for r in sets}
+    return WheelResult(i, post, max_reading, rules_mod.flagged(p_flag, flag_p), p_flag,
+                       p_peak_exceeds(post, line_table, level), decisions,
+                       bool(post.ppc_p < MISFIT_P))
+
+
+def circumference(radius: float) -> float:
+    """2 pi R [m]."""
+    return 2 * math.pi * radius
