@@ -26,7 +26,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import wfjax as wf  # noqa: E402
-from wfjax.contact import family, interpolation, tables  # noqa: E402
+from wfjax.contact import family, family_build, family_spec, interpolation, tables  # noqa: E402
 
 DEPTHS = np.arange(1, 9) * 0.25e-3
 LAMBDA = 1.76
@@ -71,20 +71,20 @@ def main():
     ap.add_argument("--kinds", default="rounded,new")
     ap.add_argument("--element", type=float, default=1e-3)
     ap.add_argument("--no-accuracy", action="store_true")
-    ap.add_argument("--s-map", default=None, choices=family.S_MAPS)
+    ap.add_argument("--s-map", default=None, choices=family_spec.S_MAPS)
     ap.add_argument("--min-length-nodes", type=int, default=2)
     args = ap.parse_args()
     h = args.element
     for kind in args.kinds.split(","):
         lam = [LAMBDA] if kind == "rounded" else None
-        spec = family.family_spec(kind, DEPTHS, lam, element_size=h, s_map=args.s_map,
+        spec = family_spec.family_spec(kind, DEPTHS, lam, element_size=h, s_map=args.s_map,
                                   min_length_nodes=args.min_length_nodes)
         with tempfile.TemporaryDirectory() as cache:
             t0 = time.perf_counter()
-            fam = family.build_family(spec, cache_dir=cache, progress=True)
+            fam = family_build.build_family(spec, cache_dir=cache, progress=True)
             t_cold = time.perf_counter() - t0
             t0 = time.perf_counter()
-            family.build_family(spec, cache_dir=cache)
+            family_build.build_family(spec, cache_dir=cache)
             t_warm = time.perf_counter() - t0
         print(f"\n{kind}: nodes {np.round(spec.depths * 1e3, 4).tolist()} mm"
               + (f", l/l0 {spec.length_factors.tolist()}" if kind == "rounded" else "")

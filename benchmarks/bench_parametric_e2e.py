@@ -8,7 +8,7 @@ R_W = R_R = 0.45 m, 1 mm elements, 4 impact positions:
 * ``--kind new``: new flats 0.40, 0.75, 1.25, 1.75 mm, 20-300 km/h in 40 km/h steps;
 * ``--kind rounded``: rounded flats (0.75 mm, l/l0 1.76), (1.5, 1.76), (0.9, 1.96), (1.2, 2.3)
   at 40, 100, 160, 220 km/h; ``--length-step 0.4`` rebuilds the family on a length-factor
-  lattice step of 0.4 instead of 0.2 (``family.LENGTH_FACTOR_STEP``).
+  lattice step of 0.4 instead of 0.2 (``family_spec.LENGTH_FACTOR_STEP``).
 
 Prints the largest relative max-force difference per flat and whether the loss-of-contact
 flags agree. Run: ``python benchmarks/bench_parametric_e2e.py [--kind new|rounded]
@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 import wfjax as wf
-from wfjax.contact import family
+from wfjax.contact import family_spec
 from wfjax.program.laws import common_extent
 
 CASES = {
@@ -38,10 +38,10 @@ CASES = {
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--kind", choices=sorted(CASES), default="new")
-    p.add_argument("--length-step", type=float, default=family.LENGTH_FACTOR_STEP,
+    p.add_argument("--length-step", type=float, default=family_spec.LENGTH_FACTOR_STEP,
                    help="length-factor lattice step of the family (rounded flats)")
     a = p.parse_args()
-    family.LENGTH_FACTOR_STEP = a.length_step
+    family_spec.LENGTH_FACTOR_STEP = a.length_step
     flats, speeds_kmh = CASES[a.kind]
     flats = common_extent(flats)
     out = {}

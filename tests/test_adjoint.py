@@ -20,7 +20,7 @@ import pytest
 
 import wfjax as wf
 from wfjax import fit
-from wfjax.contact import family, laws
+from wfjax.contact import family_build, family_spec, laws
 from wfjax.contact.table_law import TableLaw
 from wfjax.fit.optimise import _objective
 from wfjax.loop import adjoint as adj
@@ -47,9 +47,9 @@ def struct():
 @pytest.fixture(scope="module")
 def fam(tmp_path_factory):
     # R_R = R_W = 0.45 m as tests/test_family.py (2 mm elements resolve that contact)
-    spec = family.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], 0.45, 0.45, MAT,
+    spec = family_spec.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], 0.45, 0.45, MAT,
                               element_size=2e-3, max_force=300e3)
-    return family.build_family(spec, MAT, cache_dir=tmp_path_factory.mktemp("family"))
+    return family_build.build_family(spec, MAT, cache_dir=tmp_path_factory.mktemp("family"))
 
 
 def _flat(th):

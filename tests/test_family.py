@@ -13,7 +13,7 @@ import pytest
 
 import wfjax as wf
 from wfjax import _cache
-from wfjax.contact import family, interpolation, tables
+from wfjax.contact import family, family_build, family_spec, interpolation, tables
 
 MAT = wf.Material()
 R = 0.45
@@ -33,9 +33,9 @@ def cache(tmp_path_factory):
 @pytest.fixture(scope="module")
 def rounded(cache):
     """Rounded family: depth nodes 0.55, 1.1 mm x length-factor nodes 1.66, 1.86."""
-    spec = family.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], R, R, MAT,
+    spec = family_spec.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], R, R, MAT,
                               element_size=H, max_force=F_MAX)
-    return family.build_family(spec, MAT, cache_dir=cache)
+    return family_build.build_family(spec, MAT, cache_dir=cache)
 
 
 def exact(flat):
@@ -63,13 +63,13 @@ def test_spec_lattice_and_layout(rounded):
     assert rounded.force.shape == (2, 2, spec.n_s, spec.n_t)
     assert float(rounded.converged) == 1.0
     # a geometry exactly on a node needs only that node
-    one = family.family_spec("rounded", [0.55e-3], [1.66], R, R, MAT, element_size=H,
+    one = family_spec.family_spec("rounded", [0.55e-3], [1.66], R, R, MAT, element_size=H,
                              max_force=F_MAX)
     assert one.depth_index == (-1,) and one.length_index == (0,)
-    three = family.family_spec("rounded", [0.6e-3], [1.76], R, R, MAT, element_size=H,
+    three = family_spec.family_spec("rounded", [0.6e-3], [1.76], R, R, MAT, element_size=H,
                                max_force=F_MAX, min_length_nodes=3)
     np.testing.assert_allclose(three.length_factors, [1.66, 1.86, 2.06])
-    assert hash(spec) == hash(family.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], R,
+    assert hash(spec) == hash(family_spec.family_spec("rounded", [0.6e-3, 0.9e-3], [1.7, 1.8], R,
                                                  R, MAT, element_size=H, max_force=F_MAX))
 
 
@@ -194,9 +194,9 @@ H_NEW = 1e-3  # the new-flat tests use 1 mm elements on small depths (cheap node
 @pytest.fixture(scope="module")
 def new(cache):
     """New-flat family at 1 mm elements: depth nodes 0.1375, 0.275 mm ("edges" s-map)."""
-    spec = family.family_spec("new", [0.15e-3, 0.25e-3], None, R, R, MAT,
+    spec = family_spec.family_spec("new", [0.15e-3, 0.25e-3], None, R, R, MAT,
                               element_size=H_NEW, max_force=F_MAX)
-    return family.build_family(spec, MAT, cache_dir=cache)
+    return family_build.build_family(spec, MAT, cache_dir=cache)
 
 
 def exact_new(d):
@@ -234,15 +234,15 @@ def test_new_flat_between_nodes(new):
 
 
 def test_cache_round_trip_and_corrupt_file_rebuilt(tmp_path, capsys, monkeypatch):
-    spec = family.family_spec("rounded", [0.55e-3], [1.66], R, R, MAT, element_size=H,
+    spec = family_spec.family_spec("rounded", [0.55e-3], [1.66], R, R, MAT, element_size=H,
                               max_force=F_MAX)
-    first = family.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
+    first = family_build.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
     assert "built" in capsys.readouterr().err
     files = list(tmp_path.glob("family-node-*.npz.sha256"))
     assert len(files) == 1
     # second build loads (the builder is not called)
-    monkeypatch.setattr(family, "_node_build", lambda *a: pytest.fail("rebuilt"))
-    second = family.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
+    monkeypatch.setattr(family_build, "_node_build", lambda *a: pytest.fail("rebuilt"))
+    second = family_build.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
     assert "built" not in capsys.readouterr().err  # loaded silently
     np.testing.assert_array_equal(second.force, first.force)
     monkeypatch.undo()
@@ -251,11 +251,11 @@ def test_cache_round_trip_and_corrupt_file_rebuilt(tmp_path, capsys, monkeypatch
     blob[-10] ^= 0xFF
     files[0].write_bytes(bytes(blob))
     assert _cache._read(files[0]) is None
-    third = family.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
+    third = family_build.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
     assert "built" in capsys.readouterr().err
     # a new builder revision is a new key: built again, the old file is not served
-    monkeypatch.setattr(family, "NODE_BUILDER_REVISION", family.NODE_BUILDER_REVISION + 1)
-    family.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
+    monkeypatch.setattr(family_build, "NODE_BUILDER_REVISION", family_build.NODE_BUILDER_REVISION + 1)
+    family_build.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
     assert "built" in capsys.readouterr().err
     assert len(list(tmp_path.glob("family-node-*.npz.sha256"))) == 2
     np.testing.assert_array_equal(third.force, first.force)
@@ -264,18 +264,18 @@ def test_cache_round_trip_and_corrupt_file_rebuilt(tmp_path, capsys, monkeypatch
 def test_bad_input():
     kw = dict(element_size=H, max_force=F_MAX)
     with pytest.raises(ValueError, match="kind"):
-        family.family_spec("profile", [1e-3], None, **kw)
+        family_spec.family_spec("profile", [1e-3], None, **kw)
     with pytest.raises(ValueError, match="depths"):
-        family.family_spec("new", [-1e-3], **kw)
+        family_spec.family_spec("new", [-1e-3], **kw)
     with pytest.raises(ValueError, match="depths"):
-        family.family_spec("new", [6e-3], **kw)
+        family_spec.family_spec("new", [6e-3], **kw)
     with pytest.raises(ValueError, match="length_factors"):
-        family.family_spec("rounded", [1e-3], None, **kw)
+        family_spec.family_spec("rounded", [1e-3], None, **kw)
     with pytest.raises(ValueError, match="length_factors"):
-        family.family_spec("rounded", [1e-3], [1.2], **kw)
+        family_spec.family_spec("rounded", [1e-3], [1.2], **kw)
     with pytest.raises(ValueError, match="length_factors"):
-        family.family_spec("new", [1e-3], [1.8], **kw)
+        family_spec.family_spec("new", [1e-3], [1.8], **kw)
     with pytest.raises(ValueError, match="element_size"):
-        family.family_spec("new", [1e-3], element_size=0.0)
+        family_spec.family_spec("new", [1e-3], element_size=0.0)
     with pytest.raises(ValueError, match="onset"):
-        family.family_spec("new", [1e-3], onset="nearest", **kw)
+        family_spec.family_spec("new", [1e-3], onset="nearest", **kw)

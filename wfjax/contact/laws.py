@@ -335,10 +335,11 @@ def prepare_family_range(kind: str, depths, length_factors, wheel: Wheel, track:
                          material: Material, config: SimConfig, cache_dir=None,
                          progress: bool = False):
     """The parametric 3D family of ``kind`` covering ``depths`` [m] and, for rounded flats,
-    ``length_factors`` l / l0 (their ranges; see :func:`wfjax.contact.family.family_spec`)."""
-    from . import family as family_mod
+    ``length_factors`` l / l0 (their ranges; see :func:`wfjax.contact.family_spec.family_spec`)."""
+    from . import family_build as family_build_mod
+    from .family_spec import family_spec
 
-    spec = family_mod.family_spec(kind, depths, length_factors, wheel_radius=float(wheel.radius),
-                                  rail_head_radius=float(track.rail_head_radius),
-                                  material=material, element_size=config.contact_element)
-    return family_mod.build_family(spec, material, cache_dir=cache_dir, progress=progress)
+    spec = family_spec(kind, depths, length_factors, wheel_radius=float(wheel.radius),
+                       rail_head_radius=float(track.rail_head_radius), material=material,
+                       element_size=config.contact_element)
+    return family_build_mod.build_family(spec, material, cache_dir=cache_dir, progress=progress)
