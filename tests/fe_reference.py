@@ -7,8 +7,8 @@ import scipy.sparse.linalg
 
 import wfjax as wf
 from wfjax.contact.laws import prepare
+from wfjax.model import fe as fe_mod
 from wfjax.model import geometry, sleepers, supports
-from wfjax.model import track as track_mod
 from wfjax.model import wheel as wheel_mod
 
 
@@ -27,7 +27,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
     their forces [n_steps, n_s].
     """
     track, wheel = track or wf.Track(), wf.Wheel()
-    fe = track_mod.assemble(track)
+    fe = fe_mod.assemble(track)
     k, m, c = fe.stiffness.tocsc(), fe.mass.tocsc(), fe.damping.tocsc()
     c_h = float(prepare("hertz-profile", flat, wheel, track, wf.Material(),
                            wf.SimConfig()).c_h)
@@ -46,7 +46,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
         return z if rail_roughness is None else z - rail_roughness(x)
 
     def loads(x):
-        return track_mod._load_vector(fe, x).toarray()
+        return fe_mod.load_vector(fe, x).toarray()
 
     hang = supports.hanging_sleepers(track)
     arrays = sleepers.support_arrays(track)

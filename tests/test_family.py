@@ -254,7 +254,8 @@ def test_cache_round_trip_and_corrupt_file_rebuilt(tmp_path, capsys, monkeypatch
     third = family_build.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
     assert "built" in capsys.readouterr().err
     # a new builder revision is a new key: built again, the old file is not served
-    monkeypatch.setattr(family_build, "NODE_BUILDER_REVISION", family_build.NODE_BUILDER_REVISION + 1)
+    revision = family_build.NODE_BUILDER_REVISION + 1
+    monkeypatch.setattr(family_build, "NODE_BUILDER_REVISION", revision)
     family_build.build_family(spec, MAT, cache_dir=tmp_path, progress=True)
     assert "built" in capsys.readouterr().err
     assert len(list(tmp_path.glob("family-node-*.npz.sha256"))) == 2

@@ -12,8 +12,8 @@ import wfjax as wf
 from wfjax.contact.laws import prepare
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.model import fe as fe_mod
 from wfjax.model import sleepers, supports
-from wfjax.model import track as track_mod
 from wfjax.model.vehicle import Vehicle
 from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
@@ -27,12 +27,12 @@ def _direct_static(track, x_wheel, load):
     """(rail deflection under the wheel(s) [m], sleeper displacement [m], support force [N])
     of the open FE track with the one-sided ballast: active-set Newton, exact. ``x_wheel``
     and ``load`` [N] scalars or [n_w]."""
-    fe = track_mod.assemble(track)
+    fe = fe_mod.assemble(track)
     k = scipy.sparse.linalg.splu(fe.stiffness.tocsc())
     idx = supports.hanging_sleepers(track)
     arrays = sleepers.support_arrays(track)
     gap, k_b = arrays["ballast_gap"][idx], arrays["ballast_stiffness"][idx]
-    b = track_mod._load_vector(fe, np.atleast_1d(x_wheel)).toarray()
+    b = fe_mod.load_vector(fe, np.atleast_1d(x_wheel)).toarray()
     e = np.zeros((b.shape[0], idx.size))
     e[fe.n_rail_dof + idx, np.arange(idx.size)] = 1.0
     u_p, g = k.solve(b @ np.atleast_1d(load)), k.solve(e)

@@ -14,6 +14,7 @@ import wfjax
 from wfjax.loop.observers import DetectorReadings
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.model import fe as fe_mod
 from wfjax.model import track as T
 from wfjax.model.vehicle import Vehicle
 from wfjax.scenario import sensors as S
@@ -34,16 +35,16 @@ def static_state(model, x, force):
 
 
 def fe_static(track, x, force):
-    fe = T.assemble(track)
-    b = T._load_vector(fe, x).toarray()[:, 0] * force
+    fe = fe_mod.assemble(track)
+    b = fe_mod.load_vector(fe, x).toarray()[:, 0] * force
     return fe, scipy.sparse.linalg.spsolve(fe.stiffness.tocsc(), b)
 
 
 def fields_on_mesh(track, u, xs):
     """Shear and moment at ``xs`` from the nodal solution ``u`` of ``track``'s FE model
     (element nodal forces; no particular solution: loads sit on nodes of this mesh)."""
-    fe = T.assemble(track)
-    ke, _, _ = T.element_matrices(track.bending_stiffness, track.shear_stiffness,
+    fe = fe_mod.assemble(track)
+    ke, _, _ = fe_mod.element_matrices(track.bending_stiffness, track.shear_stiffness,
                                   track.rail_mass, track.rail_rotary_inertia, fe.element_length)
     full = np.concatenate([[0, 0], u[:fe.n_rail_dof], [0, 0]])
     e = np.floor((xs - fe.node_x[0]) / fe.element_length + 1e-9).astype(int)
@@ -61,7 +62,7 @@ def test_static_readings_equal_direct_fe_solve(model):
     y = np.asarray(S.evaluate(S.sensor_spec(xs, tr, model), model,
                               static_state(model, x_load, P), P, x_load))
     fe, u = fe_static(tr, x_load, P)
-    w = T._load_vector(fe, xs).T @ u
+    w = fe_mod.load_vector(fe, xs).T @ u
     np.testing.assert_allclose(y[Q["rail_disp"]], w, rtol=1e-6)
     # seat forces of every sleeper sum to the load
     nb, ne = tr.n_bays, tr.elements_per_bay
@@ -114,12 +115,12 @@ def test_transfer_receptance_matches_direct_solve(model_20k, quantity):
         h.append(np.where(pair, 0.5 * (a / (s - lam) + np.conj(a) / (s - np.conj(lam))),
                           a / (s - lam)).sum(axis=1))
     h = np.stack(h, 1) + np.asarray(T.interpolate_nodal(model, spec.direct, x_force))
-    fe = T.assemble(tr)
-    b = T._load_vector(fe, x_force).toarray()[:, 0]
+    fe = fe_mod.assemble(tr)
+    b = fe_mod.load_vector(fe, x_force).toarray()[:, 0]
     if quantity == "rail_disp":
-        obs = T._load_vector(fe, x_s).toarray()
+        obs = fe_mod.load_vector(fe, x_s).toarray()
     else:
-        ke, _, _ = T.element_matrices(tr.bending_stiffness, tr.shear_stiffness, tr.rail_mass,
+        ke, _, _ = fe_mod.element_matrices(tr.bending_stiffness, tr.shear_stiffness, tr.rail_mass,
                                       tr.rail_rotary_inertia, fe.element_length)
         obs = np.zeros((b.size, x_s.size))
         for i, xi in enumerate(x_s):

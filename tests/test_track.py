@@ -9,6 +9,7 @@ import pytest
 
 import wfjax
 from wfjax import _cache
+from wfjax.model import greens as greens_mod
 from wfjax.model import track as T
 
 LS = 0.65
@@ -141,7 +142,7 @@ def test_greens_function_fourier_transform_is_point_receptance(model):
     dt = 1e-5
     f = np.geomspace(20.0, 3000.0, 40)
     for x0 in (0.0, LS / 2):
-        g = T.moving_greens(tr, 1e-7, [x0], duration=1.5, dt=dt, model=model)
+        g = greens_mod.moving_greens(tr, 1e-7, [x0], duration=1.5, dt=dt, model=model)
         gg = g.g[0]
         slope0 = (-3 * gg[0] + 4 * gg[1] - gg[2]) / (2 * dt)
         ft = (gg[None, :] * np.exp(-2j * np.pi * f[:, None] * g.t[None, :])).sum(1) * dt
@@ -161,8 +162,8 @@ def test_moving_greens_two_ways_agree(model):
     tr = wfjax.Track()
     v = 100 / 3.6
     x0 = [0.0, 0.2]
-    gm = T.moving_greens(tr, v, x0, duration=0.01, model=model)
-    gn = T.moving_greens_newmark(tr, v, x0, duration=0.01, substeps=40)
+    gm = greens_mod.moving_greens(tr, v, x0, duration=0.01, model=model)
+    gn = greens_mod.moving_greens_newmark(tr, v, x0, duration=0.01, substeps=40)
     for i in range(2):
         err = np.max(np.abs(gm.g[i] - gn.g[i])) / np.max(np.abs(gn.g[i]))
         assert err < 0.01
@@ -173,9 +174,9 @@ def test_moving_greens_two_ways_agree(model):
 @pytest.mark.slow
 def test_moving_greens_default_grid_and_decay(model):
     tr = wfjax.Track()
-    g = T.moving_greens(tr, 100 / 3.6, model=model)
+    g = greens_mod.moving_greens(tr, 100 / 3.6, model=model)
     assert g.g.shape == (27, g.t.size) and g.x0[0] == 0.0 and g.x0[-1] == pytest.approx(LS)
-    assert g.t[-1] == pytest.approx(T.default_duration(tr))
+    assert g.t[-1] == pytest.approx(greens_mod.default_duration(tr))
     peak = np.abs(g.g).max(axis=1)
     tail = np.abs(g.g[:, -400:]).max(axis=1)  # last 10 ms of the window
     assert np.all(tail < 0.02 * peak)  # truncation leaves a small, slowly decaying ringing
@@ -186,8 +187,8 @@ def test_moving_greens_default_grid_and_decay(model):
 def test_clamped_end_reflections_do_not_matter():
     """Same response on a 70-bay and a 140-bay track over the default 0.1 s window."""
     v = 30 / 3.6
-    g70 = T.moving_greens_newmark(wfjax.Track(n_bays=70), v, [0.0], 0.1, substeps=2).g[0]
-    g140 = T.moving_greens_newmark(wfjax.Track(n_bays=140), v, [0.0], 0.1, substeps=2).g[0]
+    g70 = greens_mod.moving_greens_newmark(wfjax.Track(n_bays=70), v, [0.0], 0.1, substeps=2).g[0]
+    g140 = greens_mod.moving_greens_newmark(wfjax.Track(n_bays=140), v, [0.0], 0.1, substeps=2).g[0]
     assert np.max(np.abs(g70 - g140)) < 5e-3 * np.max(np.abs(g70))
 
 
@@ -239,13 +240,13 @@ def test_bad_elements_per_bay():
 def test_bad_arguments(model):
     tr = wfjax.Track()
     with pytest.raises(ValueError, match="speed"):
-        T.moving_greens(tr, 0.0, model=model)
+        greens_mod.moving_greens(tr, 0.0, model=model)
     with pytest.raises(ValueError, match="speed"):
-        T.moving_greens(tr, -3.0, model=model)
+        greens_mod.moving_greens(tr, -3.0, model=model)
     with pytest.raises(ValueError, match="speed"):
-        T.moving_greens(tr, float("nan"), model=model)
+        greens_mod.moving_greens(tr, float("nan"), model=model)
     with pytest.raises(ValueError, match="duration"):
-        T.moving_greens(tr, 10.0, duration=-1.0, model=model)
+        greens_mod.moving_greens(tr, 10.0, duration=-1.0, model=model)
     with pytest.raises(ValueError, match="freqs"):
         T.receptance(tr, [np.nan])
     with pytest.raises(ValueError, match="x must"):

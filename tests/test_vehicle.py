@@ -15,6 +15,7 @@ from wfjax.contact.laws import prepare
 from wfjax.loop.observers import Sensors
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import cross_table, structure
+from wfjax.model import fe as fe_mod
 from wfjax.model import supports
 from wfjax.model import track as track_mod
 from wfjax.model import wheel as wheel_mod
@@ -84,8 +85,8 @@ def test_two_wheels_far_apart_each_match_their_single_wheel_run():
 
 
 def _direct_static(track, positions, loads):
-    fe = track_mod.assemble(track)
-    b = track_mod._load_vector(fe, positions).toarray()
+    fe = fe_mod.assemble(track)
+    b = fe_mod.load_vector(fe, positions).toarray()
     u = scipy.sparse.linalg.spsolve(fe.stiffness.tocsc(), b @ loads)
     return b.T @ u
 

@@ -25,8 +25,8 @@ from .model import sleepers as sleepers
 from .model import supports as supports
 from .model import track as track
 from .model import wheel as wheel
+from .model.greens import MovingGreens as MovingGreens
 from .model.track import ModalModel as ModalModel
-from .model.track import MovingGreens as MovingGreens
 from .model.vehicle import Vehicle as Vehicle
 from .model.wheel import WheelModal as WheelModal
 from .params import Flat as Flat

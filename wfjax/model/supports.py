@@ -12,7 +12,7 @@ This module builds such tracks: :func:`with_supports` (explicit arrays), :func:`
 (hanging sleepers) and :func:`scatter` (random lognormal scatter from a ``jax.random`` key);
 :mod:`wfjax.model.sleepers` reads them (:func:`~wfjax.model.sleepers.support_arrays`,
 :func:`~wfjax.model.sleepers.is_uniform`, :func:`~wfjax.model.sleepers.is_mirror_symmetric`). The FE
-assembly (:func:`wfjax.model.track.assemble`) and the modal model
+assembly (:func:`wfjax.model.fe.assemble`) and the modal model
 (:func:`wfjax.model.track.modal_model`,
 cached per track with the arrays in its key) take the per-sleeper values directly.
 
@@ -32,6 +32,7 @@ import jax
 import numpy as np
 
 from ..params import SUPPORT_FIELDS, Track
+from . import fe as fe_mod
 from . import track as track_mod
 from .sleepers import check_track, n_sleepers, support_arrays
 
@@ -190,17 +191,17 @@ def one_sided_spec(track: Track, model, offsets=(0.0,)) -> OneSidedSupports | No
     if idx.size == 0:
         return None
     arrays = support_arrays(track)
-    fe = track_mod.assemble(track)
+    fe = fe_mod.assemble(track)
     unit = np.zeros((fe.stiffness.shape[0], idx.size))
     unit[fe.n_rail_dof + idx, np.arange(idx.size)] = 1.0  # unit loads on the sleepers
-    k_inv_s = track_mod.static_solve(fe, unit)  # [n_dof, n_s]
+    k_inv_s = fe_mod.static_solve(fe, unit)  # [n_dof, n_s]
     psi = np.asarray(model.sleeper_shapes)[:, idx].T  # [n_s, m]
     w = np.asarray(model.weights) / (-np.asarray(model.poles))
     kept_ss = np.real(np.einsum("am,bm,m->ab", psi, psi, w))
     offsets = np.atleast_1d(np.asarray(offsets, dtype=float))
     x = np.asarray(model.residual_x)[:, None] + offsets[None, :]  # the whole-rail grid
     x = np.clip(x, fe.node_x[0], fe.node_x[-1])
-    b = track_mod._load_vector(fe, x.ravel())  # [n_dof, n_res * n_w]
+    b = fe_mod.load_vector(fe, x.ravel())  # [n_dof, n_res * n_w]
     full_ws = np.asarray(b.T @ k_inv_s).reshape(*x.shape, idx.size)
     phi = np.asarray(track_mod.mode_shapes_at(model, x))  # [n_res, n_w, m]
     kept_ws = np.real(np.einsum("rim,am,m->ria", phi, psi, w))

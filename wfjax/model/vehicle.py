@@ -38,6 +38,7 @@ import scipy.sparse.linalg
 
 from .._xla import to_device
 from ..params import Flat, Track, Wheel
+from . import fe as fe_mod
 from . import track as track_mod
 from . import wheel as wheel_mod
 
@@ -268,7 +269,7 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
         float [n_res, n, n] (symmetric in the last two axes), read by
         :func:`wfjax.model.track.read_residual_table`.
     """
-    fe = track_mod.assemble(track)
+    fe = fe_mod.assemble(track)
     grid = np.asarray(model.residual_x)
     periodic = bool(track_mod.residual_table_is_periodic(model))
     x = (x_bay if periodic else 0.0) + grid[:, None] + np.asarray(offsets)[None, :]
@@ -282,10 +283,10 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
 
 def _static_pair_compliance(fe, x: np.ndarray) -> np.ndarray:
     """K^-1(x_ri, x_rj) [m/N], [n_res, n, n], for rail positions ``x`` [n_res, n] [m]
-    (:func:`wfjax.model.track.static_solve` with the unit loads at every position)."""
+    (:func:`wfjax.model.fe.static_solve` with the unit loads at every position)."""
     n_res, n = x.shape
-    b = track_mod._load_vector(fe, x.ravel())  # [n_dof, n_res * n], sparse
-    u = track_mod.static_solve(fe, b)
+    b = fe_mod.load_vector(fe, x.ravel())  # [n_dof, n_res * n], sparse
+    u = fe_mod.static_solve(fe, b)
     return np.einsum("dri,drj->rij", b.toarray().reshape(-1, n_res, n),
                      u.reshape(-1, n_res, n))
 
@@ -304,8 +305,8 @@ def transfer_receptance(track: Track, model: track_mod.ModalModel, freqs, x_forc
     pa = np.asarray(track_mod.mode_shapes_at(model, float(x_force)))
     pb = np.asarray(track_mod.mode_shapes_at(model, float(x_response)))
     lam = np.asarray(model.poles)
-    fe = track_mod.assemble(track)
-    b = track_mod._load_vector(fe, [float(x_force), float(x_response)]).toarray()
+    fe = fe_mod.assemble(track)
+    b = fe_mod.load_vector(fe, [float(x_force), float(x_response)]).toarray()
     full = b[:, 1] @ scipy.sparse.linalg.splu(fe.stiffness).solve(b[:, 0])
     kept = np.real(np.sum(np.asarray(model.weights) * pa * pb / (-lam)))
     return h + (full - kept)

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model.supports import as_key
-from ..model.track import _check_positive_scalar
+from ..model.track import check_positive_scalar
 from ..params import _is_concrete, _pytree
 
 __all__ = [
@@ -325,7 +325,7 @@ def _random_values(key, sigma: np.ndarray, n: int, n_realisations: int | None) -
 
 
 def _check_spacing(spacing) -> float:
-    dx = _check_positive_scalar("spacing", spacing, "m")
+    dx = check_positive_scalar("spacing", spacing, "m")
     if dx > MAX_SPACING * (1 + 1e-9):
         _fail(f"spacing {dx * 1e3:g} mm is too coarse for the contact: at most "
               f"{MAX_SPACING * 1e3:g} mm is needed (the patch is ~10 mm long, the contact "
@@ -360,7 +360,7 @@ def generate(spectrum: BandSpectrum, key, length: float, spacing: float = 2.5e-4
         :class:`Roughness` (not periodic).
     """
     dx = _check_spacing(spacing)
-    n = int(round(_check_positive_scalar("length", length, "m") / dx))
+    n = int(round(check_positive_scalar("length", length, "m") / dx))
     if n < 4:
         _fail(f"length must be at least 4 spacings ({4 * dx:g} m), got {length!r}")
     values = _random_values(key, _bin_sigmas(n, dx, spectrum), n, n_realisations)
@@ -383,7 +383,7 @@ def generate_wheel(spectrum: BandSpectrum, key, wheel_radius: float = 0.45,
     Returns:
         :class:`Roughness` with ``periodic=True``.
     """
-    circ = 2 * math.pi * _check_positive_scalar("wheel_radius", wheel_radius, "m")
+    circ = 2 * math.pi * check_positive_scalar("wheel_radius", wheel_radius, "m")
     n = int(round(circ / _check_spacing(spacing)))
     dx = circ / n
     values = _random_values(key, _bin_sigmas(n, dx, spectrum), n, n_realisations)
@@ -409,7 +409,7 @@ def third_octave_spectrum(values, spacing: float, wavelengths=ISO3095_LIMIT.wave
     v = np.asarray(values, dtype=float)
     n = v.shape[-1]
     lam = np.asarray(wavelengths, dtype=float)
-    band = _bins_in_bands(n, _check_positive_scalar("spacing", spacing, "m"), lam)
+    band = _bins_in_bands(n, check_positive_scalar("spacing", spacing, "m"), lam)
     x = np.fft.rfft(v - v.mean(axis=-1, keepdims=True), axis=-1)
     power = 2 * np.abs(x) ** 2 / n**2  # mean square of each component (0 < j < n/2)
     out = np.full(v.shape[:-1] + (lam.size,), np.nan)

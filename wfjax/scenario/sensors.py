@@ -49,6 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
 
+from ..model import fe as fe_mod
 from ..model import track as track_mod
 from ..model.sleepers import support_arrays
 from ..params import Track, _pytree
@@ -137,7 +138,7 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
     if model.sleeper_shapes is None:
         raise ValueError("the modal model has no sleeper_shapes (rebuild it with "
                          "wfjax.model.track.modal_model)")
-    fe = track_mod.assemble(track)
+    fe = fe_mod.assemble(track)
     shapes = np.asarray(model.shapes)  # [m, n, 2]
     sl_shapes = np.asarray(model.sleeper_shapes)  # [m, n_sl]
     lam = np.asarray(model.poles)
@@ -147,7 +148,7 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
     n_dof, n_rail = u.shape[0], fe.n_rail_dof
     le, nb, ne = fe.element_length, int(track.n_bays), int(track.elements_per_bay)
     ls = float(track.sleeper_spacing)
-    ke, _, _ = track_mod.element_matrices(
+    ke, _, _ = fe_mod.element_matrices(
         float(track.bending_stiffness), float(track.shear_stiffness), float(track.rail_mass),
         float(track.rail_rotary_inertia), le)
     sup = support_arrays(track)  # per sleeper [n_bays - 1]
@@ -175,7 +176,7 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
             rail_node = 2 * ((sleeper[i] + 1) * ne) - 2
             sl_dof = n_rail + sleeper[i]
             if q.startswith("rail_"):
-                o = track_mod._load_vector(fe, xi).toarray()[:, 0]
+                o = fe_mod.load_vector(fe, xi).toarray()[:, 0]
             elif q == "shear":
                 o = element_functional(elem[i], -ke[0])
             elif q == "moment":
@@ -234,7 +235,7 @@ def _load_terms(spec: SensorSpec, model, force, x) -> jax.Array:
     le = model.node_x[1] - model.node_x[0]
     s_f = x - spec.element_x0
     inside = (s_f >= 0) & (s_f < le)
-    n1, n2, _, _ = track_mod.shape_functions(jnp.clip(s_f / le, 0.0, 1.0), model.element_phi,
+    n1, n2, _, _ = fe_mod.shape_functions(jnp.clip(s_f / le, 0.0, 1.0), model.element_phi,
                                              le)
     beyond = spec.local_s > s_f
     v_p = force * (n1 - beyond)
