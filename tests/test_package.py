@@ -73,6 +73,7 @@ def env(dist, tmp_path_factory) -> dict:
           "--no-index", wheel], cwd=root)
     environ = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "XLA_FLAGS")}
     environ["PATH"] = f"{root / 'bin'}{os.pathsep}{environ.get('PATH', '')}"
+    assert shutil.which("wfjax", path=environ["PATH"]) == str(root / "bin" / "wfjax")
     return {"bin": root / "bin", "python": python, "environ": environ}
 
 
