@@ -15,7 +15,7 @@ import os
 import sys
 
 SUBCOMMANDS = ("sweep", "simulate", "compare", "figures", "fit", "receptance", "geometry",
-               "detector", "config", "examples")
+               "detector", "identify", "config", "examples")
 VERSION_FLAGS = ("--version", "-V")
 
 

@@ -36,7 +36,7 @@ __all__ = ["Option", "CaseError", "COMMANDS", "OPTIONS", "KEYS", "SECTIONS", "MO
            "flags_of", "check_value", "from_text", "parse_number_list", "model_options"]
 
 COMMANDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "geometry",
-            "detector")
+            "detector", "identify")
 MODEL_SECTIONS = {"wheel": P.Wheel, "track": P.Track, "material": P.Material,
                   "config": P.SimConfig}
 MAX_SPEED_KMH = P.MAX_SPEED * 3.6  # the API's limit in the CLI's unit
@@ -323,6 +323,71 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("compare", "models", "strs", choices=registry.names,
            doc="contact models to compare (must include 3d)", commands=("compare",),
            flag="--models"),
+) + (
+    # wfjax identify (docs/identify.md); unset keys take the defaults named in their doc
+    Option("identify", "readings", "path", doc="passage CSV of detector readings (docs/"
+           "identify.md); relative to the case file", commands=("identify",),
+           flag="--readings", metavar="FILE"),
+    Option("identify", "contact", "str", choices=registry.names,
+           doc="contact model of the identification (default hertz-trajectory)",
+           commands=("identify",), flag="--id-contact"),
+    Option("identify", "layout", "str", choices=("file", "single", "bogie", "wagon"),
+           doc="train layout the readings must match (default file: the CSV's positions)",
+           commands=("identify",), flag="--layout"),
+    Option("identify", "noise", "float", "", 0.0, 0.5, low_open=True,
+           doc="relative standard deviation of a reading (default 0.03)",
+           commands=("identify",), flag="--noise"),
+    Option("identify", "model_error", "float", "", 0.0, 0.5,
+           doc="relative error of the forward model, added in quadrature (default 0.02)",
+           commands=("identify",), flag="--model-error"),
+    Option("identify", "flag_length", "float", "m", 0.0, 0.13,
+           doc="flag rule: flagged when P(length >= this) >= flag_probability (default "
+               "20 mm)", commands=("identify",), flag="--flag-length-mm", factor=1e-3,
+           flag_unit="mm"),
+    Option("identify", "flag_probability", "float", "", 0.0, 1.0, low_open=True,
+           doc="flag rule's probability (default 0.9)", commands=("identify",),
+           flag="--flag-probability"),
+    Option("identify", "line_speed_kmh", "float", "km/h", 5.0, 300.0,
+           doc="line speed of P(peak contact force > force_level) (default: the passage's)",
+           commands=("identify",), flag="--line-speed-kmh"),
+    Option("identify", "force_level", "float", "N", 0.0, 5e6, low_open=True,
+           doc="peak contact force level (default 350 kN)", commands=("identify",),
+           flag="--force-level-kN", factor=1e3, flag_unit="kN"),
+    Option("identify", "user_reading", "float", "N", 0.0, 5e6, low_open=True,
+           doc="user rule: act when the highest reading exceeds this (unset: no reading "
+               "level)", commands=("identify",), flag="--user-reading-kN", factor=1e3,
+           flag_unit="kN"),
+    Option("identify", "user_length", "float", "m", 0.0, 0.13, low_open=True,
+           doc="user rule: act when P(length > this) >= 0.5 (unset: no length level)",
+           commands=("identify",), flag="--user-length-mm", factor=1e-3, flag_unit="mm"),
+    Option("identify", "coupling_iterations", "int", "", 0, 5,
+           doc="neighbour-correction sweeps of the factorised inference (default 1)",
+           commands=("identify",), flag="--coupling-iterations"),
+    Option("identify", "realisations", "int", "", 1, 64,
+           doc="rail roughness realisations of the response table (default 3)",
+           commands=("identify",), flag="--table-realisations"),
+    Option("identify", "seed", "int", "", 0, 2**31 - 1,
+           doc="seed of the identification's nuisance realisations (default 0)",
+           commands=("identify",)),
+    # wfjax detector --passage-csv: a passage of a train with chosen flats
+    Option("passage", "csv", "path", doc="write a passage CSV of the train (passage.* keys) "
+           "over the detector instead of the sweep", commands=("detector",),
+           flag="--passage-csv", metavar="FILE"),
+    Option("passage", "train", "str", choices=("single", "bogie", "wagon"),
+           doc="the passing train's layout (default wagon)", commands=("detector",),
+           flag="--train"),
+    Option("passage", "flats", "str", doc='flat wheels, "wheel:kind:length_mm[:l/l0]" comma '
+           'separated, e.g. "1:new:60,2:rounded:80" (default none)', commands=("detector",),
+           flag="--train-flats"),
+    Option("passage", "speed_kmh", "float", "km/h", 5.0, 300.0,
+           doc="the passage's speed (default 100)", commands=("detector",),
+           flag="--passage-speed-kmh"),
+    Option("passage", "noise", "float", "", 0.0, 0.5,
+           doc="relative Gaussian noise on every reading (default 0.03)",
+           commands=("detector",), flag="--passage-noise"),
+    Option("passage", "seed", "int", "", 0, 2**31 - 1,
+           doc="seed of the passage's impacts, roughness, support scatter and noise "
+               "(default 0)", commands=("detector",), flag="--passage-seed"),
 )
 
 _ALL = COMMANDS + ("config",)

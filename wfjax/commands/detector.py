@@ -41,8 +41,48 @@ def _csv(result) -> str:
     return buf.getvalue()
 
 
+def write_passage(case) -> int:
+    """``--passage-csv FILE``: a passage of the train ``passage.train`` with the flats
+    ``passage.flats`` over the case's detector, simulated in full
+    (:func:`wfjax.identify.synthetic.simulate_passage`), written as a readings CSV for
+    ``wfjax identify`` (docs/identify.md); the truth goes to FILE's ``.truth.json``."""
+    import json
+    from pathlib import Path
+
+    from ..commands.identify import LAYOUTS
+    from ..identify.passage import passages_csv
+    from ..identify.synthetic import parse_flats, simulate_passage
+    from ..scenario.sensors import Detector
+
+    layout = LAYOUTS[case.get("passage.train") or "wagon"]
+    flats = parse_flats(case.get("passage.flats") or "")
+    detector = Detector(case["detector.n_bays"], case["detector.first_bay"],
+                        case["detector.gauge_offset"], case["detector.calibration"])
+    wheel, track, _, _ = case.model()
+    detector.gauges(float(track.sleeper_spacing))
+    if any(f.wheel >= len(layout) for f in flats):
+        raise ValueError(f"--train-flats: a wheel index beyond the train's {len(layout)} "
+                         f"wheels (0..{len(layout) - 1})")
+    speed = (case.get("passage.speed_kmh") or 100.0) / 3.6
+    path = Path(case["passage.csv"])
+    print(f"wfjax detector: a passage of {len(layout)} wheels at {speed * 3.6:.0f} km/h over "
+          f"{detector.n_bays} bays from bay {detector.first_bay}")
+    passage, truth = simulate_passage(
+        layout, flats, speed, detector, noise=case.get("passage.noise", 0.03) or 0.0,
+        seed=case.get("passage.seed") or 0, contact=case["run.contact"]
+        if case["run.contact"] != "3d" else "hertz-trajectory", wheel=wheel)
+    if path.parent and not path.parent.exists():
+        path.parent.mkdir(parents=True)
+    write_atomic(path, passages_csv([passage]))
+    write_atomic(path.with_suffix(".truth.json"), json.dumps(truth, indent=2) + "\n")
+    print(f"  wrote {path} and {path.with_suffix('.truth.json')}")
+    return 0
+
+
 def run(args) -> int:
     case = resolve_case(args, "detector")
+    if case.get("passage.csv"):
+        return write_passage(case)
     from ..plotting import detector_figure
     from ..scenario.sensors import Detector
     from ..sweeps import sweep

@@ -66,14 +66,17 @@ def loglik_grid(table: fwd.ResponseTable, bays, readings, lengths, sigma: float,
     return ll, c2, phases
 
 
-def weighted_quantile(values, weights, q) -> np.ndarray:
-    """Quantiles ``q`` of the discrete distribution ``values`` x ``weights`` (midpoint
-    interpolation of the CDF)."""
-    v, w = np.ravel(values), np.ravel(weights)
-    order = np.argsort(v, kind="stable")
-    v, w = v[order], w[order] / np.sum(w)
-    cdf = np.cumsum(w) - 0.5 * w
-    return np.interp(q, cdf, v)
+def weighted_quantile(lo, hi, weights, q) -> np.ndarray:
+    """Quantiles ``q`` of the mixture of uniform distributions on [``lo``, ``hi``] (every
+    grid cell's range) with ``weights``: the grid posterior read as a piecewise-constant
+    density, so an interval does not snap to grid points."""
+    lo, hi, w = (np.ravel(a) for a in (lo, hi, weights))
+    w = w / np.sum(w)
+    x = np.unique(np.concatenate([lo, hi]))
+    width = np.maximum(hi - lo, 1e-300)
+    cdf = np.sum(w[None, :] * np.clip((x[:, None] - lo[None, :]) / width[None, :], 0, 1),
+                 axis=1)
+    return np.interp(q, cdf, x)
 
 
 @dataclasses.dataclass
@@ -112,14 +115,24 @@ class WheelPosterior:
         """P(l >= ``length`` [m])."""
         return float(self.weights[:, self.lengths >= length - 1e-12].sum())
 
+    def cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) [n_len] edges [m] of the length grid's cells (the first from 0)."""
+        h = np.diff(self.lengths).mean() if self.lengths.size > 1 else 1.0
+        return np.maximum(self.lengths - h / 2, 0.0), self.lengths + h / 2
+
     def length_quantiles(self, q) -> np.ndarray:
-        """Length quantiles [m]."""
-        return weighted_quantile(np.broadcast_to(self.lengths, self.weights.shape),
+        """Length quantiles [m] (the posterior uniform within each grid cell)."""
+        lo, hi = self.cells()
+        shape = self.weights.shape
+        return weighted_quantile(np.broadcast_to(lo, shape), np.broadcast_to(hi, shape),
                                  self.weights, q)
 
     def depth_quantiles(self, q) -> np.ndarray:
-        """Depth quantiles [m]."""
-        return weighted_quantile(self.depths(), self.weights, q)
+        """Depth quantiles [m] (each length cell mapped to its depth range, uniform)."""
+        lo, hi = self.cells()
+        d = [np.stack([fwd.depth_of(k, e, f or 1.0, self.wheel_radius) for k, f in
+                       self.shapes]) for e in (lo, hi)]
+        return weighted_quantile(d[0], d[1], self.weights, q)
 
     def interval(self, what: str, level: float) -> tuple[float, float]:
         """Central ``level`` interval of ``"length"`` or ``"depth"`` [m]."""
@@ -134,12 +147,13 @@ class WheelPosterior:
         return float(self.phases[passage][i]), float(w[i])
 
 
-def posterior(tables, bays, readings, prior: Prior = Prior(), noise: float = 0.03,
+def posterior(tables, bays, readings, prior: Prior | None = None, noise: float = 0.03,
               model: float = 0.02, peak_only: bool = False, corrections=None
               ) -> WheelPosterior:
     """The :class:`WheelPosterior` of one wheel seen in passages ``p``: ``tables[p]`` (its
     speed's :class:`~wfjax.identify.forward.ResponseTable`), detector ``bays[p]``,
     ``readings[p]`` [n_bays] N (or [1] peak), ``corrections[p]`` [n_bays] N or None."""
+    prior = prior or Prior()
     lengths = prior.lengths()
     sigma = float(np.hypot(noise, model))
     total = prior.log_shapes(tables[0].shapes)[:, None] * np.ones(lengths.size)

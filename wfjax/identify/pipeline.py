@@ -112,7 +112,7 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float):
 
 
 def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: float = 0.03,
-             model: float = 0.02, prior: Prior = Prior(), flag_length: float = 0.02,
+             model: float = 0.02, prior: Prior | None = None, flag_length: float = 0.02,
              flag_probability: float = 0.9, line_speed: float | None = None,
              force_level: float = 350e3, user_rule=None, coupling_iterations: int = 1,
              table_options: dict | None = None, wheel: Wheel | None = None, seed: int = 0,
@@ -136,7 +136,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
     Returns:
         :class:`Identification`.
     """
-    wheel = wheel or Wheel()
+    wheel, prior = wheel or Wheel(), prior or Prior()
     opts = dict(table_options or {}, contact=contact, wheel=wheel, seed=seed,
                 cache_dir=cache_dir)
     speeds = sorted({round(p.speed, 9) for p in passages})

@@ -1,0 +1,183 @@
+"""wfjax.identify's pieces (fast): the passage reader and its bad-input checks, the command's
+exit status, the rules, the table shift, and the grid posterior against an independent
+quadrature and in a calibration check (coverage inside a Clopper-Pearson band)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import beta
+
+from wfjax.identify import forward as fwd
+from wfjax.identify import rules
+from wfjax.identify.inference import Prior, posterior
+from wfjax.identify.passage import Passage, PassageError, check_layout, passages_csv, read_passages
+
+BAYS = np.arange(-1, 4)
+
+
+def _passage(n=2, speed=100 / 3.6):
+    rng = np.random.default_rng(1)
+    return Passage(speed, np.array([0.0, 2.5, 17.5, 20.0][:n]), BAYS,
+                   120e3 + 30e3 * rng.random((n, BAYS.size)), 0.1, 1.0)
+
+
+def _csv(tmp_path, text):
+    path = tmp_path / "p.csv"
+    path.write_text(text)
+    return path
+
+
+def test_round_trip(tmp_path):
+    p = _passage(4)
+    (q,) = read_passages(_csv(tmp_path, passages_csv([p])))
+    assert q.speed == pytest.approx(p.speed)
+    np.testing.assert_allclose(q.readings, p.readings, rtol=1e-6)
+    np.testing.assert_array_equal(q.bays, BAYS)
+    assert q.detector().n_bays == 5 and q.detector().first_bay == -1
+    check_layout([q], [0.0, 2.5, 17.5, 20.0])
+
+
+def _lines(tmp_path, edit):
+    lines = passages_csv([_passage(2)]).splitlines()
+    return _csv(tmp_path, "\n".join(edit(lines)) + "\n")
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda ls: [ls[0], ls[1]] + [ls[2].replace(",1,2.5000,", ",2,2.5000,")],
+     ["row 3", "wheel 1 is missing"]),
+    (lambda ls: [ls[0], ls[1], ",".join(ls[2].split(",")[:-1] + [""])],
+     ["row 3", "reading_bay3_kN", "missing reading"]),
+    (lambda ls: [ls[0].replace("reading_bay1_kN", "reading_bay7_kN")] + ls[1:],
+     ["missing bay column reading_bay1_kN"]),
+    (lambda ls: [ls[0], ls[1].rsplit(",", 1)[0] + ",nan", ls[2]],
+     ["row 2", "reading_bay3_kN", "not finite"]),
+    (lambda ls: [ls[0], ls[1].rsplit(",", 1)[0] + ",125000.0", ls[2]],
+     ["row 2", "125000.0", "in N, not kN"]),
+    (lambda ls: [ls[0]] + [r.replace(",100,", ",400,") for r in ls[1:]],
+     ["row 2", "speed_kmh", "400", "[5, 300] km/h"]),
+    (lambda ls: [ls[0].replace("position_m", "pos")] + ls[1:], ["missing column 'position_m'"]),
+])
+def test_bad_input(tmp_path, edit, words):
+    with pytest.raises(PassageError) as err:
+        read_passages(_lines(tmp_path, edit))
+    msg = str(err.value)
+    assert "\n" not in msg
+    for w in words:
+        assert w in msg
+
+
+def test_layout_mismatch():
+    with pytest.raises(PassageError, match="4 wheels, but the readings have 2"):
+        check_layout([_passage(2)], [0.0, 2.5, 17.5, 20.0])
+    with pytest.raises(PassageError, match="wheel 1 at 2.6 m"):
+        check_layout([_passage(2)], [0.0, 2.6])
+
+
+def test_command_bad_input_exit_2_nothing_written(tmp_path, capsys):
+    from wfjax.cli import main
+
+    bad = _lines(tmp_path, lambda ls: [ls[0], ls[1].rsplit(",", 1)[0] + ",inf", ls[2]])
+    out = tmp_path / "out"
+    assert main(["identify", "--readings", str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not finite" in err[0] and "reading_bay3_kN" in err[0]
+    assert not out.exists()
+    good = _csv(tmp_path, passages_csv([_passage(2)]))
+    assert main(["identify", "--readings", str(good), "--layout", "wagon", "--out",
+                 str(out)]) == 2
+    assert "4 wheels, but the readings have 2" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_rules():
+    p_short, p_long = (lambda x: 0.1), (lambda x: 0.95)
+    assert rules.decide(rules.TRAFIKVERKET, 360e3, p_short) == "stop train"
+    assert rules.decide(rules.TRAFIKVERKET, 200e3, p_long) == "remove wheel"
+    assert rules.decide(rules.TRAFIKVERKET, 349e3, p_short) == "ok"
+    assert rules.decide(rules.FRA, 401e3, p_short).startswith("replace wheel (in service")
+    assert rules.decide(rules.FRA, 380e3, p_short).startswith("replace wheel in shop")
+    assert rules.decide(rules.FRA, 355e3, p_long) == "ok"  # 80 kips = 355.9 kN
+    user = rules.user_rule(length=0.05, probability=0.8)
+    assert rules.decide(user, 1e3, lambda x: 0.79) == "ok"
+    assert rules.decide(user, 1e3, lambda x: 0.81) == "act (length)"
+    assert rules.flagged(0.9) and not rules.flagged(0.899)
+
+
+def _table(slope=2.5e6, n_j=4, n_r=1, shapes=(("new", 0.0),)):
+    """A synthetic table: bay offset 0 reads P + slope * l, the others P (phase-free)."""
+    lengths = np.linspace(0.0, 0.13, 14)
+    reads = np.full((len(shapes), lengths.size, n_j, n_r, 2 * fwd.REACH + 1), 120e3)
+    reads[..., fwd.REACH] += slope * lengths[None, :, None, None]
+    return fwd.ResponseTable(100 / 3.6, 0.65, 0.45, shapes, lengths,
+                             np.arange(n_j) * 0.65 / n_j, reads, reads[..., fwd.REACH])
+
+
+def test_predict_shifts_the_table():
+    t = _table()
+    t.readings[0, :, :, 0, :] += np.arange(5)[None, None, :] * 1e3 + np.arange(4)[None, :,
+                                                                                 None] * 10
+    phases = fwd.phase_grid(t, BAYS)
+    mu = fwd.predict(t, BAYS, [0.13], phases)[0, 0, :, 0]  # [P, n_bays]
+    for p, x in enumerate(phases):
+        idx = int(round(x / (0.65 / 4)))
+        q, j = idx // 4, idx % 4
+        for b, k in enumerate(BAYS):
+            m = int(np.clip(k - q, -2, 2))
+            row = 0.13 if abs(k - q) <= 2 else 0.0
+            expect = 120e3 + (2.5e6 * row if m == 0 else 0) + (m + 2) * 1e3 + j * 10
+            assert mu[p, b] == pytest.approx(expect)
+
+
+def test_posterior_matches_quadrature():
+    """One phase-free reading, one shape: the grid posterior equals the normalised
+    likelihood x prior computed directly."""
+    t = _table()
+    prior = Prior(p_new=1.0)
+    y = np.array([120e3, 120e3, 120e3 + 2.5e6 * 0.05, 120e3, 120e3])
+    # the impact bay is bay 1 for every phase in [0.65, 1.3): the grid puts phases in all
+    # bays, so compute the expectation over the phase grid independently
+    post = posterior([t], [BAYS], [y], prior=prior, noise=0.03, model=0.0)
+    lengths, sigma = prior.lengths(), 0.03
+    phases = fwd.phase_grid(t, BAYS)
+    lik = np.zeros(lengths.size)
+    for x in phases:
+        q = int(np.floor(x / 0.65 + 1e-9))
+        for i, ln in enumerate(lengths):
+            mu = np.array([120e3 + (2.5e6 * ln if k == q else 0.0) for k in BAYS])
+            lik[i] += np.exp(-0.5 * np.sum(((y - mu) / (sigma * mu)) ** 2)) / np.prod(mu)
+    np.testing.assert_allclose(post.weights[0], lik / lik.sum(), rtol=1e-6, atol=1e-12)
+    lo, hi = post.interval("length", 0.9)
+    assert lo < 0.05 < hi
+
+
+def test_posterior_calibrated_on_its_own_model():
+    """Truth drawn from the prior, readings from the model with 3 % noise: the 90 % length
+    intervals cover at a rate inside the 95 % Clopper-Pearson band of the observed count."""
+    t = _table(slope=0.6e6)  # posterior sd about 6 mm: several grid steps
+    prior = Prior(p_new=1.0)
+    rng = np.random.default_rng(7)
+    n, hits = 120, 0
+    phases = fwd.phase_grid(t, BAYS)
+    for _ in range(n):
+        ln = rng.uniform(0.0, 0.13)  # continuous: the grid's cells read as uniform
+        x = rng.choice(phases)
+        mu = fwd.predict(t, BAYS, [ln], [x])[0, 0, 0, 0]
+        y = mu * (1 + 0.03 * rng.standard_normal(mu.shape))
+        lo, hi = posterior([t], [BAYS], [y], prior=prior, noise=0.03, model=0.0).interval(
+            "length", 0.9)
+        hits += lo <= ln <= hi
+    lo_cp = beta.ppf(0.025, hits, n - hits + 1)
+    hi_cp = beta.ppf(0.975, hits + 1, n - hits)
+    assert lo_cp <= 0.9 <= hi_cp, (hits, n)
+
+
+def test_misfit_flagged():
+    """Readings no flat explains (a dip far below the static load in every bay): the
+    posterior-predictive p-value is below the threshold."""
+    t = _table()
+    y = np.full(BAYS.size, 60e3)
+    post = posterior([t], [BAYS], [y], noise=0.03, model=0.0)
+    assert post.ppc_p < 1e-3
+    y_ok = np.array([120e3, 120e3, 220e3, 120e3, 120e3])
+    assert posterior([t], [BAYS], [y_ok], noise=0.03, model=0.0).ppc_p > 1e-3
