@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from wfjax.scenario import patch
 from wfjax.scenario import roughness as R
 
 
@@ -134,7 +135,7 @@ def test_bad_generation_and_profiles():
     with pytest.raises(ValueError, match=r"spacing must be in \(0, 1\] mm"):
         R.Roughness(0.0, 5e-3, np.zeros(3))
     with pytest.raises(ValueError, match="kind must be one of"):
-        R.contact_filter(R.Roughness(0.0, 1e-4, np.zeros(3)), 0.0, 0.01, kind="box")
+        patch.contact_filter(R.Roughness(0.0, 1e-4, np.zeros(3)), 0.0, 0.01, kind="box")
 
 
 # ---------------------------------------------------------------- contact filter
@@ -149,8 +150,8 @@ def test_contact_filter_matches_its_analytic_response(kind, wavelength):
     rough = R.Roughness(float(x[0]), dx, amp * np.cos(2 * np.pi * x / wavelength))
     xc = jnp.linspace(-0.05, 0.05, 41)
     length = 0.012
-    got = R.contact_filter(rough, xc, length, kind=kind, n_points=64)
-    want = amp * R.contact_filter_response(wavelength, length, kind) * np.cos(
+    got = patch.contact_filter(rough, xc, length, kind=kind, n_points=64)
+    want = amp * patch.contact_filter_response(wavelength, length, kind) * np.cos(
         2 * np.pi * np.asarray(xc) / wavelength)
     np.testing.assert_allclose(got, want, atol=0.01 * amp)
 
@@ -159,19 +160,19 @@ def test_contact_filter_matches_its_analytic_response(kind, wavelength):
 def test_contact_filter_in_jit_vmap_grad():
     rough = R.generate(R.BandSpectrum(np.array([0.05, 0.02]), np.array([0.0, -3.0])), 1,
                        length=1.0, spacing=2.5e-4, n_realisations=4)
-    f = jax.jit(lambda x, a: R.contact_filter(rough, x, a))
+    f = jax.jit(lambda x, a: patch.contact_filter(rough, x, a))
     out = f(jnp.array([0.1, 0.2]), 0.011)
     assert out.shape == (4, 2)
     # vmap over realisations through the values leaf
     one = dataclasses.replace(rough, values=rough.values[0])
-    per = jax.vmap(lambda v: R.contact_filter(dataclasses.replace(one, values=v), 0.1, 0.011))(
+    per = jax.vmap(lambda v: patch.contact_filter(dataclasses.replace(one, values=v), 0.1, 0.011))(
         jnp.asarray(rough.values))
     np.testing.assert_allclose(per, out[:, 0], rtol=1e-12)
     # traced contact length: the derivative exists and matches a finite difference
-    g = jax.grad(lambda a: R.contact_filter(one, 0.1, a))(0.011)
-    fd = (R.contact_filter(one, 0.1, 0.011 + 1e-6)
-          - R.contact_filter(one, 0.1, 0.011 - 1e-6)) / 2e-6
+    g = jax.grad(lambda a: patch.contact_filter(one, 0.1, a))(0.011)
+    fd = (patch.contact_filter(one, 0.1, 0.011 + 1e-6)
+          - patch.contact_filter(one, 0.1, 0.011 - 1e-6)) / 2e-6
     assert float(g) == pytest.approx(float(fd), rel=2e-2)  # piecewise-linear profile
     # a tiny patch reads the profile itself
-    np.testing.assert_allclose(R.contact_filter(one, 0.1234, 1e-7), R.roughness_at(one, 0.1234),
+    np.testing.assert_allclose(patch.contact_filter(one, 0.1234, 1e-7), R.roughness_at(one, 0.1234),
                                rtol=1e-6)

@@ -11,6 +11,7 @@ from fe_reference import newmark_wheels
 import wfjax as wf
 from wfjax.model import supports
 from wfjax.program.laws import loop_roughness, padded_models
+from wfjax.scenario import patch
 from wfjax.scenario import roughness as rough_mod
 from wfjax.scenario.description import Scenario
 from wfjax.scenario.windows import check_impact_positions
@@ -106,7 +107,7 @@ def test_roughness_response_agrees_with_a_direct_fe_time_integration():
     lam, amp = 0.1, 2e-6
     f, d, res = _fluctuation("hertz-profile", _sine(amp, lam))
     length = float(loop_roughness(_sine(amp, lam)).contact_length[0])
-    gain = float(rough_mod.contact_filter_response(lam, length))
+    gain = float(patch.contact_filter_response(lam, length))
     x0, s0, dt = float(res.x[0]), float(res.s[0]), float(res.time_step)
     n = f.size
     smooth = newmark_wheels(wf.Flat.none(), V, x0, x0 - s0, [0.0], dt, n)[:, 0]

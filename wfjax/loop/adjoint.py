@@ -41,7 +41,7 @@ lambda -> a lambda and of z -> Re(a z) is lambda_y -> a lambda_y.
 
 Scope: every pointwise contact law (Hertz profile and trajectory, 2D bedding, 3D table, 3D
 parametric family), one wheel or a vehicle's tuple of laws, rail/wheel roughness
-(:class:`wfjax.scenario.roughness.LoopRoughness`, not differentiated), float64 and float32,
+(:class:`wfjax.scenario.patch.LoopRoughness`, not differentiated), float64 and float32,
 ``observers=`` instruments (``Sensors``, ``DetectorReadings``; history on or off). Outputs
 with cotangents: ``force``, ``approach``, ``sensors``, ``sensor_max``, ``sensor_min``,
 ``detector_load`` and ``detector_peak``; the others (``x``, ``s``, ``t``, ``residual``)
@@ -543,7 +543,7 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
             t = 0 [m]; impact_position: where s = 0 [m] (none of them differentiated).
         n_steps: steps incl. t = 0 (static). max_iter: Newton iteration cap (static).
         precision: ``"float64"`` or ``"float32"`` (static).
-        roughness: a :class:`wfjax.scenario.roughness.LoopRoughness` or None (not differentiated).
+        roughness: a :class:`wfjax.scenario.patch.LoopRoughness` or None (not differentiated).
         observers: instruments (:class:`wfjax.loop.observers.Sensors`,
             :class:`~wfjax.loop.observers.DetectorReadings`, history on or off; not
             differentiated themselves): their outputs join the result as in ``time_loop``

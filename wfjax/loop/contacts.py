@@ -9,7 +9,7 @@ import numpy as np
 
 from ..contact.newton import solve_contact_system, solve_small
 from ..contact.protocol import ContactLaw
-from ..scenario import roughness as rough_mod
+from ..scenario import patch
 
 
 def pointwise(law: ContactLaw) -> bool:
@@ -133,7 +133,7 @@ def roughness_inputs(laws, roughness, x, s):
     offset 0 and the pair (roughness at its nodes, the filtered value)."""
     if roughness is None:
         return (0.0,) * len(laws), (None,) * len(laws)
-    r_eq = rough_mod.loop_equivalent(roughness, x, s)
+    r_eq = patch.loop_equivalent(roughness, x, s)
     shift, rough = [], []
     for i, law in enumerate(laws):
         nodes = law.rough_nodes()
@@ -142,7 +142,7 @@ def roughness_inputs(laws, roughness, x, s):
             rough.append(None)
         else:
             shift.append(jnp.zeros_like(r_eq[i]))
-            rough.append((rough_mod.loop_at_nodes(roughness, x[i], s[i], nodes), r_eq[i]))
+            rough.append((patch.loop_at_nodes(roughness, x[i], s[i], nodes), r_eq[i]))
     return jnp.stack(shift), tuple(rough)
 
 

@@ -208,7 +208,7 @@ def time_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
             loop's dtype (observers are cast with it). The propagation coefficients are
             computed in the inputs' precision (float64) and then cast: their series in
             pole dt cancels to ~1e-3 relative in float32.
-        roughness: a :class:`wfjax.scenario.roughness.LoopRoughness` (traced: ``vmap`` over its
+        roughness: a :class:`wfjax.scenario.patch.LoopRoughness` (traced: ``vmap`` over its
             realisations), or None. Point-contact laws see the contact-filtered roughness
             added to the approach; laws with ``rough_nodes`` (2D bedding, direct 3D) see it
             element by element in the gap. ``approach`` stays xi_W - xi_R.

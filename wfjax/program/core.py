@@ -84,7 +84,7 @@ class ProgramData(NamedTuple):
     ``laws``: the swept flats' laws stacked along a leading flat axis; ``others``: [n_wheels]
     the other wheels' fixed laws, None at the reference wheel; ``struct``:
     :class:`wfjax.loop.structure.Structure`; ``sensors``/``detector``: their specs or None;
-    ``roughness``: :class:`~wfjax.scenario.roughness.LoopRoughness` (realisations along a
+    ``roughness``: :class:`~wfjax.scenario.patch.LoopRoughness` (realisations along a
     leading axis) or None; ``tracks``: support realisations' padded modal models or None.
     """
 

@@ -24,7 +24,7 @@ from ..contact.interpolation import ContactTable, pad_columns
 from ..contact.laws import prepare, prepare_family, resolve_mode_3d
 from ..contact.table_law import TableLaw, table_specs_3d
 from ..params import Flat, Material, SimConfig, Track, Wheel
-from ..scenario import roughness as rough_mod
+from ..scenario import patch
 
 __all__ = ["BatchGroup", "batch_groups", "common_extent", "prepare_batch", "stack",
            "table_laws", "table_laws_like", "padded_models", "pick_model", "realisation",
@@ -213,11 +213,11 @@ def realisation(rough, index):
 
 def loop_roughness(rail=None, wheel=None, wheels=None, track: Track | None = None,
                    material: Material | None = None):
-    """The time loop's :class:`wfjax.scenario.roughness.LoopRoughness` (None when both are None) of
+    """The time loop's :class:`wfjax.scenario.patch.LoopRoughness` (None when both are None) of
     a rail and a wheel roughness checked by :class:`wfjax.scenario.description.Scenario`.
 
     The contact filter's length (point-contact laws) is each wheel's static Hertz contact
-    length (:func:`~wfjax.scenario.roughness.static_contact_length` at its preload, on the Hertz
+    length (:func:`~wfjax.scenario.patch.static_contact_length` at its preload, on the Hertz
     radius sqrt(R_W R_R)), 13.1 mm for the default wheel and track: the patch the wheel rolls on
     between impacts, where roughness excites it.
 
@@ -233,9 +233,9 @@ def loop_roughness(rail=None, wheel=None, wheels=None, track: Track | None = Non
 
     wheels = wheels or [Wheel()]
     track, material = track or Track(), material or Material()
-    length = np.array([float(rough_mod.static_contact_length(
+    length = np.array([float(patch.static_contact_length(
         float(w.preload), material, float(hertz_radius(w, track)))) for w in wheels])
-    return rough_mod.LoopRoughness(rail, wheel, jnp.asarray(length))
+    return patch.LoopRoughness(rail, wheel, jnp.asarray(length))
 
 
 
