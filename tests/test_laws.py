@@ -12,10 +12,10 @@ import pytest
 import wfjax as wf
 from wfjax.contact import interpolation, laws, table_law, tables
 from wfjax.contact.protocol import ContactLaw
+from wfjax.fields import pytree
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
 from wfjax.model.vehicle import Vehicle
-from wfjax.params import _pytree
 from wfjax.program.core import _sharded
 from wfjax.program.laws import common_extent, prepare_batch
 from wfjax.scenario.windows import n_steps_for, run_windows, simulation_window
@@ -84,7 +84,7 @@ def test_gradient_reaches_geometry_through_a_batched_law():
         assert float(jac[1 - k, k]) == 0.0  # runs of a batch are independent
 
 
-@_pytree
+@pytree
 class LinearSpring(ContactLaw):
     """A test law outside wfjax.contact: F = k max(delta, 0) (no flat)."""
 

@@ -7,14 +7,14 @@ import pytest
 
 import wfjax as wf
 from wfjax.contact import laws, registry
-from wfjax.params import _pytree
+from wfjax.fields import pytree
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 FLAT = wf.Flat.rounded(0.9e-3, 0.1)
 RUN = dict(impact_position=0.2, track=wf.Track.comparison(), config=COARSE)
 
 
-@_pytree
+@pytree
 class MyHertz(laws.HertzTrajectoryLaw):
     """The user's own Hertz spring on the built-in trajectory: F = C max(delta - drop, 0)^1.5."""
 

@@ -3,7 +3,7 @@
 Two sources, one shape (:class:`Option`):
 
 * the model parameters: the field metadata of the dataclasses in :mod:`wfjax.params`
-  (:func:`wfjax.params.option`), read by :func:`model_options` (the ``[wheel]``, ``[track]``,
+  (:func:`wfjax.fields.option`), read by :func:`model_options` (the ``[wheel]``, ``[track]``,
   ``[material]`` and ``[config]`` tables, and the flat's depth and length);
 * the run and output options (speeds, positions, flats, vehicle, roughness, joint,
   supports, detector, fit and compare settings, ``--out``, ...): the table

@@ -16,11 +16,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import types
 from typing import Any
 
-import jax
 import numpy as np
+
+from .fields import (
+    Validated,
+    check_finite,
+    check_positive,
+    is_concrete,
+    option,
+    positive_fields,
+    pytree,
+)
 
 __all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT_KINDS",
            "SUPPORT_FIELDS"]
@@ -44,129 +52,8 @@ def mm(length_mm: float) -> float:
     return length_mm * 1e-3
 
 
-def _is_concrete(value: Any) -> bool:
-    if isinstance(value, jax.core.Tracer):
-        return False
-    return isinstance(value, (int, float, np.number, np.ndarray)) or (
-        hasattr(value, "shape") and hasattr(value, "dtype")
-    )
-
-
-def _check_finite(cls_name: str, name: str, value: Any) -> None:
-    arr = np.asarray(value, dtype=float)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{cls_name}.{name} must be finite, got {value!r}")
-
-
-def _check_positive(cls_name: str, name: str, value: Any, unit: str) -> None:
-    _check_finite(cls_name, name, value)
-    arr = np.asarray(value, dtype=float)
-    if np.any(arr <= 0):
-        raise ValueError(
-            f"{cls_name}.{name} must be > 0 {unit}, got {value!r} (allowed range: (0, inf) {unit})"
-        )
-
-
-def option(default: Any = dataclasses.MISSING, *, unit: str = "", doc: str = "",
-           low: float | None = None, high: float | None = None,
-           low_open: bool = False, high_open: bool = False, positive: bool = False,
-           choices: tuple[str, ...] | None = None, flag: str | None = None,
-           aliases: tuple[str, ...] = (), factor: float = 1.0, flag_unit: str | None = None,
-           flag_commands: tuple[str, ...] | None = None) -> Any:
-    """A dataclass field carrying the one description of a parameter in its metadata.
-
-    Args:
-        default: the field's default (SI units).
-        unit: SI unit of the value ("" when dimensionless).
-        doc: one-line meaning (case-file comments, ``--help``, ``docs/case_files.md``).
-        low, high, low_open, high_open: the range a case file or flag may give (None:
-            unbounded): wide enough for any real wheel and track, narrow enough that a value
-            in the wrong unit (kN for N, mm for m) fails instead of running.
-        positive: the constructor refuses values <= 0 (the physical limit; the Python API
-            does not impose the plausible range above).
-        choices: allowed strings.
-        flag: the command-line flag (``--rail-head-radius-m``); ``aliases``: other spellings.
-        factor, flag_unit: the flag's value x ``factor`` is SI; its unit (default ``unit``).
-        flag_commands: subcommands that offer the flag (None: every one that reads the key).
-
-    :mod:`wfjax.options` derives the case keys, flags, checks and docs from it.
-    """
-    meta = {"unit": unit, "doc": doc, "low": low, "high": high, "low_open": low_open,
-            "high_open": high_open, "positive": positive, "choices": choices, "flag": flag,
-            "aliases": aliases, "factor": factor, "flag_unit": flag_unit,
-            "flag_commands": flag_commands}
-    return dataclasses.field(default=default, metadata=types.MappingProxyType(meta))
-
-
-def concrete_positive_numbers(obj, fields: tuple[str, ...]) -> dict[str, float]:
-    """``{name: float}`` of ``obj``'s fields, each checked to be a concrete finite number > 0.
-
-    For code that leaves JAX (NumPy/SciPy assembly of the wheel and track models). Raises
-    ``ValueError`` naming the class, the field and the allowed range otherwise.
-    """
-    cls_name = type(obj).__name__
-    out = {}
-    for name in fields:
-        raw = getattr(obj, name)
-        try:
-            value = float(np.asarray(raw))
-        except (TypeError, jax.errors.ConcretizationTypeError) as exc:
-            raise ValueError(f"{cls_name}.{name} must be a concrete scalar here, got "
-                             f"{raw!r}") from exc
-        if not math.isfinite(value) or value <= 0:
-            raise ValueError(f"{cls_name}.{name} must be finite and > 0, got {value!r} "
-                             "(allowed range: (0, inf))")
-        out[name] = value
-    return out
-
-
-def _pytree(cls=None, *, static: tuple[str, ...] = ()):
-    """Register a frozen dataclass as a pytree; fields named in ``static`` are metadata."""
-
-    def wrap(c):
-        c = dataclasses.dataclass(frozen=True)(c)
-        names = [f.name for f in dataclasses.fields(c)]
-        data = tuple(n for n in names if n not in static)
-        meta = tuple(n for n in names if n in static)
-
-        def flatten(obj):
-            children = tuple(getattr(obj, n) for n in data)
-            return children, tuple(getattr(obj, n) for n in meta)
-
-        def unflatten(aux, children):
-            # Bypass __init__/__post_init__: JAX rebuilds objects with tracers, cotangents
-            # (which may be negative or zero) and placeholders that must not be validated.
-            obj = object.__new__(c)
-            for n, v in zip(data, children, strict=True):
-                object.__setattr__(obj, n, v)
-            for n, v in zip(meta, aux, strict=True):
-                object.__setattr__(obj, n, v)
-            return obj
-
-        jax.tree_util.register_pytree_node(c, flatten, unflatten)
-        return c
-
-    return wrap if cls is None else wrap(cls)
-
-
-class _Validated:
-    """Mixin: check the leaves described ``positive`` on construction when concrete."""
-
-    def __post_init__(self):
-        for name, unit in _positive_fields(self).items():
-            value = getattr(self, name)
-            if _is_concrete(value):
-                _check_positive(type(self).__name__, name, value, unit)
-
-
-def _positive_fields(obj) -> dict[str, str]:
-    """``{name: unit}`` of the fields of ``obj`` whose description says ``positive``."""
-    return {f.name: f.metadata["unit"] for f in dataclasses.fields(obj)
-            if f.metadata.get("positive")}
-
-
-@_pytree
-class Material(_Validated):
+@pytree
+class Material(Validated):
     """Linear elastic material of wheel and rail (the same for both, as in the paper).
 
     Attributes:
@@ -182,8 +69,8 @@ class Material(_Validated):
     def __post_init__(self):
         super().__post_init__()
         nu = self.poisson_ratio
-        if _is_concrete(nu):
-            _check_finite("Material", "poisson_ratio", nu)
+        if is_concrete(nu):
+            check_finite("Material", "poisson_ratio", nu)
             if not 0.0 <= float(np.max(nu)) < 0.5 or float(np.min(nu)) < 0.0:
                 raise ValueError(
                     f"Material.poisson_ratio must be in [0, 0.5), got {nu!r}"
@@ -195,8 +82,8 @@ class Material(_Validated):
         return self.youngs_modulus / (1.0 - self.poisson_ratio**2)
 
 
-@_pytree
-class Wheel(_Validated):
+@pytree
+class Wheel(Validated):
     """Two-degree-of-freedom wheel model of Table 1 (Fig. 3 of the paper).
 
     The contact force acts on the small mass ``small_mass`` (m_W), joined to half the wheelset
@@ -258,8 +145,8 @@ def _check_per_sleeper(name: str, value: Any, unit: str, n_sleepers: int) -> Non
         )
 
 
-@_pytree(static=("n_bays", "elements_per_bay"))
-class Track(_Validated):
+@pytree(static=("n_bays", "elements_per_bay"))
+class Track(Validated):
     """Discretely supported track of Table 2 (Nielsen & Igeland 1995).
 
     A 60E1 rail as Rayleigh-Timoshenko beam elements on rail pads, half-sleeper masses and
@@ -329,15 +216,15 @@ class Track(_Validated):
                 raise ValueError(
                     f"Track.{name} must be an integer >= {low}, got {value!r}"
                 )
-        for name, unit in _positive_fields(self).items():
+        for name, unit in positive_fields(self).items():
             value = getattr(self, name)
-            if not _is_concrete(value):
+            if not is_concrete(value):
                 continue
             if name in SUPPORT_FIELDS and np.ndim(value) > 0:
                 _check_per_sleeper(name, value, unit, int(self.n_bays) - 1)
             else:
-                _check_positive("Track", name, value, unit)
-        if _is_concrete(self.ballast_gap):
+                check_positive("Track", name, value, unit)
+        if is_concrete(self.ballast_gap):
             _check_per_sleeper("ballast_gap", np.broadcast_to(
                 np.asarray(self.ballast_gap, dtype=float), (int(self.n_bays) - 1,)), "m",
                 int(self.n_bays) - 1)
@@ -348,7 +235,7 @@ class Track(_Validated):
         return cls(**{"rail_head_radius": 0.45, **overrides})
 
 
-@_pytree(static=("kind", "extent_bound"))
+@pytree(static=("kind", "extent_bound"))
 class Flat:
     """A wheel flat: its kind (static) and geometry (leaves).
 
@@ -392,7 +279,7 @@ class Flat:
     def new(cls, depth: float, wheel_radius: float = 0.45) -> Flat:
         """A newly formed flat: a chord of the wheel circle, depth ``depth`` [m]."""
         _validate_depth(depth)
-        _check_positive("Flat", "wheel_radius", wheel_radius, "m")
+        check_positive("Flat", "wheel_radius", wheel_radius, "m")
         return cls("new", depth=depth, length=new_flat_length(depth, wheel_radius),
                    wheel_radius=wheel_radius)
 
@@ -404,8 +291,8 @@ class Flat:
         rounded flat is everywhere at least as deep as the new flat of the same depth).
         """
         _validate_depth(depth)
-        _check_positive("Flat", "wheel_radius", wheel_radius, "m")
-        _check_positive("Flat", "length", length, "m")
+        check_positive("Flat", "wheel_radius", wheel_radius, "m")
+        check_positive("Flat", "length", length, "m")
         if float(np.max(np.asarray(length))) > MAX_FLAT_LENGTH:
             raise ValueError(
                 f"Flat.length must be in (0, {MAX_FLAT_LENGTH * 1e3:g}] mm (a flat longer than "
@@ -443,8 +330,8 @@ class Flat:
                 f"Flat.from_profile needs 1-D x and z of equal length >= 3, got shapes "
                 f"{x.shape} and {z.shape}"
             )
-        _check_finite("Flat", "profile_x", x)
-        _check_finite("Flat", "profile_z", z)
+        check_finite("Flat", "profile_x", x)
+        check_finite("Flat", "profile_z", z)
         if np.any(np.diff(x) <= 0):
             raise ValueError("Flat.profile_x must be strictly increasing")
         if np.any(z < 0):
@@ -482,7 +369,7 @@ class Flat:
         if self.kind == "profile":
             x = np.asarray(self.profile_x)
             return float(max(abs(x[0]), abs(x[-1])))
-        if not _is_concrete(self.length):
+        if not is_concrete(self.length):
             return DEFAULT_EXTENT_BOUND
         return float(np.max(np.asarray(self.length))) / 2
 
@@ -493,9 +380,9 @@ def new_flat_length(depth, wheel_radius=0.45):
 
 
 def _validate_depth(depth) -> None:
-    if not _is_concrete(depth):
+    if not is_concrete(depth):
         return
-    _check_finite("Flat", "depth", depth)
+    check_finite("Flat", "depth", depth)
     d = np.asarray(depth, dtype=float)
     if np.any(d <= 0) or np.any(d > MAX_FLAT_DEPTH):
         raise ValueError(
@@ -565,13 +452,13 @@ class SimConfig:
                                 "WFJAX_PRECISION)")
 
     def __post_init__(self):
-        for name, unit in _positive_fields(self).items():
-            _check_positive("SimConfig", name, getattr(self, name), unit)
+        for name, unit in positive_fields(self).items():
+            check_positive("SimConfig", name, getattr(self, name), unit)
         if self.time_step is not None:
-            _check_positive("SimConfig", "time_step", self.time_step, "s")
+            check_positive("SimConfig", "time_step", self.time_step, "s")
         for name in ("run_in", "run_out"):
             v = getattr(self, name)
-            _check_finite("SimConfig", name, v)
+            check_finite("SimConfig", name, v)
             if v < 0:
                 raise ValueError(f"SimConfig.{name} must be >= 0 m, got {v!r}")
         if self.contact_mode_3d not in CONTACT_MODES_3D:

@@ -29,7 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._xla import to_device
-from ..params import Flat, Material, SimConfig, Track, Wheel, _pytree
+from ..fields import pytree
+from ..params import Flat, Material, SimConfig, Track, Wheel
 from . import interpolation, table_spec, windows
 from .newton import bracketed_newton
 from .table_law import TableLaw, cached_table_3d
@@ -40,7 +41,7 @@ KALKER_TOL = 1e-10  # relative CG tolerance of the per-step solves
 DIRECT_WINDOW_SIZES = 2  # static window sizes of the per-step solves (plus the whole grid)
 
 
-@_pytree(static=("layout", "window_sizes"))
+@pytree(static=("layout", "window_sizes"))
 class Direct3DLaw(TableLaw):
     """A Kalker solve per Newton iterate near the flat; the exact table elsewhere.
 

@@ -24,7 +24,8 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from ..params import Material, _is_concrete
+from ..fields import is_concrete
+from ..params import Material
 
 __all__ = [
     "hertz_constant",
@@ -50,7 +51,7 @@ def _check_range(
     The allowed range is ``[low, high]`` (``(low, high]`` with ``low_open``); traced values are
     skipped. ``None`` is skipped too (an optional argument left at its default).
     """
-    if value is None or not _is_concrete(value):
+    if value is None or not is_concrete(value):
         return
     arr = np.asarray(value, dtype=float)
     lo_bracket = "(" if low_open or math.isinf(low) else "["

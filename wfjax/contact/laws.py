@@ -28,17 +28,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..fields import is_concrete, pytree
 from ..model import geometry
-from ..params import (
-    MAX_FLAT_DEPTH,
-    Flat,
-    Material,
-    SimConfig,
-    Track,
-    Wheel,
-    _is_concrete,
-    _pytree,
-)
+from ..params import MAX_FLAT_DEPTH, Flat, Material, SimConfig, Track, Wheel
 from . import hertz, interpolation, registry, winkler
 from .direct3d import prepare_direct
 from .protocol import ContactLaw
@@ -71,7 +63,7 @@ def _hertz_law(c_h, compression):
     return jnp.where(positive, c_h * safe**1.5, 0.0)
 
 
-@_pytree
+@pytree
 class HertzProfileLaw(ContactLaw):
     """Hertz spring driven by the flat's profile deviation: F = C_H (delta - z(s))^1.5.
 
@@ -88,7 +80,7 @@ class HertzProfileLaw(ContactLaw):
         return _hertz_law(self.c_h, delta - point)
 
 
-@_pytree
+@pytree
 class HertzTrajectoryLaw(ContactLaw):
     """Hertz spring driven by the rigid wheel-centre trajectory: F = C_H (delta - drop(s))^1.5.
 
@@ -112,7 +104,7 @@ class HertzTrajectoryLaw(ContactLaw):
         return _hertz_law(self.c_h, delta - point)
 
 
-@_pytree
+@pytree
 class WinklerLaw(ContactLaw):
     """2D Winkler bedding (:mod:`wfjax.contact.winkler`); ``point(s)`` is the gap at the nodes.
 
@@ -138,7 +130,7 @@ class WinklerLaw(ContactLaw):
         return winkler.force_from_gap(point, delta, self.material, self.nodes)
 
 
-@_pytree
+@pytree
 class ParametricLaw(TableLaw):
     """3D contact through the parametric family F3D(delta, s; depth, length) (:mod:`.family`).
 
@@ -273,7 +265,7 @@ def prepare_2d(flat: Flat, wheel: Wheel, track: Track, material: Material, confi
     depth, or :data:`wfjax.params.MAX_FLAT_DEPTH` if traced) plus the bedding's margin.
     ``cache_dir`` and ``family`` are unused."""
     _check_options("2d", options)
-    if max_depth is None and not _is_concrete(flat.depth):
+    if max_depth is None and not is_concrete(flat.depth):
         max_depth = MAX_FLAT_DEPTH
     deepest = None if max_depth is None else max_depth + winkler.DEFAULT_APPROACH_MARGIN
     half = winkler.default_half_window(flat, float(wheel.radius), deepest)

@@ -15,7 +15,8 @@ import jax
 import numpy as np
 
 from .._xla import to_device
-from ..params import Flat, Material, _is_concrete, _pytree
+from ..fields import is_concrete, pytree
+from ..params import Flat, Material
 from . import interpolation, table_spec, tables
 from .protocol import ContactLaw
 
@@ -41,7 +42,7 @@ TABLE_BATCH_SIZE = {"cpu": 1}
 ACCELERATOR_TABLE_BATCH_SIZE = 32
 
 
-@_pytree
+@pytree
 class TableLaw(ContactLaw):
     """3D contact through the exact table F3D(delta, s) of one flat (:mod:`.tables`).
 
@@ -75,7 +76,7 @@ def cached_table_3d(flat: Flat, wheel_radius: float, rail_head_radius: float,
     (``grad``, ``vmap``) are built directly, so gradients flow through the solves.
     """
     leaves = jax.tree_util.tree_leaves((flat, material))
-    if not all(_is_concrete(leaf) for leaf in leaves):
+    if not all(is_concrete(leaf) for leaf in leaves):
         return tables.build_table_3d(flat, wheel_radius, rail_head_radius, material,
                                      element_size=element_size, batch_size=table_batch_size())
     return cached_tables_3d([flat], wheel_radius, rail_head_radius, material, element_size,

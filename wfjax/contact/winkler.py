@@ -57,8 +57,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..fields import is_concrete
 from ..model.geometry import profile_deviation
-from ..params import MAX_FLAT_DEPTH, Flat, Material, _is_concrete
+from ..params import MAX_FLAT_DEPTH, Flat, Material
 from .hertz import _check_range
 
 __all__ = [
@@ -289,18 +290,18 @@ def _nodes_for(flat, wheel_radius, element, half_window):
     _check_range("element", element, "m", low=0.0, low_open=True)
     _check_range("wheel_radius", wheel_radius, "m", low=0.0, low_open=True)
     _check_range("half_window", half_window, "m", low=0.0, low_open=True)
-    if not _is_concrete(element) or (half_window is not None and not _is_concrete(half_window)):
+    if not is_concrete(element) or (half_window is not None and not is_concrete(half_window)):
         raise ValueError("element and half_window must be concrete numbers (they fix shapes)")
     if half_window is None:
-        if not _is_concrete(wheel_radius):
+        if not is_concrete(wheel_radius):
             raise ValueError(
                 "wheel_radius is traced: pass a concrete half_window (see default_half_window)"
             )
         max_approach = None
-        if not _is_concrete(flat.depth):  # traced depth: cover the deepest valid flat
+        if not is_concrete(flat.depth):  # traced depth: cover the deepest valid flat
             max_approach = MAX_FLAT_DEPTH + DEFAULT_APPROACH_MARGIN
         half_window = default_half_window(flat, wheel_radius, max_approach)
-    if _is_concrete(wheel_radius):
+    if is_concrete(wheel_radius):
         radius = float(np.min(np.asarray(wheel_radius)))
         if half_window >= 0.5 * radius:
             raise ValueError(

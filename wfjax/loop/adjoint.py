@@ -67,7 +67,7 @@ import jax
 import jax.numpy as jnp
 
 from ..contact.newton import solve_small
-from ..params import _pytree
+from ..fields import pytree
 from .contacts import pointwise, roughness_inputs
 from .observers import LoopContext, OwnCompliance, Reading
 from .run import StepOutput, run_scan, time_loop
@@ -86,7 +86,7 @@ _READ = "_adjoint_readout{}"  # observer i's recorded readouts: a residual, not 
 _LOOP_KEYS = StepOutput._fields + ("t", "own_compliance")  # the rest are observers' outputs
 
 
-@_pytree(static=("key",))
+@pytree(static=("key",))
 class _Recorded:
     """An instrument observer (``readout``/``reduce``, :mod:`wfjax.loop.observers`) that also
     saves its per-step readout under ``key`` (for the backward pass); its own values and

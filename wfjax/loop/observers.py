@@ -33,7 +33,7 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-from ..params import _pytree
+from ..fields import pytree
 from ..scenario import sensors as sensor_mod
 
 __all__ = ["Reading", "LoopContext", "Sensors", "DetectorReadings", "HangingSleepers",
@@ -85,7 +85,7 @@ def running_min(acc, value, on):
     return jnp.where(on, jnp.minimum(acc, value), acc)
 
 
-@_pytree(static=("history",))
+@pytree(static=("history",))
 class Sensors:
     """Readings at fixed rail positions (:class:`wfjax.scenario.sensors.SensorSpec`): their max and
     min over the counted steps (``sensor_max``, ``sensor_min`` [n_quantities, n_s]) and, with
@@ -118,7 +118,7 @@ class Sensors:
         return {"sensor_max": state[0], "sensor_min": state[1]}
 
 
-@_pytree(static=("history",))
+@pytree(static=("history",))
 class DetectorReadings:
     """A wheel impact load detector (:class:`wfjax.scenario.sensors.DetectorSpec`): every wheel's
     peak estimate per bay while it is between the bay's bridges (``detector_peak``
@@ -151,7 +151,7 @@ class DetectorReadings:
         return {"detector_peak": state}
 
 
-@_pytree
+@pytree
 class HangingSleepers:
     """Hanging sleepers' one-sided ballast (added by the loop when the track has them):
     ``support_force`` [n_steps, n_s] N (upwards on each sleeper) and ``sleeper_disp``
@@ -168,7 +168,7 @@ class HangingSleepers:
         return {}
 
 
-@_pytree
+@pytree
 class OwnCompliance:
     """Each wheel's rail compliance within the step from the kept modes,
     Re sum_r w_r an_r phi_r^2 (``own_compliance`` [n_steps, n_wheels] m/N; for

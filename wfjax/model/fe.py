@@ -14,7 +14,8 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
-from ..params import SUPPORT_FIELDS, Track, concrete_positive_numbers
+from ..fields import concrete_positive_numbers
+from ..params import SUPPORT_FIELDS, Track
 from .sleepers import is_uniform, support_arrays
 
 _RAIL_FIELDS = (

@@ -22,7 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..params import Flat, _is_concrete, new_flat_length
+from ..fields import is_concrete
+from ..params import Flat, new_flat_length
 
 MIN_WHEEL_RADIUS = 0.3  # m; sizes the trajectory's search window when the radius is traced
 
@@ -165,7 +166,7 @@ def _trajectory_window(flat: Flat) -> float:
     twice the flat's half angle of phi; a margin is added.
     """
     radius = flat.wheel_radius
-    radius = float(np.min(np.asarray(radius))) if _is_concrete(radius) else MIN_WHEEL_RADIUS
+    radius = float(np.min(np.asarray(radius))) if is_concrete(radius) else MIN_WHEEL_RADIUS
     return 2.5 * flat.half_extent / radius + 1e-3
 
 

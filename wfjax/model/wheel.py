@@ -26,7 +26,8 @@ import numpy as np
 import scipy.linalg
 
 from .._xla import to_device
-from ..params import Wheel, concrete_positive_numbers
+from ..fields import concrete_positive_numbers
+from ..params import Wheel
 from .modal import complex_modes, discrete_step_coefficients
 
 __all__ = [

@@ -40,9 +40,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..fields import is_concrete, pytree
 from ..model.supports import as_key
 from ..model.track import check_positive_scalar
-from ..params import _is_concrete, _pytree
 
 __all__ = [
     "Roughness",
@@ -122,7 +122,7 @@ def _fail(msg: str):
     raise ValueError(msg)
 
 
-@_pytree(static=("periodic",))
+@pytree(static=("periodic",))
 class Roughness:
     """A roughness profile sampled on a uniform grid (a pytree: the numbers are leaves).
 
@@ -149,15 +149,15 @@ class Roughness:
     def __post_init__(self):
         if not isinstance(self.periodic, bool):
             _fail(f"Roughness.periodic must be True or False, got {self.periodic!r}")
-        if _is_concrete(self.spacing):
+        if is_concrete(self.spacing):
             dx = float(np.asarray(self.spacing))
             if not math.isfinite(dx) or dx <= 0 or dx > MAX_SPACING * (1 + 1e-9):
                 _fail(f"Roughness.spacing must be in (0, {MAX_SPACING * 1e3:g}] mm (the "
                       f"contact patch is ~10 mm long and the contact elements 1 mm), got "
                       f"{dx * 1e3:g} mm")
-        if _is_concrete(self.x_start) and not math.isfinite(float(np.asarray(self.x_start))):
+        if is_concrete(self.x_start) and not math.isfinite(float(np.asarray(self.x_start))):
             _fail(f"Roughness.x_start must be finite, got {self.x_start!r}")
-        if _is_concrete(self.values):
+        if is_concrete(self.values):
             v = np.asarray(self.values, dtype=float)
             if v.ndim not in (1, 2) or v.shape[-1] < 2:
                 _fail(f"Roughness.values must be [n] or [n_realisations, n] with n >= 2, got "

@@ -49,10 +49,11 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
 
+from ..fields import pytree
 from ..model import fe as fe_mod
 from ..model import track as track_mod
 from ..model.sleepers import support_arrays
-from ..params import Track, _pytree
+from ..params import Track
 
 __all__ = ["QUANTITIES", "END_BAYS", "SensorSpec", "sensor_spec", "evaluate", "check_positions",
            "Detector", "DetectorSpec", "detector_spec", "detector_load"]
@@ -85,7 +86,7 @@ def check_positions(positions, track: Track, name: str = "sensor position") -> n
     return x
 
 
-@_pytree(static=("quantities",))
+@pytree(static=("quantities",))
 class SensorSpec:
     """Concrete observation data of a set of sensors (a pytree; build with
     :func:`sensor_spec`). Rows are quantity-major: row = i_quantity * n_sensors + i_sensor.
@@ -297,7 +298,7 @@ class Detector:
             self.gauge_offset)
 
 
-@_pytree
+@pytree
 class DetectorSpec:
     """The detector's shear sensors (a pytree): ``sensors`` at [a_0.., b_0..], gates a, b [m]
     and the calibration factor."""
