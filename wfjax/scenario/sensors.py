@@ -140,23 +140,31 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
         raise ValueError("the modal model has no sleeper_shapes (rebuild it with "
                          "wfjax.model.track.modal_model)")
     fe = fe_mod.assemble(track)
-    shapes = np.asarray(model.shapes)  # [m, n, 2]
-    sl_shapes = np.asarray(model.sleeper_shapes)  # [m, n_sl]
-    lam = np.asarray(model.poles)
-    wts = np.asarray(model.weights)
-    n_m, n_nodes, _ = shapes.shape
-    u = np.concatenate([shapes[:, 1:-1, :].reshape(n_m, -1), sl_shapes], axis=1).T  # [dof, m]
-    n_dof, n_rail = u.shape[0], fe.n_rail_dof
-    le, nb, ne = fe.element_length, int(track.n_bays), int(track.elements_per_bay)
-    ls = float(track.sleeper_spacing)
+    n_nodes = np.asarray(model.shapes).shape[1]
+    sleeper = np.clip(np.floor(x / float(track.sleeper_spacing) + 0.5).astype(int)
+                      + int(track.n_bays) // 2 - 1, 0, int(track.n_bays) - 2)
+    elem = np.clip(np.floor((x - fe.node_x[0]) / fe.element_length + 1e-9).astype(int), 0,
+                   n_nodes - 2)
+    local = x - fe.node_x[elem]
+    o, kinds, damp = _observation_functionals(track, fe, quantities, x, sleeper, elem, local)
+    sup = support_arrays(track)  # per sleeper [n_bays - 1]
+    row_sleeper = np.tile(sleeper, len(quantities))  # the sleeper under each row's position
+    rows, direct = _modal_rows(model, fe, o, kinds, damp, sup["pad_stiffness"][row_sleeper],
+                               sup["pad_damping"][row_sleeper])
+    return SensorSpec(jnp.asarray(x), jnp.asarray(rows.real.T), jnp.asarray(rows.imag.T),
+                      jnp.asarray(direct), jnp.asarray(fe.node_x[elem]), jnp.asarray(local),
+                      quantities)
+
+
+def _observation_functionals(track: Track, fe, quantities, x, sleeper, elem, local):
+    """Each sensor row's observation functional o [n_dof, rows] on the FE DOFs (rows ordered
+    quantity-major), its time-derivative order (0 displacement, 1 velocity, 2 acceleration)
+    [rows] and whether it is a seat force (pad stiffness and damping applied) [rows]."""
+    n_dof, n_rail = fe.stiffness.shape[0], fe.n_rail_dof
+    ne = int(track.elements_per_bay)
     ke, _, _ = fe_mod.element_matrices(
         float(track.bending_stiffness), float(track.shear_stiffness), float(track.rail_mass),
-        float(track.rail_rotary_inertia), le)
-    sup = support_arrays(track)  # per sleeper [n_bays - 1]
-    node_x = fe.node_x
-    elem = np.clip(np.floor((x - node_x[0]) / le + 1e-9).astype(int), 0, n_nodes - 2)
-    local = x - node_x[elem]
-    sleeper = np.clip(np.floor(x / ls + 0.5).astype(int) + nb // 2 - 1, 0, nb - 2)
+        float(track.rail_rotary_inertia), fe.element_length)
 
     def unit(i):
         o = np.zeros(n_dof)
@@ -170,7 +178,6 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
         o[g[ok]] = coeffs[ok]
         return o
 
-    # observation functionals o [n_dof] and their kind: 0 displacement, 1 velocity, 2 accel.
     obs, kinds, damp = [], [], []
     for q in quantities:
         for i, xi in enumerate(x):
@@ -189,24 +196,28 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
             obs.append(o)
             kinds.append({"vel": 1, "acc": 2}.get(q.rsplit("_", 1)[-1], 0))
             damp.append(q == "seat_force")
-    o = np.stack(obs, axis=1)  # [dof, rows]
-    kinds, damp = np.array(kinds), np.array(damp)
-    row_sleeper = np.tile(sleeper, len(quantities))  # the sleeper under each row's position
-    kp, cp = sup["pad_stiffness"][row_sleeper], sup["pad_damping"][row_sleeper]
+    return np.stack(obs, axis=1), np.array(kinds), np.array(damp)
+
+
+def _modal_rows(model, fe, o, kinds, damp, kp, cp):
+    """The modal observation rows [m, rows] (complex: w (o.u) lambda^k, seat forces with the
+    pad's k_P and c_P) and the direct force terms [n_nodes, 2, rows]: the statics of the
+    truncated modes for displacements, the kept modes' feed-through for rates."""
+    shapes = np.asarray(model.shapes)  # [m, n, 2]
+    lam, wts = np.asarray(model.poles), np.asarray(model.weights)
+    n_m, n_nodes, _ = shapes.shape
+    u = np.concatenate([shapes[:, 1:-1, :].reshape(n_m, -1),
+                        np.asarray(model.sleeper_shapes)], axis=1).T  # [dof, m]
     c = u.T @ o  # [m, rows] complex: o . u_r
     scale = np.where(damp, kp, 1.0)
-    rows = wts[:, None] * c * lam[:, None] ** kinds[None, :]  # w (o.u) lambda^k
+    rows = wts[:, None] * c * lam[:, None] ** kinds[None, :]
     rows = rows * scale + np.where(damp, cp, 0.0) * wts[:, None] * c * lam[:, None]
-    # F(t) terms: statics of the truncated modes (k = 0), feed-through of kept modes (k >= 1)
     static = scipy.sparse.linalg.splu(fe.stiffness.tocsc()).solve(o)
     static -= np.real(u @ (wts[:, None] * c / (-lam[:, None])))
     feed = np.real(u @ (wts[:, None] * c * lam[:, None] ** np.maximum(kinds - 1, 0)[None, :]))
     direct = np.where(kinds[None, :] == 0, static, feed)
     direct = direct * scale + np.where(damp, cp, 0.0) * np.real(u @ (wts[:, None] * c))
-    direct = _nodal(direct[:n_rail], n_nodes)
-    return SensorSpec(jnp.asarray(x), jnp.asarray(rows.real.T), jnp.asarray(rows.imag.T),
-                      jnp.asarray(direct), jnp.asarray(node_x[elem]), jnp.asarray(local),
-                      quantities)
+    return rows, _nodal(direct[:fe.n_rail_dof], n_nodes)
 
 
 def evaluate(spec: SensorSpec, model, q, force, x) -> jax.Array:
