@@ -221,11 +221,13 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
 
 def phase_grid(table: ResponseTable, bays: np.ndarray) -> np.ndarray:
     """[P] impact rail coordinates x [m] (x = 0: the sleeper at the start of bay 0), the
-    table's in-bay positions over one wheel circumference 2 pi R starting a bay before the
-    detector's first bay ``bays[0]``."""
+    table's in-bay positions over one wheel circumference 2 pi R from the start of the
+    detector's first bay ``bays[0]``: a flat strikes once in every circumference, so exactly
+    one of its impacts lies there (the loop models that one; with a detector longer than
+    2 pi R the next one, 2 pi R later, is not modelled)."""
     ls, j = table.sleeper_spacing, table.offsets.size
     circumference = 2 * math.pi * table.wheel_radius
-    x0 = (int(bays[0]) - 1) * ls
+    x0 = int(bays[0]) * ls
     n = int(round(circumference / (ls / j)))
     return x0 + np.arange(n) * ls / j
 

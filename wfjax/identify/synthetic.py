@@ -84,7 +84,7 @@ def simulate_passage(positions, flats: list[TrainFlat], speed: float,
     if any(w >= positions.size for w in by_wheel):
         raise ValueError(f"flats: wheel index beyond the layout's {positions.size} wheels")
     ls = float(Track().sleeper_spacing)
-    x0 = (int(detector.bays()[0]) - 1) * ls
+    x0 = int(detector.bays()[0]) * ls  # as the identification's phase grid
     truth = []
     for i in range(positions.size):
         f = by_wheel.get(i)
