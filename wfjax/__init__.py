@@ -16,6 +16,7 @@ if not _jax.config.read("jax_enable_x64"):
 
 from . import contact as contact  # noqa: E402  (after the x64 switch)
 from . import fit as fit
+from . import identify as identify  # the package is callable: wf.identify(passages)
 from . import params as params
 from ._cache import load_or_build as load_or_build
 from .api import SimResult as SimResult

@@ -7,6 +7,9 @@ One job per module: :mod:`~wfjax.identify.passage` (the readings CSV), :mod:`~.f
 chosen train, the validation's truth).
 """
 
+import sys as _sys
+import types as _types
+
 from .inference import Prior as Prior
 from .passage import Passage as Passage
 from .passage import PassageError as PassageError
@@ -17,3 +20,13 @@ from .pipeline import identify as identify
 from .rules import FRA as FRA
 from .rules import TRAFIKVERKET as TRAFIKVERKET
 from .rules import RuleSet as RuleSet
+
+
+class _CallablePackage(_types.ModuleType):
+    """``wfjax.identify`` is this package and, called, :func:`identify`."""
+
+    def __call__(self, *args, **kwargs):
+        return identify(*args, **kwargs)
+
+
+_sys.modules[__name__].__class__ = _CallablePackage
