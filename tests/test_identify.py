@@ -181,3 +181,31 @@ def test_misfit_flagged():
     assert post.ppc_p < 1e-3
     y_ok = np.array([120e3, 120e3, 220e3, 120e3, 120e3])
     assert posterior([t], [BAYS], [y_ok], noise=0.03, model=0.0).ppc_p > 1e-3
+
+
+def test_command_writes_outputs(tmp_path, capsys, monkeypatch):
+    """wfjax identify on a synthetic table (monkeypatched, no simulation): identify.csv,
+    identify.json with case and provenance, identify.png, case.toml, one line per wheel."""
+    import json
+
+    from wfjax.cli import main
+
+    t = _table(slope=1.0e6, shapes=(("new", 0.0), ("rounded", 1.6)))
+    monkeypatch.setattr(fwd, "build_table", lambda *a, **k: t)
+    y = np.full((2, 5), 120e3)
+    y[0, 2] = 200e3  # wheel 0: a flat of about 80 mm in bay 1
+    path = _csv(tmp_path, passages_csv([Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, y)]))
+    out = tmp_path / "out"
+    assert main(["identify", "--readings", str(path), "--out", str(out),
+                 "--coupling-iterations", "0", "--user-length-mm", "50"]) == 0
+    text = capsys.readouterr().out
+    lines = [ln for ln in text.splitlines() if ln.strip().startswith("wheel")]
+    assert len(lines) == 2 and "FLAT" in lines[0] and "FLAT" not in lines[1]
+    rows = (out / "identify.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[0].startswith("wheel,flagged,p_flag,p_new")
+    summary = json.loads((out / "identify.json").read_text())
+    assert summary["case"]["identify"]["readings"] == str(path)
+    assert "provenance" in summary and summary["wheels"][0]["flagged"] is True
+    assert summary["wheels"][0]["decision_user"] == "act (length)"
+    assert 60 < summary["wheels"][0]["length_median_mm"] < 100
+    assert (out / "identify.png").stat().st_size > 1000 and (out / "case.toml").exists()
