@@ -90,11 +90,19 @@ def test_bogie_static_start_over_a_hanging_sleeper_equals_the_direct_solve():
 def test_a_gap_that_never_closes_is_the_void_sleeper():
     void = supports.void_sleeper(wf.Track(), SLEEPER)
     deep = supports.hanging_sleeper(wf.Track(), SLEEPER, 0.05)
-    a = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.1, track=void)
-    b = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.1, track=deep)
+    kw = dict(contact="hertz-profile", impact_position=0.1, sensors=[0.3, 0.65],
+              sensor_quantities=("rail_disp", "seat_force"), detector=wf.Detector())
+    a = wf.simulate(ROUNDED, V, track=void, **kw)
+    b = wf.simulate(ROUNDED, V, track=deep, **kw)
     np.testing.assert_allclose(np.asarray(b.force), np.asarray(a.force), rtol=1e-12,
                                atol=1e-9 * float(a.max_force))
     assert np.all(np.asarray(b.support_force) == 0.0)
+    pairs = [(a.detector_peak, b.detector_peak), (a.detector_load, b.detector_load)]
+    pairs += [(a.sensors[q], b.sensors[q]) for q in ("rail_disp", "seat_force")]
+    for ref, got in pairs:  # readings over a hanging sleeper, too
+        ref = np.asarray(ref)
+        np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-10,
+                                   atol=1e-10 * np.abs(ref).max())
 
 
 def test_a_closing_gap_carries_load_only_while_closed():
@@ -157,10 +165,40 @@ def test_bad_hanging_sleepers_are_refused(make, match):
         make()
 
 
-def test_hanging_sleepers_refuse_sensors_and_the_direct_3d_mode():
-    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
-    with pytest.raises(ValueError, match="sensors"):
-        wf.simulate(ROUNDED, V, contact="hertz-profile", track=track, sensors=[0.3])
+@pytest.mark.parametrize("gap_mm", [0.2, 5.0])  # closed under the wheel; never closes
+def test_sensor_readings_at_rest_over_hanging_sleepers_equal_the_direct_static_solve(gap_mm):
+    """Rail and sleeper displacements and seat forces at the static start equal the open FE
+    track's statics under the wheel load and the one-sided ballast's forces (1e-14 seen)."""
+    from wfjax.loop.observers import Sensors
+    from wfjax.scenario import sensors as sensor_mod
+
+    track = supports.hanging_sleeper(wf.Track(), [SLEEPER, SLEEPER + 1], gap_mm * 1e-3)
+    x_wheel = 0.65 + 9 * 0.65 / 32
+    config = wf.SimConfig()
+    struct = structure(Vehicle.single(), [wf.Wheel()], track, config)
+    law = prepare("hertz-profile", wf.Flat.none(), wf.Wheel(), track, wf.Material(), config)
+    xs = np.array([-0.3, 0.4, 0.65, 0.9, 1.3, 1.7, 2.2])
+    spec = sensor_mod.sensor_spec(xs, track, struct.track)
+    hist = run_scan(law, struct, V, 2e-5, x_wheel, x_wheel + 1.0, 2,
+                    observers=(Sensors(spec),))
+    y = np.asarray(hist["sensors"][0])
+    load = float(hist["force"][0])
+    fe = fe_mod.assemble(track)
+    idx = supports.hanging_sleepers(track)
+    force = _direct_static(track, x_wheel, load)[2]
+    b = fe_mod.load_vector(fe, np.array([x_wheel])).toarray()[:, 0] * load
+    b[fe.n_rail_dof + idx] -= force
+    u = scipy.sparse.linalg.splu(fe.stiffness.tocsc()).solve(b)
+    assert (force[0] > 0) == (gap_mm < 1)
+    q = {name: i for i, name in enumerate(spec.quantities)}
+    # without the support forces' direct terms: 3e-7 off (rail), 2.7e-7 P (seat)
+    np.testing.assert_allclose(y[q["rail_disp"]], fe_mod.load_vector(fe, xs).T @ u, rtol=1e-10)
+    nb, ne = track.n_bays, track.elements_per_bay
+    nearest = np.floor(xs / 0.65 + 0.5).astype(int) + nb // 2 - 1
+    sleeper_u = u[fe.n_rail_dof + nearest]
+    seat = track.pad_stiffness * (u[2 * ((nearest + 1) * ne) - 2] - sleeper_u)
+    np.testing.assert_allclose(y[q["sleeper_disp"]], sleeper_u, rtol=1e-10)
+    np.testing.assert_allclose(y[q["seat_force"]], seat, rtol=1e-10, atol=1e-12 * load)
 
 
 def test_the_adjoint_refuses_hanging_sleepers():

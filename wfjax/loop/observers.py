@@ -85,6 +85,11 @@ def running_min(acc, value, on):
     return jnp.where(on, jnp.minimum(acc, value), acc)
 
 
+def _supports(r: Reading):
+    """The hanging sleepers' support forces [n_s] N at ``r``, or None without them."""
+    return r.support[0] if r.support else None
+
+
 @pytree(static=("history",))
 class Sensors:
     """Readings at fixed rail positions (:class:`wfjax.scenario.sensors.SensorSpec`): their max and
@@ -103,7 +108,7 @@ class Sensors:
     def readout(self, r: Reading, ctx: LoopContext):
         """The readings [n_quantities, n_s] at ``r``: linear in (``r.q``, ``r.force``) at
         fixed ``r.x``."""
-        return sensor_mod.evaluate(self.spec, ctx.model, r.q, r.force, r.x)
+        return sensor_mod.evaluate(self.spec, ctx.model, r.q, r.force, r.x, _supports(r))
 
     def reduce(self, state, y, r: Reading, ctx: LoopContext):
         """The running extremes after readings ``y`` at ``r`` (its step index only)."""
@@ -135,12 +140,14 @@ class DetectorReadings:
     def readout(self, r: Reading, ctx: LoopContext):
         """The ungated estimate [n_bays] N at ``r``: linear in (``r.q``, ``r.force``) at
         fixed ``r.x``."""
-        return sensor_mod.detector_load(self.spec, ctx.model, r.q, r.force, r.x)[0]
+        return sensor_mod.detector_load(self.spec, ctx.model, r.q, r.force, r.x,
+                                        _supports(r))[0]
 
     def reduce(self, state, est, r: Reading, ctx: LoopContext):
         """The running peaks after estimate ``est`` at ``r`` (its step index and the wheels'
         positions, which gate the bays)."""
-        gate = sensor_mod.detector_load(self.spec, ctx.model, r.q, r.force, r.x)[1]
+        gate = sensor_mod.detector_load(self.spec, ctx.model, r.q, r.force, r.x,
+                                        _supports(r))[1]
         state = running_max(state, est, gate & counted(r.n, 0, self.end))
         return state, ({"detector_load": est} if self.history else {})
 

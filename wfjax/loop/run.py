@@ -227,9 +227,6 @@ def time_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     ls = loop_setup(laws, struct, speed, dt, x_start, impact_position, precision, roughness)
     observers = tuple(cast_precision(tuple(observers), precision))
     if ls.struct.supports is not None:
-        if any(hasattr(o, "readout") for o in observers):
-            raise ValueError("hanging sleepers (Track.ballast_gap > 0) are not supported with "
-                             "sensors or a detector: their readings lack the support forces")
         observers += (HangingSleepers(),)
     ctx = LoopContext(ls.struct.track, len(laws), ls.preload.dtype, ls.struct.supports)
     start = static_start(ls)

@@ -53,6 +53,7 @@ from ..fields import pytree
 from ..model import fe as fe_mod
 from ..model import track as track_mod
 from ..model.sleepers import support_arrays
+from ..model.supports import hanging_sleepers
 from ..params import Track
 
 __all__ = ["QUANTITIES", "END_BAYS", "SensorSpec", "sensor_spec", "evaluate", "check_positions",
@@ -100,6 +101,9 @@ class SensorSpec:
             feed-through of the kept modes (velocity and acceleration rows).
         element_x0: [n_s] start [m] of the rail element containing each sensor.
         local_s: [n_s] sensor position within that element [m].
+        support_direct: [n_rows, n_hanging] the same direct terms for a unit downward load on
+            each hanging sleeper (:func:`wfjax.model.supports.hanging_sleepers`; their one-sided
+            ballast pushes up with the loop's support forces); [n_rows, 0] when none hangs.
         quantities: names of the rows' quantities (static).
     """
 
@@ -109,6 +113,7 @@ class SensorSpec:
     direct: jax.Array
     element_x0: jax.Array
     local_s: jax.Array
+    support_direct: jax.Array
     quantities: tuple = QUANTITIES
 
 
@@ -149,11 +154,12 @@ def sensor_spec(positions, track: Track, model, quantities=QUANTITIES) -> Sensor
     o, kinds, damp = _observation_functionals(track, fe, quantities, x, sleeper, elem, local)
     sup = support_arrays(track)  # per sleeper [n_bays - 1]
     row_sleeper = np.tile(sleeper, len(quantities))  # the sleeper under each row's position
-    rows, direct = _modal_rows(model, fe, o, kinds, damp, sup["pad_stiffness"][row_sleeper],
-                               sup["pad_damping"][row_sleeper])
+    rows, direct, sleepers = _modal_rows(model, fe, o, kinds, damp,
+                                         sup["pad_stiffness"][row_sleeper],
+                                         sup["pad_damping"][row_sleeper])
     return SensorSpec(jnp.asarray(x), jnp.asarray(rows.real.T), jnp.asarray(rows.imag.T),
                       jnp.asarray(direct), jnp.asarray(fe.node_x[elem]), jnp.asarray(local),
-                      quantities)
+                      jnp.asarray(sleepers[hanging_sleepers(track)].T), quantities)
 
 
 def _observation_functionals(track: Track, fe, quantities, x, sleeper, elem, local):
@@ -201,8 +207,10 @@ def _observation_functionals(track: Track, fe, quantities, x, sleeper, elem, loc
 
 def _modal_rows(model, fe, o, kinds, damp, kp, cp):
     """The modal observation rows [m, rows] (complex: w (o.u) lambda^k, seat forces with the
-    pad's k_P and c_P) and the direct force terms [n_nodes, 2, rows]: the statics of the
-    truncated modes for displacements, the kept modes' feed-through for rates."""
+    pad's k_P and c_P) and the direct terms of a unit load: [n_nodes, 2, rows] on the rail,
+    [n_sleepers, rows] on each sleeper (K symmetric: the reading of a unit load at DOF j is
+    row j of K^-1 o), the statics of the truncated modes for displacements, the kept modes'
+    feed-through for rates."""
     shapes = np.asarray(model.shapes)  # [m, n, 2]
     lam, wts = np.asarray(model.poles), np.asarray(model.weights)
     n_m, n_nodes, _ = shapes.shape
@@ -217,18 +225,21 @@ def _modal_rows(model, fe, o, kinds, damp, kp, cp):
     feed = np.real(u @ (wts[:, None] * c * lam[:, None] ** np.maximum(kinds - 1, 0)[None, :]))
     direct = np.where(kinds[None, :] == 0, static, feed)
     direct = direct * scale + np.where(damp, cp, 0.0) * np.real(u @ (wts[:, None] * c))
-    return rows, _nodal(direct[:fe.n_rail_dof], n_nodes)
+    return rows, _nodal(direct[:fe.n_rail_dof], n_nodes), direct[fe.n_rail_dof:]
 
 
-def evaluate(spec: SensorSpec, model, q, force, x) -> jax.Array:
+def evaluate(spec: SensorSpec, model, q, force, x, support_force=None) -> jax.Array:
     """Sensor readings [n_quantities, n_s] from the track's modal state (pure ``jnp``).
 
     Args:
         spec: :func:`sensor_spec`. model: the track's :class:`~wfjax.model.track.ModalModel`.
         q: complex [n_modes] modal states at this instant; force: contact force F [N] (or
             [n_wheels] forces); x: rail position of the contact [m] (or [n_wheels]).
+        support_force: None or [n_hanging] N, the hanging sleepers' ballast forces (upwards).
     """
     y = spec.c_re @ jnp.real(q) - spec.c_im @ jnp.imag(q)
+    if support_force is not None:
+        y = y - spec.support_direct @ support_force
     y = y.reshape(len(spec.quantities), spec.positions.shape[0])
     loads = jax.vmap(lambda f, xw: _load_terms(spec, model, f, xw))(jnp.atleast_1d(force),
                                                                     jnp.atleast_1d(x))
@@ -328,11 +339,12 @@ def detector_spec(detector: Detector, track: Track, model) -> DetectorSpec:
                         jnp.asarray(float(detector.calibration)))
 
 
-def detector_load(spec: DetectorSpec, model, q, force, x):
+def detector_load(spec: DetectorSpec, model, q, force, x, support_force=None):
     """(estimate [n_bays] N, gate bool): calibrated shear difference per bay and whether the
     wheel (contact point ``x`` [m]) is between the bay's bridges: gate [n_bays] for a scalar
-    ``x``, [n_wheels, n_bays] for wheels at ``x`` [n_wheels] with loads ``force`` [n_wheels]."""
-    shear = evaluate(spec.sensors, model, q, force, x)[0]
+    ``x``, [n_wheels, n_bays] for wheels at ``x`` [n_wheels] with loads ``force`` [n_wheels];
+    ``support_force`` as in :func:`evaluate`."""
+    shear = evaluate(spec.sensors, model, q, force, x, support_force)[0]
     n = spec.left.shape[0]
     est = spec.calibration * (shear[:n] - shear[n:])
     x = jnp.asarray(x)[..., None]
