@@ -148,6 +148,9 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
                                     progress=progress and (lambda d, t, v=v: progress(
                                         f"response table {v * 3.6:.0f} km/h", d, t)), **opts)
     ptables = [tables[round(p.speed, 9)] for p in passages]
+    factors = [site_factors(p, t) for p, t in zip(passages, ptables, strict=True)]
+    passages = [dataclasses.replace(p, readings=p.readings / f[None, :])
+                for p, f in zip(passages, factors, strict=True)]
     bays = [p.detector_bays() for p in passages]
     n = passages[0].n_wheels
     peak_only = passages[0].peak_only
@@ -172,10 +175,24 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         contact=contact, noise=noise, model=model, prior=dataclasses.asdict(prior),
         flag_length_m=flag_length, flag_probability=flag_probability, line_speed_ms=line,
         force_level_N=force_level, coupling_iterations=coupling_iterations,
-        misfit_p=MISFIT_P, seed=seed, table_options={k: v for k, v in opts.items()
-                                                     if k not in ("wheel", "cache_dir")},
+        misfit_p=MISFIT_P, seed=seed, site_factors=[f.tolist() for f in factors],
+        table_options={k: v for k, v in opts.items() if k not in ("wheel", "cache_dir")},
         user_rule=None if user_rule is None else dataclasses.asdict(user_rule)),
         [tables[k] for k in sorted(tables)], passages)
+
+
+def site_factors(passage: Passage, table: fwd.ResponseTable) -> np.ndarray:
+    """[n_bays] each bay's site factor: the median over the passage's wheels of the bay's
+    reading over a round wheel's modelled reading (1 with fewer than 3 wheels or peaks only).
+
+    A bay's static response (its supports, the bridges' calibration) is common to every wheel
+    that crosses it; most wheels are round in any one bay, so the median isolates it, as a
+    site's own zeroing on the passing train does. The readings are divided by it."""
+    n_bays = 1 if passage.peak_only else passage.readings.shape[1]
+    if passage.peak_only or passage.n_wheels < 3:
+        return np.ones(n_bays)
+    base = float(np.median(table.readings[:, 0]))
+    return np.median(passage.readings, axis=0) / base
 
 
 def p_peak_exceeds(post: WheelPosterior, table: fwd.ResponseTable, level: float) -> float:
