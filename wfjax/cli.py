@@ -3,15 +3,18 @@
 Each subcommand module defines ``HELP`` (one line) and ``run(args) -> int``; its flags come
 from the option descriptions of :mod:`wfjax.options` (:func:`add_options`). Bad input (flags,
 case files, data files) exits with status 2 and a one-line reason on stderr, before any
-computation; a file that cannot be written exits 1.
+computation; a file that cannot be written exits 1, SIGTERM 143 and Ctrl-C 130, each with
+one line and nothing of the run's outputs left (:mod:`wfjax.outputs`).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import os
+import signal
 import sys
 
 SUBCOMMANDS = ("sweep", "simulate", "compare", "figures", "fit", "receptance", "geometry",
@@ -138,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     ``wfjax --version`` (or ``-V``) prints ``wfjax X.Y.Z`` (:data:`wfjax.__version__`, the
     version the package was built with) and nothing else runs.
     """
-    from . import __version__
+    from . import __version__, outputs
     from .commands._common import NonFiniteResult
 
     first = (sys.argv[1:] if argv is None else argv)[:1]
@@ -148,18 +151,54 @@ def main(argv: list[str] | None = None) -> int:
     expose_cpu_cores()
     args = build_parser().parse_args(argv)
     enable_compilation_cache()
+    with _terminate_as_exception():
+        try:
+            with outputs.session(args.command):
+                return int(args._run(args) or 0)
+        except ValueError as exc:
+            return _fail(args.command, str(exc), 2)
+        except NonFiniteResult as exc:
+            return _fail(args.command, str(exc), 1)
+        except outputs.OutputError as exc:
+            return _fail(args.command, f"{exc.strerror}; {_NOTHING}", 1)
+        except OSError as exc:
+            where = f": {exc.filename}" if exc.filename else ""
+            return _fail(args.command, f"{exc.strerror or exc}{where}", 1)
+        except Terminated:
+            return _fail(args.command, f"terminated (SIGTERM); {_NOTHING}", 143)
+        except KeyboardInterrupt:
+            return _fail(args.command, f"interrupted (Ctrl-C); {_NOTHING}", 130)
+
+
+_NOTHING = "nothing of this run was written, --out keeps its previous files"
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived: unwinds like Ctrl-C, so the run's staging files are removed."""
+
+
+def _fail(command: str, message: str, status: int) -> int:
+    """Print ``message`` as the command's one-line error; return ``status``."""
+    print(f"wfjax {command}: error: {message}", file=sys.stderr)
+    return status
+
+
+@contextlib.contextmanager
+def _terminate_as_exception():
+    """Within: SIGTERM raises :class:`Terminated` (exit status 143, like a killed process);
+    the previous handler is restored after. Outside the main thread: no change."""
+    def handler(signum, frame):
+        raise Terminated()
+
     try:
-        return int(args._run(args) or 0)
-    except ValueError as exc:
-        print(f"wfjax {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except NonFiniteResult as exc:
-        print(f"wfjax {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        where = f": {exc.filename}" if exc.filename else ""
-        print(f"wfjax {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
-        return 1
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def entry_point() -> None:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import limits
 from . import params as P
 from .options import CaseError
 
@@ -38,9 +39,9 @@ def read_profile_csv(path: str | os.PathLike, smoothing_mm: float = 0.0):
 
     source = str(path)
     try:
-        text = Path(path).read_text()
-    except OSError as exc:
-        raise CaseError(f"--profile-csv {source}: cannot read: {exc.strerror or exc}") from None
+        text = limits.read_text(path, f"--profile-csv {source}")
+    except limits.InputError as exc:
+        raise CaseError(str(exc)) from None
     rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
     rows = [r for r in rows if not r[0].lstrip().startswith("#")]
     if not rows:
@@ -105,4 +106,8 @@ def read_profile_csv(path: str | os.PathLike, smoothing_mm: float = 0.0):
 
 def file_sha256(path) -> str:
     """sha256 of a file's bytes (recorded in provenance for data and profiles)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()

@@ -238,14 +238,10 @@ def to_netcdf(result, path, case=None, provenance: dict | None = None,
         ``path``. Nothing is left at ``path`` or beside it when writing fails.
     """
     ds = to_xarray(result, case, provenance)
+    from .outputs import stage
+
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        ds.to_netcdf(tmp, engine=engine)
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    stage(path, lambda target: ds.to_netcdf(target, engine=engine))
     return path
 
 

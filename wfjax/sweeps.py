@@ -168,13 +168,19 @@ class SweepResult(NamedTuple):
         return buf.getvalue()
 
     def save_npz(self, path) -> None:
-        """Save every array and label to ``path`` (.npz), atomically."""
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.tmp.npz")
+        """Save every array and label to ``path`` (.npz), atomically: through a uniquely
+        named temporary file (:func:`wfjax.outputs.stage`; in the ``wfjax`` command, into
+        the run's output set), so concurrent writers never mix their bytes."""
+        from .outputs import stage
+
         arrays = {k: np.asarray(getattr(self, k)) for k in self._fields
                   if k not in ("flats", "contact") and getattr(self, k) is not None}
-        np.savez(tmp, flats=np.array(self.flats), contact=np.array(self.contact), **arrays)
-        tmp.replace(path)
+        def write(target):
+            with open(target, "wb") as fh:  # a file object: no ".npz" appended to the name
+                np.savez(fh, flats=np.array(self.flats), contact=np.array(self.contact),
+                         **arrays)
+
+        stage(Path(path), write)
 
     @classmethod
     def load_npz(cls, path) -> SweepResult:

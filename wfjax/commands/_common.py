@@ -5,13 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import secrets
 import sys
 import tomllib
 from pathlib import Path
 
 from .. import case as case_mod
-from .. import options
+from .. import options, outputs
 from ..datafiles import file_sha256
 
 
@@ -140,42 +139,28 @@ def write_summary(path: Path, summary: dict, case: case_mod.Case,
 
 
 def prepare_out(path: str) -> Path:
-    """Create the output directory and return it."""
+    """Create the output directory, check that it can be written and return it.
+
+    In the ``wfjax`` command (:func:`wfjax.outputs.session`) this opens the run's output set:
+    the files written below go to staging files, committed together when the command
+    returns (``docs/outputs.md``); a killed earlier run's leftovers are cleaned up first.
+    """
     out = Path(path)
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        if outputs.open_set(out) is None:
+            out.mkdir(parents=True, exist_ok=True)
+    except outputs.OutputError as exc:
+        raise ValueError(exc.strerror) from None
     except OSError as exc:
         raise ValueError(f"--out {path}: cannot create the directory: "
                          f"{exc.strerror or exc}") from None
     return out
 
 
-def _temporary(path: Path, suffix: str = "") -> Path:
-    """A new empty file next to ``path``, created with mode 0666 less the umask (0644)."""
-    for _ in range(100):
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{suffix}")
-        try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-            return tmp
-        except FileExistsError:
-            continue
-    raise OSError(f"cannot create a temporary file next to {path}")
-
-
 def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file, so it is never half-written.
-
-    The file gets the ordinary permissions of a new file (0666 less the umask).
-    """
-    path = Path(path)
-    tmp = _temporary(path)
-    try:
-        with open(tmp, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Write ``text`` to ``path`` as a file of the run's set (:func:`wfjax.outputs.stage`):
+    never half-written, with the ordinary permissions of a new file (0666 less the umask)."""
+    outputs.stage(path, lambda target: Path(target).write_text(text))
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -184,16 +169,11 @@ def write_json(path: Path, data: dict) -> None:
 
 
 def save_figure(fig, path: Path) -> None:
-    """Save a matplotlib figure as PNG atomically and close it."""
+    """Save a matplotlib figure as PNG into the run's set (atomically) and close it."""
     import matplotlib.pyplot as plt
 
-    path = Path(path)
-    tmp = _temporary(path, ".png")
     try:
-        fig.savefig(tmp, dpi=130, bbox_inches="tight")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        outputs.stage(path, lambda target: fig.savefig(target, dpi=130, bbox_inches="tight",
+                                                        format="png"))
     finally:
         plt.close(fig)

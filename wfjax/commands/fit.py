@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import limits
 from ..options import MAX_SPEED_KMH
 from ._common import (
     case_vehicle,
@@ -40,6 +41,8 @@ HELP = ("fit a flat's geometry to measured max forces vs speed or a force histor
 MAX_FORCE_COLUMNS = ("speed_kmh", "max_force_kN")
 HISTORY_COLUMNS = ("t_s", "force_kN")
 MAX_PLAUSIBLE_KN = 5000.0  # a larger "kN" value is almost surely in N
+MIN_PLAUSIBLE_KN = 1.0  # a max force below 1 kN is in MN, or 1000 times too small
+OUTLIER_FACTOR = 100.0  # a max force this far from the median is in another unit
 
 EXAMPLE_CSV = """speed_kmh,max_force_kN
 40.0,210.77
@@ -54,13 +57,17 @@ EXAMPLE_CSV = """speed_kmh,max_force_kN
 
 
 def _read_columns(text: str, source: str) -> dict[str, np.ndarray]:
-    rows = list(csv.reader(io.StringIO(text)))
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    """The numeric columns of CSV ``text`` by header name, plus ``"_line"``: the file line
+    of every row (a leading UTF-8 byte-order mark, as Excel writes, is dropped)."""
+    text = text.removeprefix("\ufeff")
+    rows = [(i, r) for i, r in enumerate(csv.reader(io.StringIO(text)), start=1)
+            if r and any(c.strip() for c in r)]
     if not rows:
         raise ValueError(f"{source}: empty file")
-    header = [c.strip() for c in rows[0]]
+    header = [c.strip() for c in rows[0][1]]
     cols: dict[str, list[float]] = {h: [] for h in header}
-    for i, row in enumerate(rows[1:], start=2):
+    cols["_line"] = [i for i, _ in rows[1:]]
+    for i, row in rows[1:]:
         if len(row) != len(header):
             raise ValueError(f"{source}: line {i} has {len(row)} fields, header has "
                              f"{len(header)}")
@@ -87,7 +94,7 @@ def parse_data(text: str, source: str = "data", speed_kmh: float | None = None,
     cols = _read_columns(text, source)
     if all(c in cols for c in MAX_FORCE_COLUMNS):
         v, f = cols["speed_kmh"], cols["max_force_kN"]
-        _check_kn(f, "max_force_kN", source)
+        _check_kn(f, "max_force_kN", source, cols["_line"])
         if np.any(v <= 0) or np.any(v > MAX_SPEED_KMH):
             raise ValueError(f"{source}: speed_kmh must be in (0, {MAX_SPEED_KMH:g}] km/h, got "
                              f"[{v.min():g}, {v.max():g}]")
@@ -97,7 +104,7 @@ def parse_data(text: str, source: str = "data", speed_kmh: float | None = None,
         return MaxForceData(v / 3.6, f * 1e3)
     if all(c in cols for c in HISTORY_COLUMNS):
         t, f = cols["t_s"], cols["force_kN"]
-        _check_kn(f, "force_kN", source)
+        _check_kn(f, "force_kN", source, cols["_line"], history=True)
         if speed_kmh is None:
             raise ValueError(f"{source}: a force history (t_s,force_kN) needs --speed-kmh")
         if np.ptp(t) > 5.0:
@@ -107,6 +114,7 @@ def parse_data(text: str, source: str = "data", speed_kmh: float | None = None,
             raise ValueError(f"{source}: need at least 10 rows of t_s,force_kN, got {t.size}")
         return HistoryData(t, f * 1e3, speed_kmh / 3.6, impact_position_mm * 1e-3)
     hint = ""
+    cols.pop("_line")
     if any(c.endswith("_N") for c in cols):
         hint = " (forces must be given in kN: rename and divide by 1000)"
     raise ValueError(f"{source}: need columns {','.join(MAX_FORCE_COLUMNS)} (max force vs "
@@ -114,10 +122,33 @@ def parse_data(text: str, source: str = "data", speed_kmh: float | None = None,
                      f"{','.join(cols)}{hint}")
 
 
-def _check_kn(force_kn: np.ndarray, name: str, source: str) -> None:
-    if force_kn.size and np.median(np.abs(force_kn)) > MAX_PLAUSIBLE_KN:
-        raise ValueError(f"{source}: {name} values around {np.median(force_kn):.3g} look like "
+def _check_kn(force_kn: np.ndarray, name: str, source: str, lines=None,
+              history: bool = False) -> None:
+    """The plausibility rule of forces in kN (docs/case_files.md, "Measured data"): every
+    value in [0, 5000] kN (above: in N), the largest at least 1 kN (below: in MN, or 1000x
+    too small), and in max-force data every value at least 1 kN and within a factor 100 of
+    the median (else one row in another unit). Raises ValueError naming the row's line."""
+    if not force_kn.size:
+        return
+    lines = np.arange(2, force_kn.size + 2) if lines is None else np.asarray(lines)
+    median = float(np.median(np.abs(force_kn)))
+    if median > MAX_PLAUSIBLE_KN:
+        raise ValueError(f"{source}: {name} values around {median:.3g} look like "
                          "N, not kN: divide by 1000")
+    if float(np.max(force_kn)) < MIN_PLAUSIBLE_KN:
+        raise ValueError(f"{source}: {name} values at most {np.max(force_kn):.3g} kN: a wheel's "
+                         "contact force is tens to hundreds of kN; are they in MN (multiply "
+                         "by 1000)?")
+    low = MIN_PLAUSIBLE_KN if not history else -np.inf
+    bad = (np.abs(force_kn) > MAX_PLAUSIBLE_KN) | (force_kn < low)
+    if not history:
+        bad |= (force_kn > OUTLIER_FACTOR * median) | (force_kn < median / OUTLIER_FACTOR)
+    if np.any(bad):
+        j = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{source}: line {int(lines[j])}: {name} = {force_kn[j]:g} does not "
+                         f"fit the other rows (median {median:.4g} kN): a value in N, or a "
+                         f"typo? allowed: [{MIN_PLAUSIBLE_KN:g}, {MAX_PLAUSIBLE_KN:g}] kN, within "
+                         f"{OUTLIER_FACTOR:g}x of the median")
 
 
 def _initial_flat(case):
@@ -149,9 +180,7 @@ def run(args) -> int:
         text, source = EXAMPLE_CSV, "example"
     elif case.get("fit.data"):
         path = Path(case["fit.data"])
-        if not path.is_file():
-            raise ValueError(f"--data {case['fit.data']}: no such file")
-        text, source = path.read_text(), str(path)
+        text, source = limits.read_text(path, f"--data {path}"), str(path)
     else:
         raise ValueError("give --data FILE.csv or --example (or fit.data in the case file)")
     speed_kmh = case.get("run.speed_kmh")

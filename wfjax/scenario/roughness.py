@@ -206,12 +206,14 @@ def read_csv(path: str | os.PathLike, wheel_radius: float | None = None,
         ValueError: one line naming the file and what is wrong (columns, values, spacing).
     """
     name = os.fspath(path)
-    try:
-        with open(name, newline="") as fh:
-            rows = [r for r in csv.reader(line for line in fh if not line.lstrip().startswith("#"))
-                    if r and any(c.strip() for c in r)]
-    except OSError as exc:
-        raise ValueError(f"{name}: cannot read ({exc.strerror})") from None
+    import io
+
+    from .. import limits
+
+    text = limits.read_text(name, name)
+    rows = [r for r in csv.reader(line for line in io.StringIO(text, newline="")
+                                  if not line.lstrip().startswith("#"))
+            if r and any(c.strip() for c in r)]
     if not rows:
         _fail(f"{name}: empty file (need a header x_m|x_mm,roughness_m|roughness_mm|"
               f"roughness_um and rows)")
