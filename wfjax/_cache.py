@@ -4,9 +4,14 @@
 wfjax version, or calls ``build()``, stores and returns its result.
 
 Files are ``<cache dir>/<name>-<hash>.npz.sha256``: a 64-character hex SHA-256 of the payload,
-a newline, then the ``.npz`` payload. They are written to a temporary file in the same
-directory and moved into place with ``os.replace`` (atomic), and verified on load: a file
-whose checksum or contents do not match is rebuilt, never trusted.
+a space, the entry's own key hash (64 hex, of which ``<hash>`` is the first 24), a newline,
+then the ``.npz`` payload. They are written to a uniquely named temporary file in the same
+directory (:func:`wfjax.outputs.unique_temporary`) and moved into place with ``os.replace``
+(atomic), and verified on load: a file whose checksum or contents do not match, or whose
+recorded key is not the one its name stands for (a renamed or copied entry), is rebuilt,
+never trusted. Temporary files left by killed writers are removed by the next write.
+A cache directory that cannot be written makes every run rebuild its tables: a one-line
+warning on stderr says so, once per process.
 
 Cache directory: the ``cache_dir`` argument, else the environment variable
 ``WFJAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/wfjax`` (``~/.cache/wfjax``).
@@ -18,11 +23,13 @@ import hashlib
 import io
 import json
 import os
-import tempfile
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+
+from .outputs import clean_stale, unique_temporary
 
 __all__ = ["cache_directory", "cache_path", "load_or_build", "key_hash"]
 
@@ -63,9 +70,16 @@ def key_hash(name: str, key: dict) -> str:
     return hashlib.sha256(payload.encode()).hexdigest()
 
 
+_FULL_KEYS: dict[str, str] = {}  # entry file name -> its full key hash
+_WARNED: set[str] = set()
+
+
 def cache_path(name: str, key: dict, cache_dir=None) -> Path:
     """The file that holds (or will hold) the entry ``name``/``key``."""
-    return cache_directory(cache_dir) / f"{name}-{key_hash(name, key)[:24]}.npz.sha256"
+    full = key_hash(name, key)
+    path = cache_directory(cache_dir) / f"{name}-{full[:24]}.npz.sha256"
+    _FULL_KEYS[path.name] = full
+    return path
 
 
 def _read(path: Path) -> dict[str, np.ndarray] | None:
@@ -73,8 +87,15 @@ def _read(path: Path) -> dict[str, np.ndarray] | None:
         blob = path.read_bytes()
     except OSError:
         return None
-    digest, sep, payload = blob.partition(b"\n")
+    header, sep, payload = blob.partition(b"\n")
+    digest, _, recorded = header.partition(b" ")
     if not sep or hashlib.sha256(payload).hexdigest().encode() != digest:
+        return None
+    stem = path.name.removesuffix(".npz.sha256")
+    if len(recorded) != 64 or not stem.endswith("-" + recorded[:24].decode("ascii", "replace")):
+        return None  # the entry of another key, renamed or copied here
+    expected = _FULL_KEYS.get(path.name)
+    if expected is not None and expected.encode() != recorded:
         return None
     try:
         with np.load(io.BytesIO(payload), allow_pickle=False) as data:
@@ -87,25 +108,35 @@ def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
     buf = io.BytesIO()
     np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})
     payload = buf.getvalue()
+    full = _FULL_KEYS.get(path.name)
+    if full is None:
+        raise OSError(f"{path}: not a cache entry's name (made by cache_path)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    clean_stale(path.parent)
+    tmp = unique_temporary(path)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(hashlib.sha256(payload).hexdigest().encode() + b"\n" + payload)
+        with open(tmp, "wb") as fh:
+            fh.write(hashlib.sha256(payload).hexdigest().encode() + b" " + full.encode()
+                     + b"\n" + payload)
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        tmp.unlink(missing_ok=True)
         raise
 
 
 def store(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """Write ``arrays`` to the cache file ``path`` (:func:`cache_path`) atomically; a cache
-    directory that cannot be written is skipped silently (the caller keeps its arrays)."""
+    directory that cannot be written is skipped (the caller keeps its arrays) with a one-line
+    warning on stderr, once per directory and process."""
     try:
         _write(path, {k: np.asarray(v) for k, v in arrays.items()})
-    except OSError:
-        pass
+    except OSError as exc:
+        where = str(path.parent)
+        if where not in _WARNED:
+            _WARNED.add(where)
+            print(f"wfjax: warning: cannot write the cache {where}: {exc.strerror or exc}; "
+                  "every run rebuilds its tables (much slower): set WFJAX_CACHE_DIR to a "
+                  "writable directory", file=sys.stderr)
 
 
 def load_or_build(name: str, key: dict, build: Callable[[], dict[str, np.ndarray]],

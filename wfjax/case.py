@@ -35,6 +35,7 @@ import numpy as np
 
 from . import limits
 from . import params as P
+from .companions import check_companions
 from .contact import registry
 from .options import (
     _FLAT_CMDS,
@@ -573,8 +574,8 @@ def _ordered(values: dict) -> list[str]:
 def _toml_value(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
+    if isinstance(v, str):  # TOML basic string: raw UTF-8 (no surrogate-pair escapes), DEL escaped
+        return json.dumps(v, ensure_ascii=False).replace("\x7f", "\\u007f")
     if isinstance(v, list):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     if isinstance(v, float):
@@ -583,7 +584,8 @@ def _toml_value(v) -> str:
 
 
 def resolve(command: str, config: str | None = None, flags: dict | None = None,
-            environ: Mapping[str, str] | None = None) -> Case:
+            environ: Mapping[str, str] | None = None,
+            typed: Mapping[str, str] | None = None) -> Case:
     """The :class:`Case` of ``command``: defaults < environment < case file < flags.
 
     Args:
@@ -591,19 +593,25 @@ def resolve(command: str, config: str | None = None, flags: dict | None = None,
         config: path of a case file (TOML, or a JSON summary written by ``wfjax``).
         flags: checked SI values from the command line (``{"section.key": value}``).
         environ: environment (default ``os.environ``).
+        typed: how the user typed each key of ``flags`` (``"--void-gap-mm"``), for errors.
 
     Raises:
-        CaseError: anything wrong, before any computation.
+        CaseError: anything wrong, before any computation (a key whose companion is missing
+            included: :mod:`wfjax.companions`).
     """
     env = {k: v for k, v in environment_layer(environ).items() if command in KEYS[k].commands}
     layers = [default_layer(command), env]
     unused: tuple = ()
+    given: dict[str, str] = {}
     if config:
         file_layer = load_layer(config)
         unused = tuple(k for k in file_layer if command not in KEYS[k].commands)
         layers.append({k: v for k, v in file_layer.items() if k not in unused})
+        given.update({k: f"{config}: {k}" for k in layers[-1]})
     layers.append(flags or {})
+    given.update({k: (typed or {}).get(k) or KEYS[k].flag or k for k in flags or {}})
     values = merge(layers)
+    check_companions(values, layers[0], given)
     for path in list(values):
         if command not in KEYS[path].commands:
             raise CaseError(f"{path} is not an option of wfjax {command}")

@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     version the package was built with) and nothing else runs.
     """
     from . import __version__, outputs
-    from .commands._common import NonFiniteResult
+    from .commands._common import NonFiniteResult, user_words
 
     first = (sys.argv[1:] if argv is None else argv)[:1]
     if first and first[0] in VERSION_FLAGS:
@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
             with outputs.session(args.command):
                 return int(args._run(args) or 0)
         except ValueError as exc:
-            return _fail(args.command, str(exc), 2)
+            return _fail(args.command, user_words(str(exc)), 2)
         except NonFiniteResult as exc:
             return _fail(args.command, str(exc), 1)
         except outputs.OutputError as exc:

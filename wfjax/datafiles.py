@@ -31,7 +31,8 @@ def read_profile_csv(path: str | os.PathLike, smoothing_mm: float = 0.0):
     increasing x, no negative z beyond 0.02 mm of noise, both ends back on the undamaged
     surface within 5 % of the depth, depth <= 5 mm); negative noise clipped to 0; linear
     resampling on a uniform 0.1 mm grid; optional Gaussian smoothing (standard deviation
-    ``smoothing_mm``, the ends held at 0); centring on the centroid of the missing area.
+    ``smoothing_mm`` on a grid widened by 4 standard deviations on each side, so the missing
+    area is kept; the ends held at 0); centring on the centroid of the missing area.
 
     Raises:
         CaseError: one line naming the file, the line or column and what is wrong.
@@ -96,12 +97,22 @@ def read_profile_csv(path: str | os.PathLike, smoothing_mm: float = 0.0):
     zu = np.interp(xu, x, z)
     zu[0] = zu[-1] = 0.0
     if smoothing_mm > 0:
-        half = int(np.ceil(4 * smoothing_mm / step))
-        kernel = np.exp(-0.5 * (np.arange(-half, half + 1) * step / smoothing_mm) ** 2)
-        zu = np.convolve(np.pad(zu, half), kernel / kernel.sum(), mode="valid")
-        zu[0] = zu[-1] = 0.0
+        xu, zu = _smooth(xu, zu, smoothing_mm, step)
     centre = float(np.sum(xu * zu) / np.sum(zu))
     return (xu - centre) * 1e-3, zu * 1e-3
+
+
+def _smooth(xu: np.ndarray, zu: np.ndarray, sigma_mm: float, step_mm: float):
+    """Gaussian smoothing (standard deviation ``sigma_mm``) of the profile ``zu`` [mm] on the
+    uniform grid ``xu`` [mm] (spacing ``step_mm``), keeping its area: the grid is widened by
+    4 sigma on each side, so the material the kernel spreads past the measured ends stays in
+    the profile (the widened ends are held at 0; they carry < 0.01 % of the area)."""
+    half = int(np.ceil(4 * sigma_mm / step_mm))
+    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) * step_mm / sigma_mm) ** 2)
+    zs = np.convolve(zu, kernel / kernel.sum(), mode="full")
+    xs = xu[0] + step_mm * np.arange(-half, xu.size + half)
+    zs[0] = zs[-1] = 0.0
+    return xs, zs
 
 
 def file_sha256(path) -> str:

@@ -5,13 +5,34 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 import tomllib
 from pathlib import Path
 
 from .. import case as case_mod
-from .. import options, outputs
+from .. import limits, options, outputs
 from ..datafiles import file_sha256
+
+_SECTION_OF = {"Track": "track", "Wheel": "wheel", "Material": "material",
+               "SimConfig": "config", "Flat": "flat", "Vehicle": "vehicle"}
+_USER_WORDS = (
+    (re.compile(r"\bVehicle\.positions\b"), "--wheel-positions-m (vehicle.positions)"),
+    (re.compile(r"\bVehicle wheels\b"), "wheels"),
+    (re.compile(r"\b(Track|Wheel|Material|SimConfig)\((\w+)=([^)]*)\)"),
+     lambda m: f"--set {_SECTION_OF[m[1]]}.{m[2]}={m[3]}"),
+    (re.compile(r"\b(Track|Wheel|Material|SimConfig|Vehicle)\.(\w+)\b"),
+     lambda m: f"{_SECTION_OF[m[1]]}.{m[2]}"),
+)
+
+
+def user_words(message: str) -> str:
+    """``message`` with the Python spellings of the library (``Track(n_bays=76)``,
+    ``Vehicle.positions``) replaced by what a command-line user types (``--set
+    track.n_bays=76``, ``--wheel-positions-m``)."""
+    for pattern, words in _USER_WORDS:
+        message = pattern.sub(words, message)
+    return message
 
 
 class NonFiniteResult(RuntimeError):
@@ -69,11 +90,32 @@ def flag_layer(args: argparse.Namespace, command: str) -> dict:
         value = case_mod.check_value(option, options.from_text(option, value), "",
                                      option.factor, option.flag_unit or option.unit,
                                      name=typed.get(option.flag_dest, option.flag))
+        try:
+            limits.check_list(value, typed.get(option.flag_dest, option.flag))
+        except limits.InputError as exc:
+            raise case_mod.CaseError(str(exc)) from None
         if not option.case:
             setattr(args, option.flag_dest, value)
             continue
         layer[option.path] = os.path.abspath(value) if option.kind == "path" else value
     return layer
+
+
+def typed_names(args: argparse.Namespace, command: str) -> dict[str, str]:
+    """``{case key: how the user typed it}`` for the flags given (``--void-gap-mm``) and
+    ``--set`` (``--set supports.void_gap``), so errors name what the user typed."""
+    typed = getattr(args, "_typed", {})
+    names = {}
+    for text in getattr(args, "set_values", None) or []:
+        path = text.partition("=")[0].strip()
+        try:
+            names[case_mod.canonical_key(path, "--set")[0].path] = f"--set {path}"
+        except case_mod.CaseError:
+            continue
+    for option in options.flags_of(command):
+        if option.case and getattr(args, option.flag_dest, None) not in (None, False):
+            names[option.path] = typed.get(option.flag_dest, option.flag)
+    return names
 
 
 def set_layer(texts: list[str]) -> dict:
@@ -99,7 +141,8 @@ def resolve_case(args: argparse.Namespace, command: str) -> case_mod.Case:
     Notes on stderr the case-file keys ``command`` does not read. Raises
     :class:`wfjax.case.CaseError` (exit 2, one line) on any bad key or value.
     """
-    case = case_mod.resolve(command, getattr(args, "config", None), flag_layer(args, command))
+    case = case_mod.resolve(command, getattr(args, "config", None), flag_layer(args, command),
+                            typed=typed_names(args, command))
     if case.unused:
         print(f"wfjax {command}: note: {args.config}: not used by {command}: "
               f"{', '.join(case.unused)}", file=sys.stderr)
@@ -160,7 +203,7 @@ def prepare_out(path: str) -> Path:
 def write_atomic(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` as a file of the run's set (:func:`wfjax.outputs.stage`):
     never half-written, with the ordinary permissions of a new file (0666 less the umask)."""
-    outputs.stage(path, lambda target: Path(target).write_text(text))
+    outputs.stage(path, lambda target: Path(target).write_text(text, encoding="utf-8"))
 
 
 def write_json(path: Path, data: dict) -> None:

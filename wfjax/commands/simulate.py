@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import numpy as np
+
+from ..outsize import check_simulate
 from ._common import (
     case_vehicle,
     check_finite,
@@ -27,13 +30,17 @@ def run(args) -> int:
     contact, speed_kmh = case["run.contact"], case["run.speed_kmh"]
     sensors = sensor_positions(case, track)
     vehicle = case_vehicle(case, wheel)
+    hanging = np.size(case.get("supports.void_sleepers") or []) \
+        if case.get("supports.void_gap", 0.0) > 0 else 0
+    check_simulate(case, flat, config, len(sensors or ()),
+                   1 if vehicle is None else vehicle.n_wheels, hanging)
+    out = prepare_out(args.out)
     result = simulate(flat, speed_kmh / 3.6, contact=contact,
                       impact_position=case["run.impact_position"], wheel=wheel, track=track,
                       material=material, config=config, sensors=sensors, vehicle=vehicle,
                       roughness=rail_rough, wheel_roughness=wheel_rough)
     check_finite("simulate", force=result.force, wheel_disp=result.wheel_disp,
                  rail_disp=result.rail_disp)
-    out = prepare_out(args.out)
     write_atomic(out / "simulate.csv", result.to_csv())
     if sensors is not None:
         write_atomic(out / "sensors.csv", result.sensors_to_csv())

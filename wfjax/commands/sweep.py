@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from .. import case as case_mod
+from ..outsize import check_sweep
 from ._common import (
     case_vehicle,
     check_finite,
@@ -62,6 +63,8 @@ def run(args) -> int:
     rail_rough, wheel_rough = case.roughness(float(wheel.radius))
     contact = case["run.contact"]
     vehicle = case_vehicle(case, wheel)
+    check_sweep(case, len(flats), speeds.size, 1 if vehicle is None else vehicle.n_wheels,
+                max(int(case.get("roughness.realisations", 1)), len(tracks or [None])))
     out = prepare_out(args.out)
     print(f"wfjax sweep: {len(flats)} flat(s) x {speeds.size} speeds x {positions} "
           f"positions, {contact} contact, R_R = {float(track.rail_head_radius):g} m, "
