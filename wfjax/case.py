@@ -26,7 +26,6 @@ import difflib
 import hashlib
 import json
 import os
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -37,6 +36,7 @@ from . import limits
 from . import params as P
 from .companions import check_companions
 from .contact import registry
+from .datafiles import check_recorded_inputs
 from .options import (
     _FLAT_CMDS,
     _MODEL_CMDS_EARLY,
@@ -132,59 +132,17 @@ def load_layer(path: str | os.PathLike) -> dict:
     path = Path(path)
     source = str(path)
     try:
-        text = limits.read_text(path, f"--config {source}")
-    except limits.InputError as exc:
-        raise CaseError(str(exc)) from None
-    try:
-        data = _parse(text, source, path.suffix == ".json")
-    except RecursionError:
-        raise CaseError(f"{source}: nested deeper than {limits.MAX_DEPTH} levels "
-                        "(docs/case_files.md, Limits)") from None
-    try:
-        limits.check_tree(data, source)
+        data = limits.parse_document(limits.read_text(path, f"--config {source}"), source,
+                                     path.suffix == ".json")
     except limits.InputError as exc:
         raise CaseError(str(exc)) from None
     if path.suffix == ".json":
         if not isinstance(data, dict) or not isinstance(data.get("case"), dict):
             raise CaseError(f'{source}: a JSON case must be a wfjax summary with a "case" '
                             "object")
-        _check_recorded_inputs(data, source)
+        check_recorded_inputs(data, source)
         data = data["case"]
     return layer_from_mapping(data, source, path.parent)
-
-
-def _parse(text: str, source: str, is_json: bool):
-    """The parsed JSON or TOML ``text`` of the case file ``source``."""
-    if is_json:
-        try:
-            return json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise CaseError(f"{source}: not valid JSON: {exc}") from None
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise CaseError(f"{source}: not valid TOML: {exc}") from None
-
-
-def _check_recorded_inputs(summary: dict, source: str) -> None:
-    """Refuse a rerun from a JSON summary whose input files changed since: every file the
-    summary's provenance records a sha256 of must still have that sha256."""
-    from .datafiles import file_sha256
-
-    recorded = (summary.get("provenance") or {}).get("inputs_sha256") or {}
-    if not isinstance(recorded, dict):
-        return
-    for name, digest in recorded.items():
-        if not os.path.exists(name):
-            continue
-        try:
-            now = file_sha256(name)
-        except (OSError, ValueError):
-            continue
-        if now != digest:
-            raise CaseError(f"{source}: input file {name} changed since the run (sha256 "
-                            f"{now[:12]}..., recorded {str(digest)[:12]}...); the rerun would "
-                            "not repeat it: restore the file or write a new case")
 
 
 def environment_layer(environ: Mapping[str, str] | None = None) -> dict:
@@ -596,8 +554,7 @@ def resolve(command: str, config: str | None = None, flags: dict | None = None,
         typed: how the user typed each key of ``flags`` (``"--void-gap-mm"``), for errors.
 
     Raises:
-        CaseError: anything wrong, before any computation (a key whose companion is missing
-            included: :mod:`wfjax.companions`).
+        CaseError: anything wrong (:mod:`wfjax.companions` too), before any computation.
     """
     env = {k: v for k, v in environment_layer(environ).items() if command in KEYS[k].commands}
     layers = [default_layer(command), env]

@@ -8,7 +8,6 @@ import hashlib
 import io
 import math
 import os
-from pathlib import Path
 
 import numpy as np
 
@@ -16,7 +15,7 @@ from . import limits
 from . import params as P
 from .options import CaseError
 
-__all__ = ["read_profile_csv", "file_sha256", "PROFILE_STEP"]
+__all__ = ["read_profile_csv", "file_sha256", "check_recorded_inputs", "PROFILE_STEP"]
 
 PROFILE_STEP = 0.1e-3  # m; measured profiles are resampled on this uniform grid
 PROFILE_COLUMNS = ("x_mm", "z_mm")
@@ -122,3 +121,22 @@ def file_sha256(path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def check_recorded_inputs(summary: dict, source: str) -> None:
+    """Refuse a rerun from a JSON summary whose input files changed since: every file the
+    summary's provenance records a sha256 of must still have that sha256."""
+    recorded = (summary.get("provenance") or {}).get("inputs_sha256") or {}
+    if not isinstance(recorded, dict):
+        return
+    for name, digest in recorded.items():
+        if not os.path.exists(name):
+            continue
+        try:
+            now = file_sha256(name)
+        except (OSError, ValueError):
+            continue
+        if now != digest:
+            raise CaseError(f"{source}: input file {name} changed since the run (sha256 "
+                            f"{now[:12]}..., recorded {str(digest)[:12]}...); the rerun would "
+                            "not repeat it: restore the file or write a new case")

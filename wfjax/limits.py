@@ -23,7 +23,7 @@ import stat
 from collections.abc import Mapping
 
 __all__ = ["InputError", "MAX_INPUT_BYTES", "MAX_LIST", "MAX_DEPTH", "MAX_OUTPUT_BYTES",
-           "input_limit", "read_bytes", "read_text", "check_tree", "check_list",
+           "input_limit", "read_bytes", "read_text", "parse_document", "check_tree", "check_list",
            "check_output_size"]
 
 MAX_INPUT_BYTES = 64_000_000  # bytes per input file (64 MB)
@@ -138,6 +138,24 @@ def check_tree(data, source: str, depth: int = MAX_DEPTH) -> None:
             check_list(node, f"{source}: {where or 'the document'}")
             stack.extend((v, f"{where}[{i}]", level + 1) for i, v in enumerate(node)
                          if isinstance(v, (Mapping, list)))
+
+
+def parse_document(text: str, source: str, is_json: bool):
+    """The parsed JSON or TOML ``text`` of the case file ``source``, checked by
+    :func:`check_tree`; bad syntax or nesting raises :class:`InputError` (one line)."""
+    import json
+    import tomllib
+
+    try:
+        data = json.loads(text) if is_json else tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"{source}: not valid {'JSON' if is_json else 'TOML'}: {exc}") \
+            from None
+    except RecursionError:
+        raise InputError(f"{source}: nested deeper than {MAX_DEPTH} levels "
+                         "(docs/case_files.md, Limits)") from None
+    check_tree(data, source)
+    return data
 
 
 def check_output_size(predicted: float, what: str, allowed: bool = False,
