@@ -137,7 +137,9 @@ def check_tree(data, source: str, depth: int = MAX_DEPTH) -> None:
         elif isinstance(node, list):
             check_list(node, f"{source}: {where or 'the document'}")
             stack.extend((v, f"{where}[{i}]", level + 1) for i, v in enumerate(node)
-                         if isinstance(v, (Mapping, list)))
+                         if isinstance(v, (Mapping, list, str)))
+        elif isinstance(node, str) and node.count(",") >= MAX_LIST:  # "a,b,c" list text
+            check_list(node.split(","), f"{source}: {where}")
 
 
 def parse_document(text: str, source: str, is_json: bool):

@@ -91,7 +91,9 @@ def flag_layer(args: argparse.Namespace, command: str) -> dict:
                                      option.factor, option.flag_unit or option.unit,
                                      name=typed.get(option.flag_dest, option.flag))
         try:
-            limits.check_list(value, typed.get(option.flag_dest, option.flag))
+            listed = value.split(",") if isinstance(value, str) and option.kind in (
+                "floats", "strs") else value
+            limits.check_list(listed, typed.get(option.flag_dest, option.flag))
         except limits.InputError as exc:
             raise case_mod.CaseError(str(exc)) from None
         if not option.case:
