@@ -21,7 +21,7 @@ _USER_WORDS = (
     (re.compile(r"\bVehicle wheels\b"), "wheels"),
     (re.compile(r"\b(Track|Wheel|Material|SimConfig)\((\w+)=([^)]*)\)"),
      lambda m: f"--set {_SECTION_OF[m[1]]}.{m[2]}={m[3]}"),
-    (re.compile(r"\b(Track|Wheel|Material|SimConfig|Vehicle)\.(\w+)\b"),
+    (re.compile(r"\b(Track|Wheel|Material|SimConfig|Vehicle|Flat)\.(\w+)\b"),
      lambda m: f"{_SECTION_OF[m[1]]}.{m[2]}"),
 )
 
