@@ -9,7 +9,9 @@ then the ``.npz`` payload. They are written to a uniquely named temporary file i
 directory (:func:`wfjax.outputs.unique_temporary`) and moved into place with ``os.replace``
 (atomic), and verified on load: a file whose checksum or contents do not match, or whose
 recorded key is not the one its name stands for (a renamed or copied entry), is rebuilt,
-never trusted. Temporary files left by killed writers are removed by the next write.
+never trusted. (An entry written before keys were recorded is read once under the name its
+key gives, and rewritten with the key.) Temporary files left by killed writers are removed
+by the next write.
 A cache directory that cannot be written makes every run rebuild its tables: a one-line
 warning on stderr says so, once per process.
 
@@ -92,16 +94,21 @@ def _read(path: Path) -> dict[str, np.ndarray] | None:
     if not sep or hashlib.sha256(payload).hexdigest().encode() != digest:
         return None
     stem = path.name.removesuffix(".npz.sha256")
-    if len(recorded) != 64 or not stem.endswith("-" + recorded[:24].decode("ascii", "replace")):
-        return None  # the entry of another key, renamed or copied here
     expected = _FULL_KEYS.get(path.name)
-    if expected is not None and expected.encode() != recorded:
+    legacy = not recorded and expected is not None  # written before keys were recorded
+    if not legacy and (len(recorded) != 64 or not stem.endswith(
+            "-" + recorded[:24].decode("ascii", "replace"))):
+        return None  # the entry of another key, renamed or copied here
+    if not legacy and expected is not None and expected.encode() != recorded:
         return None
     try:
         with np.load(io.BytesIO(payload), allow_pickle=False) as data:
-            return {k: data[k] for k in data.files}
+            arrays = {k: data[k] for k in data.files}
     except Exception:  # noqa: BLE001 - any unreadable payload means "rebuild"
         return None
+    if legacy:  # rewritten once with its key recorded
+        store(path, arrays)
+    return arrays
 
 
 def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
