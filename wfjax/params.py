@@ -35,7 +35,7 @@ __all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT
 
 MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (half-space, Eq. 1)
 MAX_FLAT_LENGTH = 0.3  # m; about a tenth of a 0.45 m wheel's circumference
-FLAT_KINDS = ("new", "rounded", "profile", "none")
+FLAT_KINDS = ("new", "rounded", "profile", "sections", "none")
 CONTACT_MODES_3D = ("auto", "table", "parametric", "direct")
 PRECISIONS = ("float64", "float32")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
@@ -239,22 +239,29 @@ class Track(Validated):
 class Flat:
     """A wheel flat: its kind (static) and geometry (leaves).
 
-    Build with :meth:`new`, :meth:`rounded`, :meth:`from_profile` or :meth:`none`.
+    Build with :meth:`new`, :meth:`rounded`, :meth:`from_profile`, :meth:`from_sections` or
+    :meth:`none`.
 
     Attributes:
         kind: ``"new"`` (sharp chord, Eq. 2), ``"rounded"`` (cosine, Eq. 3), ``"profile"``
-            (measured deviation, linear interpolation) or ``"none"`` (smooth wheel).
-        depth: d [m]. For ``"profile"`` the maximum of the profile.
+            (measured deviation, linear interpolation), ``"sections"`` (a measured 3D surface:
+            records at several lateral positions, :mod:`wfjax.model.surface`) or ``"none"``
+            (smooth wheel).
+        depth: d [m]. For ``"profile"`` the maximum of the profile; for ``"sections"`` the
+            maximum of its centre line y = 0.
         length: flat length along the circumference [m]; l for rounded flats, the chord
             length l0 = sqrt(8 R d) for new flats (informative; geometry derives it from depth),
-            the support of the measured profile for ``"profile"``.
+            the support of the measured profile for ``"profile"`` and ``"sections"``.
         wheel_radius: R_W [m] of the wheel carrying the flat.
-        profile_x: [n] circumferential coordinates of a measured profile [m] (``"profile"``
-            only; empty otherwise), centred on the flat.
+        profile_x: [n] circumferential coordinates of a measured profile [m] (``"profile"``),
+            or the records' nodes (``"sections"``); None otherwise. Centred on the flat.
         profile_z: [n] profile deviation (material removed, >= 0) at ``profile_x`` [m].
         extent_bound (static): an upper bound [m] of the flat's half extent, used to size
             numerical windows when depth and length are traced by ``jax.grad``/``vmap``;
             ``None`` uses the concrete values, or :data:`DEFAULT_EXTENT_BOUND` under tracing.
+        section_y: [k] lateral positions of the records [m] (``"sections"`` only), increasing.
+        section_z: [k, n] signed radial deviation of the records at ``profile_x`` [m]
+            (``"sections"`` only; the surface is max(0, interpolant)).
     """
 
     kind: str = option(choices=FLAT_KINDS, doc="flat kind")
@@ -269,6 +276,8 @@ class Flat:
     profile_x: Any = option(None, unit="m", doc="circumferential coordinates of a profile")
     profile_z: Any = option(None, unit="m", doc="profile deviation at profile_x")
     extent_bound: float | None = option(None, unit="m", doc="bound of the half extent")
+    section_y: Any = option(None, unit="m", doc="lateral positions of measured sections")
+    section_z: Any = option(None, unit="m", doc="deviation of the sections at profile_x")
 
     def __post_init__(self):
         if self.kind not in FLAT_KINDS:
@@ -353,6 +362,30 @@ class Flat:
                    profile_x=x, profile_z=z)
 
     @classmethod
+    def from_sections(cls, x, y, z, wheel_radius: float = 0.45) -> Flat:
+        """A measured 3D flat: records ``z`` [k, n] of radial deviation [m] at lateral ``y`` [k]
+        [m], each at circumferential ``x`` [n] [m] (:mod:`wfjax.model.surface` interpolates).
+
+        ``x`` strictly increasing, centred on the flat (x = 0 its centre), support shorter than
+        the circumference; ``y`` strictly increasing, at least two lines, with y = 0 (the
+        nominal contact line) inside [y_0, y_{k-1}]; ``z`` signed (positive: material
+        missing), |z| <= 5 mm. The surface is max(0, interpolant): the deviation below zero
+        is the wheel's roughness, not the flat's (:mod:`wfjax.sections` splits a record).
+        """
+        from .model.surface import centre_line
+
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        z = np.asarray(z, dtype=float)
+        _check_sections(x, y, z, wheel_radius)
+        depth = float(np.max(centre_line(x, y, z, x)))
+        if depth <= 0:
+            raise ValueError("Flat.from_sections: the surface is nowhere below the nominal "
+                             "circle on the centre line y = 0 (no flat)")
+        return cls("sections", depth=depth, length=x[-1] - x[0], wheel_radius=wheel_radius,
+                   profile_x=x, section_y=y, section_z=z)
+
+    @classmethod
     def none(cls, wheel_radius: float = 0.45) -> Flat:
         """A smooth, undamaged wheel."""
         return cls("none", depth=0.0, length=0.0, wheel_radius=wheel_radius)
@@ -366,7 +399,7 @@ class Flat:
         """
         if self.extent_bound is not None:
             return float(self.extent_bound)
-        if self.kind == "profile":
+        if self.kind in ("profile", "sections"):
             x = np.asarray(self.profile_x)
             return float(max(abs(x[0]), abs(x[-1])))
         if not is_concrete(self.length):
@@ -377,6 +410,29 @@ class Flat:
 def new_flat_length(depth, wheel_radius=0.45):
     """l0 = sqrt(8 R d) [m] (Eq. 1), the small-depth chord length of a new flat of depth d [m]."""
     return (8.0 * wheel_radius * depth) ** 0.5
+
+
+def _check_sections(x, y, z, wheel_radius) -> None:
+    """One-line ``ValueError`` for records that :meth:`Flat.from_sections` cannot take."""
+    if x.ndim != 1 or x.size < 3 or y.ndim != 1 or y.size < 2 or z.shape != (y.size, x.size):
+        raise ValueError(f"Flat.from_sections needs x [n >= 3], y [k >= 2] and z [k, n], got "
+                         f"shapes {x.shape}, {y.shape} and {z.shape}")
+    for name, v in (("x", x), ("y", y), ("z", z)):
+        check_finite("Flat", f"section {name}", v)
+    if np.any(np.diff(x) <= 0):
+        raise ValueError("Flat.from_sections: x must be strictly increasing")
+    if np.any(np.diff(y) <= 0):
+        raise ValueError(f"Flat.from_sections: lateral positions must be strictly increasing, "
+                         f"got {np.round(y * 1e3, 3).tolist()} mm")
+    if not y[0] <= 0.0 <= y[-1]:
+        raise ValueError(f"Flat.from_sections: the measured band [{y[0] * 1e3:g}, "
+                         f"{y[-1] * 1e3:g}] mm must contain the contact line y = 0")
+    if np.max(np.abs(z)) > MAX_FLAT_DEPTH:
+        raise ValueError(f"Flat.from_sections: |deviation| {np.max(np.abs(z)) * 1e3:.3f} mm "
+                         f"exceeds {MAX_FLAT_DEPTH * 1e3:g} mm")
+    if x[-1] - x[0] >= 2 * math.pi * wheel_radius:
+        raise ValueError(f"Flat.from_sections: support {x[-1] - x[0]:.3f} m must be shorter "
+                         f"than the circumference {2 * math.pi * wheel_radius:.3f} m")
 
 
 def _validate_depth(depth) -> None:

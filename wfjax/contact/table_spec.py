@@ -113,6 +113,8 @@ def rigid_onset(spec: TableSpec, flat: Flat, s, xp=jnp):
     """
     from ..model.geometry import _deviation
 
+    if flat.kind == "sections":
+        return _sections_onset(spec, flat, s, xp)
     hold = jax.lax.stop_gradient if xp is jnp else np.asarray
     s = xp.asarray(s)[..., None]
     rw = spec.wheel_radius
@@ -134,6 +136,34 @@ def rigid_onset(spec: TableSpec, flat: Flat, s, xp=jnp):
         ends = xp.clip(xp.concatenate([edge - s, -edge - s], axis=-1), -half, half)
         onset = xp.minimum(onset, xp.min(g1d(ends), axis=-1))
     return onset
+
+
+def _sections_onset(spec: TableSpec, flat: Flat, s, xp=jnp):
+    """:func:`rigid_onset` of a measured 3D flat: min over x' and the grid's lines y of the gap.
+
+    A measured surface need not follow the rail head's arcs, so its least gap may lie off
+    y = 0. Each line y of the table grid is searched as :func:`rigid_onset` searches y = 0
+    (1/8 element, then 1/256 element around that line's minimiser); the onset is the least of
+    the lines.
+    """
+    from ..model.geometry import _surface
+    from ..model.surface import interp_each_row, lateral_rows
+
+    hold = jax.lax.stop_gradient if xp is jnp else np.asarray
+    s = xp.asarray(s)[..., None]
+    rw, rr = spec.wheel_radius, spec.rail_head_radius
+    half = (spec.nx - 1) / 2 * spec.element_size
+    step = spec.element_size / 8
+    y = spec.y
+    arc = rr - np.sqrt(rr**2 - y**2)
+    xs = np.arange(-8 * (spec.nx - 1) // 2, 8 * (spec.nx - 1) // 2 + 1) * step
+    coarse = (rw - np.sqrt(rw**2 - xs**2))[:, None] + arc + _surface(flat, xs + s, y, rr, xp)
+    x0 = hold(xp.asarray(xs)[xp.argmin(coarse, axis=-2)])  # [..., ny] each line's minimiser
+    xf = hold(xp.clip(x0[..., None] + np.linspace(-step, step, 65), -half, half))
+    rows = lateral_rows(flat.section_y, flat.section_z, y, rr, xp)  # [ny, n]
+    r = interp_each_row(rows, flat.profile_x, xf + s[..., None], xp)  # [..., ny, 65]
+    gap = rw - xp.sqrt(rw**2 - xf**2) + arc[:, None] + xp.where(r > 0, r, 0.0)
+    return xp.min(gap, axis=(-2, -1))
 
 
 def whole_grid_column(spec: TableSpec, flat: Flat, material: Material, s, tol: float):

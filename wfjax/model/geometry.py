@@ -24,6 +24,7 @@ import numpy as np
 
 from ..fields import is_concrete
 from ..params import Flat, new_flat_length
+from . import surface
 
 MIN_WHEEL_RADIUS = 0.3  # m; sizes the trajectory's search window when the radius is traced
 
@@ -78,6 +79,8 @@ def profile_deviation(flat: Flat, x):
       d^2 / R + x^4 / (3 R^3) (about 4 um for d = 2 mm, R = 0.45 m).
     * ``"rounded"``: Eq. (3), z = d/2 (1 + cos(2 pi x / l)) for |x| <= l/2.
     * ``"profile"``: linear interpolation of the measured deviation, zero outside its support.
+    * ``"sections"``: the measured surface on the nominal contact line y = 0
+      (:func:`wfjax.model.surface.centre_line`): what the 2D bedding and the Hertz models see.
     * ``"none"``: zero.
 
     Args:
@@ -98,6 +101,8 @@ def _deviation(flat: Flat, x, xp):
         return _rounded_flat(flat.depth, flat.length, x, xp)
     if flat.kind == "profile":
         return _profile_flat(flat.profile_x, flat.profile_z, x, xp)
+    if flat.kind == "sections":
+        return surface.centre_line(flat.profile_x, flat.section_y, flat.section_z, x, xp)
     return xp.zeros_like(x, dtype=float)
 
 
@@ -121,6 +126,9 @@ def flat_surface(flat: Flat, x, y, transverse_radius):
     rolling direction its lines are those of :func:`profile_deviation`, across it they are
     circular arcs of the rail head radius, so
     r(x, y) = max(0, z(x) - (R_R - sqrt(R_R^2 - y^2))).
+    A measured 3D flat (``"sections"``) is its interpolated surface instead
+    (:func:`wfjax.model.surface.sections_surface`; R_R only continues its edge records
+    beyond the measured band).
 
     Args:
         flat: the flat.
@@ -136,6 +144,9 @@ def flat_surface(flat: Flat, x, y, transverse_radius):
 
 def _surface(flat: Flat, x, y, transverse_radius, xp):
     """:func:`flat_surface` with array module ``xp``; x may be [..., nx] (then [..., nx, ny])."""
+    if flat.kind == "sections":
+        return surface.sections_surface(flat.profile_x, flat.section_y, flat.section_z, x, y,
+                                        transverse_radius, xp)
     z = _deviation(flat, x, xp)[..., None]
     arc = transverse_radius - xp.sqrt(transverse_radius**2 - y**2)
     return _safe_positive(z - arc, xp)
@@ -154,7 +165,7 @@ def _kink_angles(flat: Flat):
         return jnp.stack([-a, a])
     if flat.kind == "rounded":
         return jnp.stack([-flat.length / (2 * R), flat.length / (2 * R)])
-    if flat.kind == "profile":
+    if flat.kind in ("profile", "sections"):
         return jnp.asarray(flat.profile_x) / R
     return jnp.zeros((1,))
 
