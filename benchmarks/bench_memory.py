@@ -23,6 +23,7 @@ import resource, time
 import jax, jax.numpy as jnp, numpy as np
 import wfjax as wf
 from wfjax.loop.structure import structure
+from wfjax.model.vehicle import Vehicle
 t0 = time.perf_counter()
 """
 
