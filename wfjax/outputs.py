@@ -213,16 +213,22 @@ class OutputSet:
         blocked = {signal.SIGTERM, signal.SIGINT}
         previous = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
         try:
-            _write_small(self.journal, {"command": self.command, "files": entries,
-                                        "dropped": dropped})
-            self.staged.clear()
-            self.recover()
+            with _locked(self.out):
+                _write_small(self.journal, {"command": self.command, "files": entries,
+                                            "dropped": dropped})
+                self.staged.clear()
+                self._roll_forward()
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, previous)
         return names
 
     def recover(self) -> bool:
-        """Roll forward a commit journal of this command in ``out``; True if there was one."""
+        """Roll forward a commit journal of this command in ``out``; True if there was one.
+        Commits and recoveries in one directory take turns (an exclusive lock on it)."""
+        with _locked(self.out):
+            return self._roll_forward()
+
+    def _roll_forward(self) -> bool:
         try:
             journal = json.loads(self.journal.read_text())
         except FileNotFoundError:
@@ -245,6 +251,19 @@ class OutputSet:
         self.journal.unlink()
         _fsync(self.out)
         return True
+
+
+@contextlib.contextmanager
+def _locked(directory: Path) -> Iterator[None]:
+    """An exclusive lock on ``directory`` (``flock`` on its descriptor) while inside."""
+    import fcntl
+
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
 
 
 def _read_manifest(path: Path) -> dict[str, str]:
