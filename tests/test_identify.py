@@ -113,6 +113,15 @@ def _table(slope=2.5e6, n_j=4, n_r=1, shapes=(("new", 0.0),)):
                              np.arange(n_j) * 0.65 / n_j, reads, reads[..., fwd.REACH])
 
 
+def test_refined_phases_interpolate_linearly():
+    t = _table()
+    t.readings[0, :, :, 0, :] += np.arange(4)[None, :, None] * 1e3
+    fine = fwd.predict_refined(t, BAYS, [0.1], 4)[0, 0, :, 0]
+    native = fwd.predict(t, BAYS, [0.1], fwd.phase_grid(t, BAYS))[0, 0, :, 0]
+    np.testing.assert_allclose(fine[::4], native)
+    np.testing.assert_allclose(fine[1:-4:4], 0.75 * native[:-1] + 0.25 * native[1:])
+
+
 def test_predict_shifts_the_table():
     t = _table()
     t.readings[0, :, :, 0, :] += np.arange(5)[None, None, :] * 1e3 + np.arange(4)[None, :,
@@ -129,9 +138,12 @@ def test_predict_shifts_the_table():
             assert mu[p, b] == pytest.approx(expect)
 
 
-def test_posterior_matches_quadrature():
+def test_posterior_matches_quadrature(monkeypatch):
     """One phase-free reading, one shape: the grid posterior equals the normalised
-    likelihood x prior computed directly."""
+    likelihood x prior computed directly (on the table's own phase points)."""
+    from wfjax.identify import inference
+
+    monkeypatch.setattr(inference, "PHASE_REFINE", 1)
     t = _table()
     prior = Prior(p_new=1.0)
     y = np.array([120e3, 120e3, 120e3 + 2.5e6 * 0.05, 120e3, 120e3])

@@ -219,17 +219,32 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
                          arrays["peak"])
 
 
-def phase_grid(table: ResponseTable, bays: np.ndarray) -> np.ndarray:
+def phase_grid(table: ResponseTable, bays: np.ndarray, refine: int = 1) -> np.ndarray:
     """[P] impact rail coordinates x [m] (x = 0: the sleeper at the start of bay 0), the
-    table's in-bay positions over one wheel circumference 2 pi R from the start of the
-    detector's first bay ``bays[0]``: a flat strikes once in every circumference, so exactly
-    one of its impacts lies there (the loop models that one; with a detector longer than
-    2 pi R the next one, 2 pi R later, is not modelled)."""
+    table's in-bay positions (``refine`` points per table interval) over one wheel
+    circumference 2 pi R from the start of the detector's first bay ``bays[0]``: a flat
+    strikes once in every circumference, so exactly one of its impacts lies there (the loop
+    models that one; with a detector longer than 2 pi R the next one, 2 pi R later, is not
+    modelled)."""
     ls, j = table.sleeper_spacing, table.offsets.size
     circumference = 2 * math.pi * table.wheel_radius
     x0 = int(bays[0]) * ls
-    n = int(round(circumference / (ls / j)))
-    return x0 + np.arange(n) * ls / j
+    n = int(round(circumference / (ls / j))) * int(refine)
+    return x0 + np.arange(n) * ls / (j * int(refine))
+
+
+def predict_refined(table: ResponseTable, bays, lengths, refine: int) -> np.ndarray:
+    """:func:`predict` on ``phase_grid(table, bays, refine)``: between the table's impact
+    positions the readings are interpolated linearly in the position (a gate edge between
+    two positions becomes a ramp, not a step that the grid cannot place)."""
+    step = table.sleeper_spacing / table.offsets.size
+    native = phase_grid(table, bays)
+    coarse = predict(table, bays, lengths, np.append(native, native[-1] + step))
+    fine = phase_grid(table, bays, refine)
+    w = (fine - native[0]) / step
+    i0 = np.minimum(np.floor(w + 1e-9).astype(int), native.size - 1)
+    f = (w - i0)[None, None, :, None, None]
+    return coarse[:, :, i0] * (1 - f) + coarse[:, :, i0 + 1] * f
 
 
 def predict(table: ResponseTable, bays, lengths, phases) -> np.ndarray:
@@ -241,7 +256,7 @@ def predict(table: ResponseTable, bays, lengths, phases) -> np.ndarray:
     wheel is as good as round there)."""
     bays = np.asarray(bays, int)
     ls, nj = table.sleeper_spacing, table.offsets.size
-    idx = np.rint(np.asarray(phases) / (ls / nj)).astype(int)
+    idx = np.floor(np.asarray(phases) / (ls / nj) + 1e-6).astype(int)
     q, j = np.floor_divide(idx, nj), np.mod(idx, nj)
     rel = bays[None, :] - q[:, None]  # [P, n_bays]
     far = np.abs(rel) > REACH

@@ -23,7 +23,10 @@ from scipy.stats import chi2
 
 from . import forward as fwd
 
-__all__ = ["Prior", "WheelPosterior", "loglik_grid", "posterior", "weighted_quantile"]
+PHASE_REFINE = 4  # phase points per table position interval (linear in between)
+
+__all__ = ["PHASE_REFINE", "Prior", "WheelPosterior", "loglik_grid", "posterior",
+           "weighted_quantile"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,8 +55,8 @@ def loglik_grid(table: fwd.ResponseTable, bays, readings, lengths, sigma: float,
     ``readings`` [n_bays] N (or [1] its peak when ``peak_only``) under the relative Gaussian
     of total relative standard deviation ``sigma``; ``correction`` [n_bays] N is added to the
     prediction (the neighbours' effect)."""
-    phases = fwd.phase_grid(table, bays)
-    mu = fwd.predict(table, bays, lengths, phases)  # [S, L, P, R, n_bays]
+    phases = fwd.phase_grid(table, bays, PHASE_REFINE)
+    mu = fwd.predict_refined(table, bays, lengths, PHASE_REFINE)  # [S, L, P, R, n_bays]
     if correction is not None:
         mu = mu + np.asarray(correction)[None, None, None, None, :]
     if peak_only:
@@ -177,7 +180,8 @@ def posterior(tables, bays, readings, prior: Prior | None = None, noise: float =
         n = np.size(readings[p])
         p_values.append(float(np.sum(jw * chi2.sf(c2, n))))
         i_p = int(np.argmax(jw[s_best, l_best].sum(axis=-1)))
-        mu = fwd.predict(tables[p], bays[p], lengths[[l_best]], ph[[i_p]])[s_best, 0, 0]
+        mu = fwd.predict_refined(tables[p], bays[p], lengths[[l_best]],
+                                 PHASE_REFINE)[s_best, 0, i_p]
         mu = mu.mean(axis=0) + (0 if corrections is None or corrections[p] is None
                                 else np.asarray(corrections[p]))
         fits.append(mu.max(keepdims=True) if peak_only else mu)
