@@ -123,8 +123,10 @@ def markdown(summary: dict, meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(n_passages: int, seed: int, coupling: int, speed_kmh: float) -> tuple[list, float]:
-    """Simulate and identify ``n_passages`` wagon passages; (per-wheel rows, wall s)."""
+def run(n_passages: int, seed: int, coupling: int, speed_kmh: float,
+        checkpoint=None) -> tuple[list, float]:
+    """Simulate and identify ``n_passages`` wagon passages; (per-wheel rows, wall s).
+    ``checkpoint(rows, wall_s, passages_done)`` is called after every 10 passages."""
     from wfjax.identify import identify
     from wfjax.identify.synthetic import simulate_passage
     from wfjax.scenario.sensors import Detector
@@ -144,6 +146,8 @@ def run(n_passages: int, seed: int, coupling: int, speed_kmh: float) -> tuple[li
                           f"{'*' if rows[-4 + i]['flagged'] else ''}"
                           for i, t in enumerate(truth)),
               f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+        if checkpoint and (k + 1) % 10 == 0 and k + 1 < n_passages:
+            checkpoint(rows, time.perf_counter() - t0, k + 1)
     return rows, time.perf_counter() - t0
 
 
@@ -168,18 +172,22 @@ def main(argv=None) -> int:
     from wfjax.cli import enable_compilation_cache
 
     enable_compilation_cache()
-    rows, wall = run(args.passages, args.seed, args.coupling, args.speed_kmh)
-    summary = summarise(rows)
-    meta = {"passages": args.passages, "seed": args.seed, "coupling": args.coupling,
-            "speed_kmh": args.speed_kmh, "wall_s": wall,
-            "date": time.strftime("%Y-%m-%d", time.gmtime())}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps({"meta": meta, "summary": summary, "wheels": rows},
-                                         indent=1, default=float) + "\n")
-    text = markdown(summary, meta)
-    print(text)
-    if args.docs:
-        write_docs(text)
+
+    def save(rows, wall, done):
+        summary = summarise(rows)
+        meta = {"passages": done, "seed": args.seed, "coupling": args.coupling,
+                "speed_kmh": args.speed_kmh, "wall_s": wall,
+                "date": time.strftime("%Y-%m-%d", time.gmtime())}
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps({"meta": meta, "summary": summary,
+                                              "wheels": rows}, indent=1, default=float) + "\n")
+        text = markdown(summary, meta)
+        print(text, flush=True)
+        if args.docs:
+            write_docs(text)
+
+    rows, wall = run(args.passages, args.seed, args.coupling, args.speed_kmh, save)
+    save(rows, wall, args.passages)
     return 0 if not math.isnan(wall) else 1
 
 
