@@ -146,3 +146,9 @@ def test_read_bytes_reads_at_most_limit_plus_one(tmp_path):
         limits.read_bytes(path, "f", limit=99)
     with pytest.raises(limits.InputError, match="is a directory"):
         limits.read_bytes(tmp_path, "d")
+
+
+def test_deep_nesting_in_set_is_refused(tmp_path, capsys, no_work):
+    value = "[" * 5000 + "]" * 5000
+    _refused(capsys, ["sweep", "--set", f"run.speeds_kmh={value}", "--out",
+                      str(tmp_path / "o")], "--set run.speeds_kmh", "nested deeper than 32")

@@ -129,8 +129,13 @@ def set_layer(texts: list[str]) -> dict:
             raise case_mod.CaseError(f"--set {text}: expected SECTION.KEY=VALUE")
         try:
             value = tomllib.loads(f"v = {raw}")["v"]
+            limits.check_tree(value, f"--set {path.strip()}")
         except tomllib.TOMLDecodeError:
             value = raw
+        except (RecursionError, limits.InputError) as exc:
+            raise case_mod.CaseError(str(exc) if isinstance(exc, limits.InputError) else
+                                     f"--set {path.strip()}: nested deeper than "
+                                     f"{limits.MAX_DEPTH} levels") from None
         key, factor, unit = case_mod.canonical_key(path.strip(), "--set")
         layer[key.path] = case_mod.check_value(key, value, "--set", factor, unit,
                                                name=path.strip())
