@@ -219,8 +219,11 @@ def test_cache_write_removes_stale_temporaries_and_warns_once_when_unwritable(
                           capture_output=True, text=True, check=True).stdout.strip()
     stale = tmp_path / f".wfjax-{dead}-0123abcd-unit-x.npz.sha256"
     stale.write_bytes(b"half")
+    legacy = tmp_path / ".unit-0123.npz.sha256.k2j3h4"  # an older version's temporary
+    legacy.write_bytes(b"half")
+    os.utime(legacy, (time.time() - 7200,) * 2)
     _cache.load_or_build("unit", {"x": 3}, lambda: {"a": np.ones(2)}, tmp_path)
-    assert not stale.exists()
+    assert not stale.exists() and not legacy.exists()
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".")]
 
     def no_space(*args, **kwargs):

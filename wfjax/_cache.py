@@ -21,11 +21,13 @@ Cache directory: the ``cache_dir`` argument, else the environment variable
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
 import os
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -120,6 +122,7 @@ def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
         raise OSError(f"{path}: not a cache entry's name (made by cache_path)")
     path.parent.mkdir(parents=True, exist_ok=True)
     clean_stale(path.parent)
+    _clean_legacy(path.parent)
     tmp = unique_temporary(path)
     try:
         with open(tmp, "wb") as fh:
@@ -129,6 +132,16 @@ def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _clean_legacy(directory: Path, age: float = 3600.0) -> None:
+    """Remove the temporary files of older wfjax versions (``.<entry>.npz.sha256.<random>``,
+    no process id in the name) once they are ``age`` [s] old: their writer is long gone."""
+    now = time.time()
+    for tmp in directory.glob(".*.npz.sha256.*"):
+        with contextlib.suppress(OSError):
+            if now - tmp.stat().st_mtime > age:
+                tmp.unlink()
 
 
 def store(path: Path, arrays: dict[str, np.ndarray]) -> None:
