@@ -31,7 +31,8 @@ import wfjax
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = ("pyproject.toml", "README.md", "CHANGELOG.md", "wfjax")
-EXAMPLES = ("fig7.toml", "measured_profile.csv", "soft_pads_heavy_axle.toml")
+EXAMPLES = ("fig7.toml", "measured_profile.csv", "measured_sections.csv",
+            "soft_pads_heavy_axle.toml")
 README = (ROOT / "README.md").read_text()
 
 

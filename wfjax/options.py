@@ -142,6 +142,7 @@ class Option:
 # -- the model parameters: from the dataclasses' field metadata ------------------------------
 _MODEL_CMDS = ("sweep", "simulate", "fit", "compare", "figures", "receptance", "detector")
 _FLAT_CMDS = ("sweep", "simulate", "fit", "geometry", "detector")
+_SECTION_CMDS = ("sweep", "simulate", "geometry")  # a measured 3D flat (docs/measured_flats.md)
 _VEHICLE_CMDS = ("sweep", "simulate", "fit")
 _MODEL_CMDS_EARLY = _VEHICLE_CMDS  # the commands that build varying supports
 
@@ -223,8 +224,9 @@ RUN_OPTIONS: tuple[Option, ...] = (
                "track whose supports vary an absolute rail coordinate (docs/real_track.md)",
            commands=("simulate", "fit"), flag="--impact-position-mm", factor=1e-3,
            flag_unit="mm"),
-    Option("flat", "kind", "str", choices=("both", "rounded", "new", "profile"),
-           doc="flat kind; both = a rounded and a new flat (sweep); profile = flat.profile_csv",
+    Option("flat", "kind", "str", choices=("both", "rounded", "new", "profile", "sections"),
+           doc="flat kind; both = a rounded and a new flat (sweep); profile = flat.profile_csv; "
+               "sections = flat.sections",
            commands=_FLAT_CMDS, flag="--flat"),
     _flat_field("depth"),
     _flat_field("length"),
@@ -238,6 +240,18 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("flat", "profile_smoothing_mm", "float", "mm", 0.0, 20.0,
            doc="Gaussian smoothing (standard deviation) of the measured profile; 0: none",
            commands=_FLAT_CMDS, flag="--profile-smoothing-mm"),
+    Option("flat", "sections", "path",
+           doc="a gauge's records across the tread: a directory (a file per lateral line) or "
+               "one CSV (a column per line) (docs/measured_flats.md); implies flat.kind = "
+               "sections; the rest of the circumference is the wheel's roughness",
+           commands=_SECTION_CMDS, flag="--sections", metavar="DIR_OR_CSV"),
+    Option("flat", "section_positions_mm", "floats", "mm", -100.0, 100.0,
+           doc="lateral position of each record, increasing, 0 on the nominal contact line "
+               "(flag: --section-positions-mm=-20,-6,0,...)", commands=_SECTION_CMDS,
+           flag="--section-positions-mm"),
+    Option("flat", "section_window_mm", "floats", "mm", -1e4, 1e4,
+           doc="the flat's window in the records, start,end (default: located)",
+           commands=_SECTION_CMDS, flag="--section-window-mm"),
     Option("vehicle", "preset", "str", choices=("single", "bogie", "wagon"),
            doc="wheels on the rail: the paper's single wheel, a two-axle bogie or a four-axle "
                "wagon (docs/vehicle.md)", commands=_VEHICLE_CMDS, flag="--vehicle"),
