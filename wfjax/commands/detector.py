@@ -67,8 +67,9 @@ def write_passage(case) -> int:
     path = Path(case["passage.csv"])
     print(f"wfjax detector: a passage of {len(layout)} wheels at {speed * 3.6:.0f} km/h over "
           f"{detector.n_bays} bays from bay {detector.first_bay}")
+    noise = case.get("passage.noise")
     passage, truth = simulate_passage(
-        layout, flats, speed, detector, noise=case.get("passage.noise", 0.03) or 0.0,
+        layout, flats, speed, detector, noise=0.03 if noise is None else noise,
         seed=case.get("passage.seed") or 0, contact=case["run.contact"]
         if case["run.contact"] != "3d" else "hertz-trajectory", wheel=wheel)
     if path.parent and not path.parent.exists():
