@@ -152,3 +152,17 @@ def test_cli_geometry_of_the_example(tmp_path, capsys):
                "--section-positions-mm=-20,-13,-6,0,6,13,20", "--out", str(out)])
     assert rc == 0 and (out / "geometry.csv").exists()
     assert "sections flat: depth 0.606 mm" in capsys.readouterr().out
+
+
+def test_case_values_give_flat_and_wheel_roughness():
+    class _Case(dict):
+        values = property(lambda self: dict(self))
+
+    case = _Case({"flat.kind": "sections", "flat.sections": str(_example()),
+                  "flat.section_positions_mm": "-20,-13,-6,0,6,13,20", "wheel.radius": 0.45})
+    rough = measured.case_wheel_roughness(case, None)
+    assert rough.periodic and np.asarray(rough.values).shape == (N,)
+    assert measured.case_wheel_roughness(case, "given") == "given"
+    assert measured.case_wheel_roughness(_Case({"flat.kind": "new"}), None) is None
+    with pytest.raises(SectionsError, match="give two positions"):
+        measured.from_values({**case, "flat.section_window_mm": [1.0]})

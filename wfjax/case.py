@@ -214,10 +214,9 @@ def merge(layers: list[dict]) -> dict:
     out: dict[str, Any] = {}
     for layer in layers:
         layer = dict(layer)
-        if "flat.profile_csv" in layer and "flat.kind" not in layer:
-            layer["flat.kind"] = "profile"
-        if "flat.sections" in layer and "flat.kind" not in layer:
-            layer["flat.kind"] = "sections"
+        for key, kind in (("flat.profile_csv", "profile"), ("flat.sections", "sections")):
+            if key in layer and "flat.kind" not in layer:
+                layer["flat.kind"] = kind
         for group in _EXCLUSIVE:
             given = [k for k in group if k in layer]
             if len(given) > 1:
@@ -270,8 +269,9 @@ class Case:
         """The flats of the case (sweep: every kind x depth; others: exactly one)."""
         radius = float(self.values["wheel.radius"])
         kind = self.values["flat.kind"]
-        if kind == "sections":
-            return [self.measured().flat]
+        if kind == "sections":  # the wheel's roughness from it: measured.case_wheel_roughness
+            from .scenario.measured import from_values
+            return [from_values(self.values).flat]
         if kind == "profile":
             path = self.values.get("flat.profile_csv")
             if not path:
@@ -401,29 +401,6 @@ class Case:
         except ValueError as exc:
             raise CaseError(f"[joint]: {exc}") from None
 
-    def measured(self):
-        """The ``flat.sections`` measurement split into its 3D flat and the wheel's
-        out-of-roundness (:func:`wfjax.scenario.measured.split`; docs/measured_flats.md)."""
-        from .scenario.measured import split
-        from .sections import read_records
-
-        v = self.values
-        if not v.get("flat.sections") or v.get("flat.section_positions_mm") is None:
-            raise CaseError('flat.kind = "sections" needs flat.sections and '
-                            "flat.section_positions_mm (--sections DIR_OR_CSV "
-                            "--section-positions-mm=...)")
-        def numbers(value):
-            return parse_number_list(value) if isinstance(value, str) else list(
-                np.atleast_1d(value))
-
-        window = v.get("flat.section_window_mm")
-        if window is not None and len(numbers(window)) != 2:
-            raise CaseError(f"flat.section_window_mm = {window!r}: give two positions, "
-                            "start,end [mm]")
-        radius = float(v["wheel.radius"])
-        rec = read_records(v["flat.sections"], numbers(v["flat.section_positions_mm"]), radius)
-        return split(rec, radius, window_mm=None if window is None else numbers(window))
-
     def roughness(self, wheel_radius: float):
         """(rail, wheel) :class:`wfjax.Roughness` of the case (None where not
         given): ``roughness.rail_csv``, or ``roughness.preset = "iso3095"`` with
@@ -448,8 +425,6 @@ class Case:
                                   n_realisations=None if n == 1 else n)
             if v.get("roughness.wheel_csv"):
                 wheel = R.read_csv(v["roughness.wheel_csv"], wheel_radius=wheel_radius)
-            elif v.get("flat.kind") == "sections":
-                wheel = self.measured().wheel_roughness
         except (ValueError, OSError) as exc:
             raise CaseError(f"[roughness]: {exc}") from None
         joint = self.joint()

@@ -27,6 +27,9 @@ def run(args) -> int:
     wheel, track, material, config = case.model()
     track = case.supports(track)
     rail_rough, wheel_rough = case.roughness(float(wheel.radius))
+    from ..scenario.measured import case_wheel_roughness  # a flat.sections measurement's
+
+    wheel_rough = case_wheel_roughness(case, wheel_rough)
     contact, speed_kmh = case["run.contact"], case["run.speed_kmh"]
     sensors = sensor_positions(case, track)
     vehicle = case_vehicle(case, wheel)

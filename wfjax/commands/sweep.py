@@ -61,6 +61,9 @@ def run(args) -> int:
     tracks = case.support_realisations(track)
     track = case.supports(track)
     rail_rough, wheel_rough = case.roughness(float(wheel.radius))
+    from ..scenario.measured import case_wheel_roughness  # a flat.sections measurement's
+
+    wheel_rough = case_wheel_roughness(case, wheel_rough)
     contact = case["run.contact"]
     vehicle = case_vehicle(case, wheel)
     check_sweep(case, len(flats), speeds.size, 1 if vehicle is None else vehicle.n_wheels,

@@ -30,7 +30,7 @@ from ..params import Flat
 from ..sections import Records, SectionsError
 from .roughness import Roughness
 
-__all__ = ["MeasuredFlat", "split", "locate_window"]
+__all__ = ["MeasuredFlat", "split", "locate_window", "from_values", "case_wheel_roughness"]
 
 WINDOW_MARGIN_MM = 5.0
 BACKGROUND_SAMPLES = 5
@@ -145,3 +145,35 @@ def _out_of_roundness(rec: Records, first, centre, last, half_width, taper) -> R
     values = (mean - mean[~inside].mean()) * weight
     return Roughness(x_start=0.0, spacing=dx * 1e-3, values=np.roll(values, -(centre % n)),
                      periodic=True)
+
+
+def from_values(values: dict) -> MeasuredFlat:
+    """:func:`split` of a case's ``flat.sections`` records (``values``: the case's
+    ``{"section.key": value}``, lists or ``"a,b,c"`` strings of mm)."""
+    from ..options import parse_number_list
+    from ..sections import read_records
+
+    def numbers(value):
+        return parse_number_list(value) if isinstance(value, str) else list(
+            np.atleast_1d(np.asarray(value, dtype=float)))
+
+    if not values.get("flat.sections") or values.get("flat.section_positions_mm") is None:
+        raise SectionsError('flat.kind = "sections" needs flat.sections and '
+                            "flat.section_positions_mm (--sections DIR_OR_CSV "
+                            "--section-positions-mm=...)")
+    window = values.get("flat.section_window_mm")
+    if window is not None and len(numbers(window)) != 2:
+        raise SectionsError(f"flat.section_window_mm = {window!r}: give two positions, "
+                            "start,end [mm]")
+    radius = float(values["wheel.radius"])
+    rec = read_records(values["flat.sections"], numbers(values["flat.section_positions_mm"]),
+                       radius)
+    return split(rec, radius, window_mm=None if window is None else numbers(window))
+
+
+def case_wheel_roughness(case, wheel_rough):
+    """The wheel roughness of a command's case: ``wheel_rough`` (``roughness.wheel_csv``)
+    when given, else the out-of-roundness of a ``flat.sections`` measurement, else None."""
+    if wheel_rough is not None or case.get("flat.kind") != "sections":
+        return wheel_rough
+    return from_values(case.values).wheel_roughness
