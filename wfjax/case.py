@@ -572,7 +572,7 @@ def resolve(command: str, config: str | None = None, flags: dict | None = None,
     layers.append(flags or {})
     given.update({k: (typed or {}).get(k) or KEYS[k].flag or k for k in flags or {}})
     values = merge(layers)
-    check_companions(values, layers[0], given)
+    check_companions(values, layers[0], given, {k for k, v in (flags or {}).items() if v is None})
     for path in list(values):
         if command not in KEYS[path].commands:
             raise CaseError(f"{path} is not an option of wfjax {command}")

@@ -66,7 +66,13 @@ COMPANIONS: dict[str, tuple[Callable[[Mapping], bool], str]] = {
 """``key -> (does the case have its companion?, the companion in words)``."""
 
 
-def check_companions(values: Mapping, defaults: Mapping, given: Mapping[str, str]) -> None:
+def _companion_keys(words: str) -> set[str]:
+    """The case keys named in a companion's words (``supports.void_sleepers``)."""
+    return {k for k in KEYS if k in words}
+
+
+def check_companions(values: Mapping, defaults: Mapping, given: Mapping[str, str],
+                     unset: set[str] = frozenset()) -> None:
     """Refuse a key the user gave whose companion is missing.
 
     Args:
@@ -74,12 +80,15 @@ def check_companions(values: Mapping, defaults: Mapping, given: Mapping[str, str
         defaults: the command's default values (a key at its default is not refused).
         given: ``{key: how the user typed it}`` (``"--realisations"``, ``"case.toml:
             roughness.realisations"``) of the keys the user set.
+        unset: keys a caller unset on purpose (``resolve(..., {"joint.depth": None})``):
+            the keys that need them are dropped knowingly, not refused.
 
     Raises:
         CaseError: ``<typed> <value>: ignored without <companion>; give it, or drop <typed>``.
     """
     for path, (present, companion) in COMPANIONS.items():
-        if path not in given or path not in values or values[path] == defaults.get(path):
+        if path not in given or path not in values or values[path] == defaults.get(path) \
+                or _companion_keys(companion) & set(unset):
             continue
         if not present(values):
             value = values[path] / (KEYS[path].factor if given[path].startswith("--")
