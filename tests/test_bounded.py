@@ -119,6 +119,8 @@ def test_an_output_predicted_above_1_gb_is_refused(tmp_path, capsys, no_work):
                       "--out", str(out)], "38,001 sensors", "1 GB", "--allow-large-output")
     _refused(capsys, ["sweep", *TINY[:2], "--speeds-kmh", "1:300:0.01", "--positions", "1000",
                       "--out", str(out)], "29,901 speeds", "--allow-large-output")
+    _refused(capsys, ["detector", *TINY[:2], "--speeds-kmh", "1:300:0.01", "--positions", "100",
+                      "--out", str(out)], "29,901 speeds", "1 GB")
     assert not out.exists()
 
 

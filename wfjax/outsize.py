@@ -14,7 +14,8 @@ from .limits import check_output_size
 from .scenario.sensors import QUANTITIES
 from .scenario.windows import simulation_window
 
-__all__ = ["CSV_BYTES", "simulate_bytes", "sweep_bytes", "check_simulate", "check_sweep"]
+__all__ = ["CSV_BYTES", "simulate_bytes", "sweep_bytes", "check_simulate", "check_sweep",
+           "check_detector"]
 
 CSV_BYTES = 17  # bytes per CSV number: "-1.23456789e-05," and a little
 FIGURES_BYTES = 2_000_000  # the PNG figures and the JSON summary of one run, at most
@@ -57,6 +58,18 @@ def check_simulate(case, flat, config, n_sensors: int, n_wheels: int, n_hanging:
     steps = n_steps(flat, speed, config)
     check_output_size(simulate_bytes(steps, n_sensors, n_wheels, n_hanging),
                       f"{steps:,} time steps x {n_sensors:,} sensors (--sensors-m)",
+                      bool(case.get("run.allow_large_output", False)))
+
+
+def check_detector(case, n_speeds: int, n_sensors: int) -> None:
+    """Refuse a ``detector`` case whose files (one flat's runs with ``n_sensors`` sensors
+    and the detector's bays) would pass the output limit."""
+    positions = int(case["run.impact_positions"])
+    runs = n_speeds * positions
+    size = sweep_bytes(1, n_speeds, positions, n_sensors=n_sensors) \
+        + runs * (8 + int(case["detector.n_bays"])) * CSV_BYTES * (1 + 2 * n_sensors)
+    check_output_size(size, f"{n_speeds:,} speeds (--speeds-kmh) x {positions} positions x "
+                      f"{n_sensors:,} sensors (--sensors-m)",
                       bool(case.get("run.allow_large_output", False)))
 
 

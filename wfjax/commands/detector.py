@@ -96,6 +96,9 @@ def run(args) -> int:
                         case["detector.gauge_offset"], case["detector.calibration"])
     detector.gauges(float(track.sleeper_spacing))  # bad gauge offset: error before work
     contact = case["run.contact"]
+    from ..outsize import check_detector
+
+    check_detector(case, speeds.size, len(sensors or ()))
     out = prepare_out(args.out)
     print(f"wfjax detector: {speeds.size} speeds x {case['run.impact_positions']} positions, "
           f"{detector.n_bays} bays from bay {detector.first_bay}, {contact} contact")
