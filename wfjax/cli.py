@@ -185,20 +185,25 @@ def _fail(command: str, message: str, status: int) -> int:
 
 @contextlib.contextmanager
 def _terminate_as_exception():
-    """Within: SIGTERM raises :class:`Terminated` (exit status 143, like a killed process);
-    the previous handler is restored after. Outside the main thread: no change."""
+    """Within: SIGTERM raises :class:`Terminated` (exit status 143, like a killed process)
+    and SIGINT ``KeyboardInterrupt``; a second signal while the first unwinds (removing the
+    run's staging files) is ignored. The previous handlers are restored after. Outside the
+    main thread: no change."""
     def handler(signum, frame):
-        raise Terminated()
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
     try:
-        previous = signal.signal(signal.SIGTERM, handler)
+        previous = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
     except ValueError:  # not the main thread
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, old in previous.items():
+            signal.signal(signum, old)
 
 
 def entry_point() -> None:
