@@ -4,7 +4,8 @@
 measured_sections.csv``, split by :func:`wfjax.scenario.measured.split`) against that of a
 ``from_profile`` flat of the same extent and grid (its centre line, cut by the rail head's arc;
 not mirrored either): each built once to compile, then ``--repeats`` times each, interleaved,
-no on-disk cache; the ratio of the medians. Target: <= 1.5.
+no on-disk cache; the ratio of the medians (``benchmarks/results/measured_3d_speed.json``).
+Target: <= 1.5.
 
 ``compare``: max contact force (over ``--positions`` impact positions per bay) against speed,
 3D contact with the exact tables, the paper's Fig. 7 settings otherwise (Table 2 track with
@@ -69,6 +70,8 @@ def speed(repeats: int) -> dict:
     out = {"grid": [a.nx, a.ny, a.n_s, a.n_t], "times_s": times, "median_s": med,
            "ratio": med["sections"] / med["profile"]}
     print(json.dumps(out, indent=1))
+    (ROOT / "benchmarks" / "results" / "measured_3d_speed.json").write_text(
+        json.dumps(out, indent=1))
     return out
 
 
