@@ -245,3 +245,23 @@ def test_manifest_lists_every_file_with_its_sha256(tmp_path):
                                       "case.toml"}
     (out / "sweep.csv").write_text("tampered\n")
     assert not outputs.verify(out, "sweep")
+
+
+def test_sigterm_during_the_commit_waits_for_it(tmp_path, capsys, monkeypatch):
+    """A signal that arrives while the renames run is delivered after them: the new set is
+    whole, and the one line says so (exit status 143 all the same)."""
+    out = tmp_path / "o"
+    _old_set(out)
+    roll = outputs.OutputSet._roll_forward
+
+    def signalled(self):
+        if self.journal.exists():  # the commit (not the recovery at the start)
+            os.kill(os.getpid(), signal.SIGTERM)  # held: raised when the commit ends
+        return roll(self)
+
+    monkeypatch.setattr(outputs.OutputSet, "_roll_forward", signalled)
+    assert main(["sweep", *TINY, "--out", str(out)]) == 143
+    line = _one_line(capsys)
+    assert "SIGTERM" in line and "are complete" in line, line
+    assert outputs.verify(out, "sweep")
+    assert (out / "sweep.csv").read_text().startswith("flat,")

@@ -165,9 +165,16 @@ def main(argv: list[str] | None = None) -> int:
             where = f": {exc.filename}" if exc.filename else ""
             return _fail(args.command, f"{exc.strerror or exc}{where}", 1)
         except Terminated:
-            return _fail(args.command, f"terminated (SIGTERM); {_NOTHING}", 143)
+            return _fail(args.command, f"terminated (SIGTERM); {_left(outputs)}", 143)
         except KeyboardInterrupt:
-            return _fail(args.command, f"interrupted (Ctrl-C); {_NOTHING}", 130)
+            return _fail(args.command, f"interrupted (Ctrl-C); {_left(outputs)}", 130)
+
+
+def _left(outputs) -> str:
+    """What an interrupted run left: nothing, or (a signal during the commit, delivered
+    after it) its complete outputs."""
+    done = outputs.committed()
+    return f"its outputs in {done[0]} are complete" if done else _NOTHING
 
 
 _NOTHING = "nothing of this run was written, --out keeps its previous files"
@@ -186,13 +193,17 @@ def _fail(command: str, message: str, status: int) -> int:
 @contextlib.contextmanager
 def _terminate_as_exception():
     """Within: SIGTERM raises :class:`Terminated` (exit status 143, like a killed process)
-    and SIGINT ``KeyboardInterrupt``; a second signal while the first unwinds (removing the
-    run's staging files) is ignored. The previous handlers are restored after. Outside the
-    main thread: no change."""
+    and SIGINT ``KeyboardInterrupt``, held while a commit renames (:func:`wfjax.outputs.defer`);
+    a second signal while the first unwinds (removing the run's staging files) is ignored.
+    The previous handlers are restored after. Outside the main thread: no change."""
+    from .outputs import defer
+
     def handler(signum, frame):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+        exc = Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+        if not defer(exc):  # held while a commit renames: raised when it ends
+            raise exc
 
     try:
         previous = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}

@@ -34,18 +34,20 @@ import json
 import os
 import re
 import secrets
-import signal
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-__all__ = ["OutputSet", "OutputError", "session", "active", "stage", "verify", "clean_stale",
+__all__ = ["OutputSet", "OutputError", "session", "active", "committed", "stage", "verify",
+           "clean_stale",
            "unique_temporary", "TEMP_PREFIX"]
 
 TEMP_PREFIX = ".wfjax-"
 _TEMP = re.compile(r"^\.wfjax-(\d+)-[0-9a-f]{8}-")
 PAUSE_ENV = "WFJAX_TEST_PAUSE_WRITER"
 _ACTIVE: dict[str, object] = {"command": None, "set": None}
+_CRITICAL: dict[str, object] = {"depth": 0, "pending": None}
+_COMMITTED: list[Path] = []  # the directories the current session's sets were committed to
 
 
 class OutputError(OSError):
@@ -199,7 +201,7 @@ class OutputSet:
 
     def commit(self) -> list[str]:
         """Make the staged files the set in ``out`` (see the module docstring); returns their
-        names. SIGTERM and SIGINT wait until the renames are done."""
+        names. SIGTERM and SIGINT wait until the renames are done (:func:`defer`)."""
         names = sorted(self.staged)
         if not names:
             return names
@@ -210,22 +212,18 @@ class OutputSet:
                              "sha256": _sha256(self.staged[name])}
         old = _read_manifest(self.manifest)
         dropped = sorted(set(old) - set(entries))
-        blocked = {signal.SIGTERM, signal.SIGINT}
-        previous = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
-        try:
-            with _locked(self.out):
-                _write_small(self.journal, {"command": self.command, "files": entries,
-                                            "dropped": dropped})
-                self.staged.clear()
-                self._roll_forward()
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        with _critical(), _locked(self.out):
+            _write_small(self.journal, {"command": self.command, "files": entries,
+                                        "dropped": dropped})
+            self.staged.clear()
+            self._roll_forward()
+            _COMMITTED.append(self.out)
         return names
 
     def recover(self) -> bool:
         """Roll forward a commit journal of this command in ``out``; True if there was one.
         Commits and recoveries in one directory take turns (an exclusive lock on it)."""
-        with _locked(self.out):
+        with _critical(), _locked(self.out):
             return self._roll_forward()
 
     def _roll_forward(self) -> bool:
@@ -251,6 +249,29 @@ class OutputSet:
         self.journal.unlink()
         _fsync(self.out)
         return True
+
+
+@contextlib.contextmanager
+def _critical() -> Iterator[None]:
+    """Within: a signal handler's exception is held (:func:`defer`) and raised on leaving,
+    so a commit's renames are never cut short."""
+    _CRITICAL["depth"] += 1
+    try:
+        yield
+    finally:
+        _CRITICAL["depth"] -= 1
+        pending, _CRITICAL["pending"] = _CRITICAL["pending"], None
+        if pending is not None and _CRITICAL["depth"] == 0:
+            raise pending
+
+
+def defer(exc: BaseException) -> bool:
+    """For a signal handler: hold ``exc`` (SIGTERM's or Ctrl-C's exception) while a commit
+    runs, to be raised when it ends; True if held (the handler then returns)."""
+    if _CRITICAL["depth"] > 0:
+        _CRITICAL["pending"] = _CRITICAL["pending"] or exc
+        return True
+    return False
 
 
 @contextlib.contextmanager
@@ -292,6 +313,7 @@ def session(command: str) -> Iterator[None]:
     """Within: :func:`open_set` opens ``command``'s set; on a normal exit it is committed,
     on an exception (error, SIGTERM, Ctrl-C) discarded."""
     _ACTIVE.update(command=command, set=None)
+    _COMMITTED.clear()
     try:
         yield
         current = _ACTIVE["set"]
@@ -318,6 +340,12 @@ def open_set(out: str | os.PathLike) -> OutputSet | None:
         current = OutputSet(out, _ACTIVE["command"]).prepare()
         _ACTIVE["set"] = current
     return current
+
+
+def committed() -> list[Path]:
+    """The directories whose sets the last :func:`session` committed (a signal that arrives
+    during a commit is delivered after it: the outputs are then complete)."""
+    return list(_COMMITTED)
 
 
 def active() -> OutputSet | None:
