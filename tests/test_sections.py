@@ -114,6 +114,22 @@ def test_sections_reproduce_from_profile_simulation():
         assert np.max(np.abs(a - b)) <= 1e-9 * np.max(a), contact
 
 
+@pytest.mark.slow
+def test_sections_reproduce_from_profile_direct_mode():
+    """The direct 3D mode's per-step Kalker solves (windowed, from the law) agree."""
+    fp, fs, _ = _profile_pair()
+    cfg = SimConfig(contact_mode_3d="direct")
+    la, lb = (laws.prepare("3d", f, Wheel(), Track.comparison(), Material(), cfg)
+              for f in (fp, fs))
+    pts = [(-0.004, 0.12e-3), (0.0, 0.15e-3), (0.006, 0.1e-3)]
+    for law_a, law_b in ((la, lb),):
+        for s, delta in pts:
+            p0 = law_a.init_state()
+            fa = float(jax.jit(law_a._evaluate)(s, delta, p0)[0])
+            fb = float(jax.jit(law_b._evaluate)(s, delta, p0)[0])
+            assert fa > 1e3 and abs(fa - fb) <= 1e-9 * fa, (s, delta, fa, fb)
+
+
 # -- a laterally varying surface with a closed-form gap -----------------------------------------
 D, A, B = 0.15e-3, 0.012, 0.03  # depth [m], half length [m], lateral tilt length [m]
 XN = np.linspace(-0.02, 0.02, 41)  # record nodes (1 mm; 0 and +-A are nodes)
