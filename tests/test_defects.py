@@ -54,6 +54,7 @@ PAIRS = [  # (command, flags without the companion, what the error names, the co
     ("sweep", ["--set", "roughness.length=8"], "--set roughness.length",
      ["--roughness", "iso3095"]),
     ("detector", ["--train", "bogie"], "--train", None),
+    ("simulate", ["--section-window-mm=-10,10"], "--section-window-mm", None),
 ]
 
 

@@ -62,6 +62,8 @@ COMPANIONS: dict[str, tuple[Callable[[Mapping], bool], str]] = {
     "flat.length_factor": (_is("flat.kind", "rounded", "both"), 'a rounded flat (flat.kind = '
                            '"rounded" or "both")'),
     **{f"passage.{k}": _PASSAGE for k in ("train", "flats", "speed_kmh", "noise", "seed")},
+    **{f"flat.section_{k}_mm": (_is("flat.kind", "sections"), "flat.sections (--sections)")
+       for k in ("positions", "window")},
 }
 """``key -> (does the case have its companion?, the companion in words)``."""
 
