@@ -178,3 +178,22 @@ def test_rerun_from_a_summary_refuses_a_changed_profile(tmp_path, capsys, no_wor
     assert main(["geometry", "--config", str(summary), "--out", str(tmp_path / "o")]) == 2
     line = _one_error(capsys)
     assert str(summary) in line and str(profile) in line and "changed since the run" in line
+
+
+def test_provenance_records_every_file_of_a_records_directory(tmp_path):
+    from wfjax.commands._common import provenance
+
+    records = tmp_path / "records"
+    records.mkdir()
+    for i in range(2):
+        (records / f"line{i}.txt").write_text(f"position_mm,deviation_um\n0,{i}\n")
+    case = C.resolve("geometry", None, {}, environ={})
+    recorded = provenance(case, {"flat.sections": str(records), "unset": None})["inputs_sha256"]
+    assert recorded == {str(records / f"line{i}.txt"): file_sha256(records / f"line{i}.txt")
+                        for i in range(2)}
+    summary = {"provenance": {"inputs_sha256": recorded}}
+    (records / "line1.txt").write_text("position_mm,deviation_um\n0,7\n")
+    from wfjax.datafiles import check_recorded_inputs
+
+    with pytest.raises(Exception, match="changed since the run"):
+        check_recorded_inputs(summary, "s.json")

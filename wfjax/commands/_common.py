@@ -170,9 +170,21 @@ def provenance(case: case_mod.Case, inputs: dict[str, str] | None = None) -> dic
         "jax_backend": jax.default_backend(),
         "jax_device_count": jax.device_count(),
         "case_sha256": case.digest(),
-        "inputs_sha256": {str(p): file_sha256(p) for p in (inputs or {}).values()
-                          if p and Path(p).is_file()},
+        "inputs_sha256": {str(p): file_sha256(p) for p in _input_files(inputs)},
     }
+
+
+def _input_files(inputs: dict[str, str] | None) -> list[Path]:
+    """The files behind ``inputs``' paths: a file itself, every file of a directory (a
+    profilometer's records, one file per line), nothing for an unset key."""
+    files: list[Path] = []
+    for value in (inputs or {}).values():
+        path = Path(value) if value else None
+        if path is not None and path.is_file():
+            files.append(path)
+        elif path is not None and path.is_dir():
+            files.extend(sorted(p for p in path.iterdir() if p.is_file()))
+    return files
 
 
 def write_summary(path: Path, summary: dict, case: case_mod.Case,

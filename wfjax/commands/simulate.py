@@ -52,8 +52,8 @@ def run(args) -> int:
     if flat.kind == "rounded":
         summary["length_mm"] = float(flat.length) * 1e3
     write_summary(out / "simulate.json", summary, case,
-                  {k: case.get(k) for k in ("flat.profile_csv", "roughness.rail_csv",
-                                            "roughness.wheel_csv")})
+                  {k: case.get(k) for k in ("flat.profile_csv", "flat.sections",
+                                            "roughness.rail_csv", "roughness.wheel_csv")})
     if vehicle is None:
         figure = force_history_figure(result, flat, float(wheel.preload))
     else:

@@ -28,7 +28,8 @@ from ._common import (
 )
 
 HELP = "speed sweep of max/min contact force over impact positions (default: Fig. 7, 3D contact)"
-INPUT_KEYS = ("flat.profile_csv", "roughness.rail_csv", "roughness.wheel_csv")
+INPUT_KEYS = ("flat.profile_csv", "flat.sections", "roughness.rail_csv",
+              "roughness.wheel_csv")
 
 
 def check_formats(formats: list[str]) -> None:
