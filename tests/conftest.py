@@ -9,6 +9,19 @@ from wfjax.cli import expose_cpu_cores
 
 expose_cpu_cores(1)  # before anything initialises JAX's backend
 
+import importlib  # noqa: E402
+
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+
+@pytest.fixture(name="no_work")
+def _no_work(monkeypatch):
+    """Make any simulation fail loudly: a command's errors must come before its work."""
+    def boom(*args, **kwargs):
+        raise AssertionError("a simulation ran")
+
+    monkeypatch.setattr(importlib.import_module("wfjax.sweeps"), "sweep", boom)
+    monkeypatch.setattr(importlib.import_module("wfjax.api"), "simulate", boom)

@@ -179,11 +179,7 @@ def test_unique_temporary_names_and_save_npz_leaves_none(tmp_path):
     assert SWEEPS.SweepResult.load_npz(tmp_path / "plain").flats == ("x",)
 
 
-def test_unwritable_out_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
-    def boom(*args, **kwargs):
-        raise AssertionError("a simulation ran")
-
-    monkeypatch.setattr(SWEEPS, "sweep", boom)
+def test_unwritable_out_is_refused_before_any_work(tmp_path, capsys, no_work):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     assert main(["sweep", *TINY, "--out", str(blocker / "o")]) == 2

@@ -18,7 +18,6 @@ from wfjax.cli import build_parser, main
 from wfjax.optdocs import markdown_table
 
 SWEEP = importlib.import_module("wfjax.sweeps")  # the module (wfjax.sweep is the function)
-INTERACTION = importlib.import_module("wfjax.api")
 TINY = ["--contact", "hertz-trajectory", "--speeds-kmh", "60,120", "--positions", "1"]
 
 
@@ -28,15 +27,6 @@ def _umask022():
     yield
     os.umask(old)
 
-
-@pytest.fixture(name="no_work")
-def _no_work(monkeypatch):
-    """Make any simulation fail loudly: errors must come before work."""
-    def boom(*args, **kwargs):
-        raise AssertionError("a simulation ran")
-
-    monkeypatch.setattr(SWEEP, "sweep", boom)
-    monkeypatch.setattr(INTERACTION, "simulate", boom)
 
 
 def _one_line_error(capsys) -> str:

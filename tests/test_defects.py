@@ -2,7 +2,6 @@
 keys without their companion, fit CSVs (BOM, units), profile smoothing's area, case.toml
 escapes, Python names in errors, a rerun whose input changed."""
 
-import importlib
 import json
 import tomllib
 
@@ -15,18 +14,8 @@ from wfjax.commands._common import user_words
 from wfjax.commands.fit import EXAMPLE_CSV, parse_data
 from wfjax.datafiles import file_sha256, read_profile_csv
 
-SWEEPS = importlib.import_module("wfjax.sweeps")
-API = importlib.import_module("wfjax.api")
 HT = ["--contact", "hertz-trajectory"]
 
-
-@pytest.fixture(name="no_work")
-def _no_work(monkeypatch):
-    def boom(*args, **kwargs):
-        raise AssertionError("a simulation ran")
-
-    monkeypatch.setattr(SWEEPS, "sweep", boom)
-    monkeypatch.setattr(API, "simulate", boom)
 
 
 def _one_error(capsys) -> str:

@@ -8,7 +8,6 @@ impact position, a coarse time step.
 """
 
 import csv
-import importlib
 import io
 import json
 import sys
@@ -25,7 +24,6 @@ from wfjax.scenario import roughness as R
 from wfjax.scenario.sensors import Detector
 
 xr = pytest.importorskip("xarray")  # in the test extra: wfjax[test] installs it
-SWEEP = importlib.import_module("wfjax.sweeps")
 TINY = ["--contact", "hertz-trajectory", "--speeds-kmh", "60,120", "--positions", "1"]
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 LABELS = ("speeds", "impact_positions", "flats", "contact", "depths", "lengths",
@@ -181,13 +179,6 @@ def test_sweep_format_netcdf_writes_the_labelled_file(tmp_path, capsys):
     assert not (only / "sweep.csv").exists()
     xr.testing.assert_identical(L.open_netcdf(only / "sweep.nc"), ds)
 
-
-@pytest.fixture(name="no_work")
-def _no_work(monkeypatch):
-    def boom(*args, **kwargs):
-        raise AssertionError("a simulation ran")
-
-    monkeypatch.setattr(SWEEP, "sweep", boom)
 
 
 @pytest.mark.parametrize("argv, missing, words", [
