@@ -146,8 +146,7 @@ class DetectorReadings:
     def reduce(self, state, est, r: Reading, ctx: LoopContext):
         """The running peaks after estimate ``est`` at ``r`` (its step index and the wheels'
         positions, which gate the bays)."""
-        gate = sensor_mod.detector_load(self.spec, ctx.model, r.q, r.force, r.x,
-                                        _supports(r))[1]
+        gate = sensor_mod.detector_gate(self.spec, r.x)
         state = running_max(state, est, gate & counted(r.n, 0, self.end))
         return state, ({"detector_load": est} if self.history else {})
 

@@ -57,7 +57,8 @@ from ..model.supports import hanging_sleepers
 from ..params import Track
 
 __all__ = ["QUANTITIES", "END_BAYS", "SensorSpec", "sensor_spec", "evaluate", "check_positions",
-           "Detector", "DetectorSpec", "detector_spec", "detector_load"]
+           "Detector", "DetectorSpec", "detector_spec", "detector_load",
+           "detector_gate"]
 
 QUANTITIES = ("rail_disp", "rail_vel", "rail_acc", "shear", "moment", "sleeper_disp",
               "sleeper_vel", "sleeper_acc", "seat_force")
@@ -346,6 +347,11 @@ def detector_load(spec: DetectorSpec, model, q, force, x, support_force=None):
     ``support_force`` as in :func:`evaluate`."""
     shear = evaluate(spec.sensors, model, q, force, x, support_force)[0]
     n = spec.left.shape[0]
-    est = spec.calibration * (shear[:n] - shear[n:])
+    return spec.calibration * (shear[:n] - shear[n:]), detector_gate(spec, x)
+
+
+def detector_gate(spec: DetectorSpec, x):
+    """Whether the wheel at ``x`` [m] is between each bay's bridges: [n_bays] for a scalar
+    ``x``, [n_wheels, n_bays] for ``x`` [n_wheels]."""
     x = jnp.asarray(x)[..., None]
-    return est, (x >= spec.left) & (x <= spec.right)
+    return (x >= spec.left) & (x <= spec.right)
