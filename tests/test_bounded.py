@@ -41,6 +41,13 @@ def test_fit_data_from_dev_zero_is_refused(tmp_path, capsys, monkeypatch):
              "--data /dev/zero", "larger than 100,000 bytes")
 
 
+def test_readings_from_dev_zero_are_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("WFJAX_MAX_INPUT_BYTES", "100000")
+    _refused(capsys, ["identify", "--readings", "/dev/zero", "--out", str(tmp_path / "o")],
+             "--readings /dev/zero", "larger than 100,000 bytes")
+    assert not (tmp_path / "o").exists()
+
+
 def test_an_endless_fifo_stops_after_the_limit(tmp_path, capsys, monkeypatch, no_work):
     limit = 200_000
     monkeypatch.setenv("WFJAX_MAX_INPUT_BYTES", str(limit))

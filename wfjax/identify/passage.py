@@ -26,6 +26,7 @@ import re
 
 import numpy as np
 
+from .. import limits
 from ..scenario.sensors import Detector
 
 __all__ = ["Passage", "PassageError", "read_passages", "passages_csv", "check_layout",
@@ -188,8 +189,7 @@ def read_passages(path, text: str | None = None) -> list[Passage]:
     """
     name = str(path)
     if text is None:
-        with open(path, encoding="utf-8") as fh:
-            text = fh.read()
+        text = limits.read_text(path, f"--readings {name}")
     header, rows = _rows(text, name)
     bays = _check_header(header, name)
     groups: dict[int, list] = {}
