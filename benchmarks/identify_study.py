@@ -3,15 +3,18 @@ from a richer model than the identification's, identified, scored.
 
 Truth (:func:`wfjax.identify.synthetic.simulate_passage`): a four-axle wagon (wheels at 0,
 2.5, 17.5, 20 m) with one or two flats of random length U(20, 100) mm, new or rounded
-(l / l0 ~ U(1.6, 2.0)), each striking at a continuous random point of one circumference;
-each bogie coupled on its own track with its own rail roughness realisation (ISO 3095 limit)
-and support scatter (lognormal, cv 0.1), drawn independently of the identification's
-nuisance realisations; 3 % relative Gaussian noise; a 5-bay detector (3.25 m, more than a
-wheel circumference of 2.83 m) with modes to 20 kHz. Identification:
-:func:`wfjax.identify.identify` with its defaults (Hertz-trajectory).
+(l / l0 ~ U(1.6, 2.0)); every wagon passes one detector site ``--passages-per-wagon`` times
+(default 3), its flats striking at a new continuous random point of one circumference each
+time; each bogie coupled on its own track window; the site (``--sites`` of them, one drawn
+per wagon) is a support scatter (lognormal pad and ballast stiffness, cv 0.1) and a rail
+roughness realisation (ISO 3095 limit), drawn independently of the identification's nuisance
+realisations; 3 % relative Gaussian noise; a 5-bay detector (3.25 m, more than a wheel
+circumference of 2.83 m) with modes to 20 kHz. Identification:
+:func:`wfjax.identify.identify` with its defaults (Hertz-trajectory), the wagon's passages
+together.
 
-    python benchmarks/identify_study.py --passages 65 --docs     # the docs/identify.md run
-    python benchmarks/identify_study.py --passages 3             # a smoke test
+    python benchmarks/identify_study.py --flats 100 --docs     # the docs/identify.md run
+    python benchmarks/identify_study.py --flats 3              # a smoke test
 
 Writes ``benchmarks/results/identify_study.json``; ``--docs`` also writes the summary and
 calibration table between the markers of ``docs/identify.md``.
@@ -21,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -102,9 +104,14 @@ def summarise(rows: list[dict]) -> dict:
 def markdown(summary: dict, meta: dict) -> str:
     """The study's section of docs/identify.md."""
     s = summary
-    lines = [f"Run: `python benchmarks/identify_study.py --passages {meta['passages']} "
-             f"--docs` ({meta['wall_s'] / 60:.1f} min on the shared 2-core CPU, "
-             f"{meta['date']}); {s['n_flats']} flats, {s['n_round']} round wheels.", "",
+    lines = [f"Run: `python benchmarks/identify_study.py --flats {meta['flats']} "
+             f"--passages-per-wagon {meta['passages_per_wagon']} --sites {meta['sites']} "
+             f"--seed {meta['seed']} --docs`, {meta['date']}: {meta['wagons']} wagons, "
+             f"{s['n_flats']} flats, {s['n_round']} round wheels; "
+             f"{meta['wall_s'] / 60:.1f} min on the shared 2-core CPU (truth "
+             f"{meta['simulate_s'] / 60:.1f} min, identification {meta['identify_s'] / 60:.1f}"
+             f" min, median {meta['identify_median_s_per_wagon']:.0f} s per wagon of "
+             f"{meta['passages_per_wagon']} passages).", "",
              f"- flats >= 30 mm flagged: {s['flagged_30mm_or_longer'][0]} of "
              f"{s['flagged_30mm_or_longer'][1]}; round wheels flagged: "
              f"{s['round_flagged'][0]} of {s['round_flagged'][1]}",
@@ -123,32 +130,55 @@ def markdown(summary: dict, meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(n_passages: int, seed: int, coupling: int, speed_kmh: float,
-        checkpoint=None) -> tuple[list, float]:
-    """Simulate and identify ``n_passages`` wagon passages; (per-wheel rows, wall s).
-    ``checkpoint(rows, wall_s, passages_done)`` is called after every 10 passages."""
+def run_wagon(k: int, rng, args) -> tuple[list, dict]:
+    """Wagon ``k``: its flats, ``args.passages_per_wagon`` passages over one of
+    ``args.sites`` detector sites, identified together; (per-wheel rows, timings [s])."""
     from wfjax.identify import identify
     from wfjax.identify.synthetic import simulate_passage
     from wfjax.scenario.sensors import Detector
 
-    rng = np.random.default_rng(seed)
+    flats = draw_flats(rng)
+    site = int(rng.integers(args.sites))
+    t0 = time.perf_counter()
+    passages, truth = [], None
+    for j in range(args.passages_per_wagon):
+        p, tr = simulate_passage(WAGON, flats, args.speed_kmh / 3.6, Detector(5, -1),
+                                 noise=0.03, seed=args.seed * 100003 + 101 * k + j + 1,
+                                 site_seed=args.site_seed * 1009 + site)
+        passages.append(p)
+        truth = truth or tr
+    t1 = time.perf_counter()
+    res = identify(passages, coupling_iterations=args.coupling)
+    t2 = time.perf_counter()
+    rows = [score_wheel(t, w) | {"wagon": k, "site": site}
+            for t, w in zip(truth, res.wheels, strict=True)]
+    return rows, {"simulate_s": t1 - t0, "identify_s": t2 - t1}
+
+
+def run(args, checkpoint=None) -> tuple[list, dict]:
+    """Simulate and identify wagons until ``args.flats`` flats are scored (or
+    ``args.max_wagons``); (per-wheel rows, timings). ``checkpoint(rows, timings, wagons)`` is
+    called after every 5 wagons."""
+    rng = np.random.default_rng(args.seed)
     rows, t0 = [], time.perf_counter()
-    for k in range(n_passages):
-        flats = draw_flats(rng)
-        passage, truth = simulate_passage(WAGON, flats, speed_kmh / 3.6, Detector(5, -1),
-                                          noise=0.03, seed=seed * 100003 + k + 1)
-        res = identify([passage], coupling_iterations=coupling)
-        for t, w in zip(truth, res.wheels, strict=True):
-            rows.append(score_wheel(t, w) | {"passage": k})
-        print(f"  passage {k + 1}/{n_passages}: "
-              + ", ".join(f"{t['kind']} {t['length'] * 1e3:.0f}->"
-                          f"{rows[-4 + i]['length_median'] * 1e3:.0f} mm"
-                          f"{'*' if rows[-4 + i]['flagged'] else ''}"
-                          for i, t in enumerate(truth)),
-              f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
-        if checkpoint and (k + 1) % 10 == 0 and k + 1 < n_passages:
-            checkpoint(rows, time.perf_counter() - t0, k + 1)
-    return rows, time.perf_counter() - t0
+    times = {"simulate_s": 0.0, "identify_s": 0.0, "identify_per_wagon_s": []}
+    k = 0
+    while sum(r["kind"] != "none" for r in rows) < args.flats and k < args.max_wagons:
+        wrows, t = run_wagon(k, rng, args)
+        rows += wrows
+        times["simulate_s"] += t["simulate_s"]
+        times["identify_s"] += t["identify_s"]
+        times["identify_per_wagon_s"].append(t["identify_s"])
+        times["wall_s"] = time.perf_counter() - t0
+        print(f"  wagon {k + 1}: " + ", ".join(
+            f"{r['kind']} {r['length'] * 1e3:.0f}->{r['length_median'] * 1e3:.0f} mm"
+            f"{'*' if r['flagged'] else ''}" for r in wrows),
+            f"(identify {t['identify_s']:.0f} s, total {times['wall_s']:.0f} s)",
+            file=sys.stderr, flush=True)
+        k += 1
+        if checkpoint and k % 5 == 0:
+            checkpoint(rows, times, k)
+    return rows, times
 
 
 def write_docs(text: str) -> None:
@@ -161,8 +191,13 @@ def write_docs(text: str) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--passages", type=int, default=65)
-    ap.add_argument("--seed", type=int, default=31)
+    ap.add_argument("--flats", type=int, default=100, help="flats to score (default 100)")
+    ap.add_argument("--max-wagons", type=int, default=1000)
+    ap.add_argument("--passages-per-wagon", type=int, default=3)
+    ap.add_argument("--sites", type=int, default=4, help="detector sites (support scatter "
+                    "and rail roughness realisations) the wagons are drawn over")
+    ap.add_argument("--seed", type=int, default=31, help="the wagons' draws")
+    ap.add_argument("--site-seed", type=int, default=31, help="the sites' draws")
     ap.add_argument("--coupling", type=int, default=1)
     ap.add_argument("--speed-kmh", type=float, default=100.0)
     ap.add_argument("--docs", action="store_true")
@@ -173,11 +208,12 @@ def main(argv=None) -> int:
 
     enable_compilation_cache()
 
-    def save(rows, wall, done):
+    def save(rows, times, wagons):
         summary = summarise(rows)
-        meta = {"passages": done, "seed": args.seed, "coupling": args.coupling,
-                "speed_kmh": args.speed_kmh, "wall_s": wall,
-                "date": time.strftime("%Y-%m-%d", time.gmtime())}
+        meta = {k: v for k, v in vars(args).items() if k not in ("docs", "out")}
+        meta |= {"wagons": wagons, "date": time.strftime("%Y-%m-%d", time.gmtime())} | {
+            k: v for k, v in times.items() if k != "identify_per_wagon_s"}
+        meta["identify_median_s_per_wagon"] = float(np.median(times["identify_per_wagon_s"]))
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps({"meta": meta, "summary": summary,
                                               "wheels": rows}, indent=1, default=float) + "\n")
@@ -186,9 +222,9 @@ def main(argv=None) -> int:
         if args.docs:
             write_docs(text)
 
-    rows, wall = run(args.passages, args.seed, args.coupling, args.speed_kmh, save)
-    save(rows, wall, args.passages)
-    return 0 if not math.isnan(wall) else 1
+    rows, times = run(args, save)
+    save(rows, times, len({r["wagon"] for r in rows}))
+    return 0
 
 
 if __name__ == "__main__":

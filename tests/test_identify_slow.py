@@ -39,6 +39,36 @@ def test_wagon_flats_recovered():
         assert abs(med - t["length"]) <= 0.25 * t["length"], (t, med)
 
 
+def _study():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "identify_study.py"
+    spec = importlib.util.spec_from_file_location("identify_study", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_study_reduced_meets_criteria():
+    """benchmarks/identify_study.py reduced (seed 7, at least 6 flats, 3 passages per
+    wagon over the study's sites): every flat >= 30 mm flagged, no round wheel flagged,
+    median length error <= 10 %, and the 90 % intervals' coverage of length and depth with
+    a 95 % Clopper-Pearson band containing 0.9."""
+    study = _study()
+    args = study.main.__globals__["argparse"].Namespace(
+        flats=6, max_wagons=8, passages_per_wagon=3, sites=4, seed=7, site_seed=31,
+        coupling=1, speed_kmh=100.0)
+    rows, _ = study.run(args)
+    s = study.summarise(rows)
+    assert s["flagged_30mm_or_longer"][0] == s["flagged_30mm_or_longer"][1], s
+    assert s["round_flagged"][0] == 0, s
+    assert s["median_abs_rel_error_length"] <= 0.10, s
+    for t in s["calibration"]:
+        if t["nominal"] == 0.9:
+            assert t["calibrated"], t
+
+
 def test_misspecified_v_flat_within_20_percent_or_rejected():
     """An asymmetric V-shaped flat (50 mm ramp in, 20 mm out, 1 mm deep: 70 mm long), not a
     parametric kind, on a single wheel: its length comes within 20 %, or the misfit test

@@ -41,10 +41,11 @@ __all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "ResponseTable", "flat_of"
 
 _log = logging.getLogger(__name__)
 SMOOTH_DEPTH = 5e-6  # m: a round wheel's stand-in flat (new, l0 = 4 mm): no impact
-SHAPES = (("new", 0.0), ("rounded", 1.6), ("rounded", 2.0))  # (kind, l / l0 of rounded)
+SHAPES = (("new", 0.0), ("rounded", 1.6), ("rounded", 1.8), ("rounded", 2.0))  # (kind, l/l0)
 TABLE_LENGTHS = np.array([5, 12, 20, 28, 36, 45, 55, 65, 75, 87, 100, 115, 130]) * 1e-3  # m
 REACH = 2  # bays either side of the impact bay the table holds
 ROUGHNESS_SPAN = 24.0  # m of generated rail roughness, centred on x = 0
+N_OFFSETS = 16  # impact positions per bay in the table (40.6 mm apart at L_S = 0.65 m)
 
 
 def identification_config(config: SimConfig | None = None) -> SimConfig:
@@ -158,7 +159,7 @@ _PROGRAMS: dict = {}
 
 def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: float = 0.1,
                 calibration: float = 1.0, shapes=SHAPES, lengths=TABLE_LENGTHS,
-                n_offsets: int = 8, n_roughness: int = 3, n_supports: int = 1,
+                n_offsets: int = N_OFFSETS, n_roughness: int = 3, n_supports: int = 1,
                 scatter_cv: float = 0.1, seed: int = 0, wheel: Wheel | None = None,
                 track: Track | None = None, material: Material | None = None,
                 config: SimConfig | None = None, cache_dir=None, progress=None

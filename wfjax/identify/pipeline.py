@@ -148,7 +148,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
                                     progress=progress and (lambda d, t, v=v: progress(
                                         f"response table {v * 3.6:.0f} km/h", d, t)), **opts)
     ptables = [tables[round(p.speed, 9)] for p in passages]
-    factors = [site_factors(p, t) for p, t in zip(passages, ptables, strict=True)]
+    factors = pooled_site_factors(passages, ptables)
     passages = [dataclasses.replace(p, readings=p.readings / f[None, :])
                 for p, f in zip(passages, factors, strict=True)]
     bays = [p.detector_bays() for p in passages]
@@ -193,6 +193,19 @@ def site_factors(passage: Passage, table: fwd.ResponseTable) -> np.ndarray:
         return np.ones(n_bays)
     base = float(np.median(table.readings[:, 0]))
     return np.median(passage.readings, axis=0) / base
+
+
+def pooled_site_factors(passages: list[Passage], tables: list) -> list[np.ndarray]:
+    """Per passage [n_bays] site factors (:func:`site_factors`); when every passage reads the
+    same bays (one site), the median runs over every wheel of every passage at once (each
+    reading over its speed's round-wheel reading): a bay's supports are the same on every
+    passage, and the more wheels the median sees, the less a flat's impact moves it."""
+    same = all(not p.peak_only for p in passages) and len({tuple(p.bays) for p in passages}) == 1
+    if not same or len(passages) == 1 or sum(p.n_wheels for p in passages) < 3:
+        return [site_factors(p, t) for p, t in zip(passages, tables, strict=True)]
+    ratios = np.concatenate([p.readings / float(np.median(t.readings[:, 0]))
+                             for p, t in zip(passages, tables, strict=True)])
+    return [np.median(ratios, axis=0)] * len(passages)
 
 
 def p_peak_exceeds(post: WheelPosterior, table: fwd.ResponseTable, level: float) -> float:

@@ -64,14 +64,17 @@ def _groups(positions):
 def simulate_passage(positions, flats: list[TrainFlat], speed: float,
                      detector: Detector | None = None, noise: float = 0.03,
                      seed: int = 0, scatter_cv: float = 0.1, contact: str = "hertz-trajectory",
-                     wheel: Wheel | None = None, cache_dir=None
+                     wheel: Wheel | None = None, cache_dir=None, site_seed: int | None = None
                      ) -> tuple[Passage, list[dict]]:
     """(the :class:`Passage`, per wheel its truth: kind, length [m], depth [m], impact [m]).
 
     ``positions`` [n] m behind the leading wheel; ``flats``: the flat wheels (the others
     round); ``speed`` [m/s]; ``noise``: relative standard deviation of the readings;
     ``seed``: every random draw (impacts, roughness, supports, noise) derives from it,
-    independently of anything :func:`wfjax.identify.identify` samples.
+    independently of anything :func:`wfjax.identify.identify` samples. ``site_seed``: when
+    given, the detector site's support scatter and rail roughness derive from it instead, the
+    same for every bogie (one site: every passage over it with the same ``site_seed`` sees
+    the same supports and rail; the impacts and the noise still follow ``seed``).
     """
     from ..model.supports import scatter
     from ..scenario import roughness as rough_mod
@@ -98,9 +101,11 @@ def simulate_passage(positions, flats: list[TrainFlat], speed: float,
     readings = np.zeros((positions.size, detector.n_bays))
     peaks = np.zeros(positions.size)
     for g, group in enumerate(_groups(positions)):
-        track = Track() if scatter_cv <= 0 else scatter(Track(), seed * 7 + g + 1, scatter_cv)
-        rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 10007 * (seed + 1) + g,
-                                   fwd.ROUGHNESS_SPAN, x_start=-fwd.ROUGHNESS_SPAN / 2)
+        s_track, s_rough = (seed * 7 + g + 1, 10007 * (seed + 1) + g) if site_seed is None \
+            else (900001 + 7 * site_seed, 700001 + 10007 * site_seed)
+        track = Track() if scatter_cv <= 0 else scatter(Track(), s_track, scatter_cv)
+        rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, s_rough, fwd.ROUGHNESS_SPAN,
+                                   x_start=-fwd.ROUGHNESS_SPAN / 2)
         fl = [fwd.flat_of("new", 0.004, 1.0, radius) if truth[i]["kind"] == "none"
               else fwd.flat_of(truth[i]["kind"], truth[i]["length"], truth[i]["factor"],
                                radius) for i in group]
