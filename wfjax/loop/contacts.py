@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..contact.newton import solve_contact_system, solve_small
+from ..contact.newton import solve_contact_step, solve_contact_system, solve_small
 from ..contact.protocol import ContactLaw
 from ..scenario import patch
 
@@ -15,6 +15,37 @@ from ..scenario import patch
 def pointwise(law: ContactLaw) -> bool:
     """Whether ``law`` solves its steps through :meth:`ContactLaw.step` (point/point_force)."""
     return type(law).step is ContactLaw.step
+
+
+NEWTON_TOL = 1e-15  # m: the contact Newton's tolerance on |r| (wfjax.contact.newton's default)
+FLOAT32_TOL_EPS = 8.0  # float32: |r| <= 8 eps32 max|delta_free| (its rounding floor, x a few)
+
+
+def newton_tolerance(delta_free):
+    """The step's contact Newton tolerance on |r| [m] for approaches ``delta_free`` [n] m.
+
+    float64: :data:`NEWTON_TOL` (1e-15 m). float32: max(1e-15, 8 eps32 max|delta_free|).
+    r = delta - delta_free + c F rounds at about eps32 |delta_free| in float32 (6e-11 m at a
+    0.5 mm approach), so 1e-15 m is met only when an iterate happens to land on r = 0; the
+    others ran to the iteration cap, and a batch (``vmap``) runs its Newton ``while_loop``
+    until its last run converges: 30 iterations every step instead of 3, which made the
+    float32 loop cost 0.68-0.95 of float64's (``benchmarks/README.md``, "Precision").
+    """
+    if jnp.dtype(delta_free.dtype) != jnp.dtype(jnp.float32):
+        return NEWTON_TOL
+    eps = float(jnp.finfo(jnp.float32).eps)
+    return jnp.maximum(NEWTON_TOL, FLOAT32_TOL_EPS * eps * jnp.max(jnp.abs(delta_free)))
+
+
+def _point_step(law, delta_free, compliance, s, max_iter: int, tol, roughness=None):
+    """:meth:`ContactLaw.step` of a point law with the Newton tolerance ``tol`` [m]:
+    (delta m, F N, |r| m)."""
+    frozen = jax.lax.stop_gradient(law)
+    point = law.point(s) if roughness is None else law.rough_point(s, roughness[0])
+    point_ng = jax.lax.stop_gradient(point)
+    return solve_contact_step(lambda d: law.point_force(point, d), delta_free, compliance,
+                              max_iter, tol,
+                              loop_force_fn=lambda d: frozen.point_force(point_ng, d))
 
 
 def law_groups(laws: tuple) -> tuple:
@@ -30,7 +61,8 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
                    groups: tuple | None = None, roughness=None, extra=None):
     """The step's n-contact equation delta = delta_free - C F(delta) for every contact law.
 
-    One wheel: the law's own :meth:`ContactLaw.step`. Several wheels with point laws (every
+    One wheel: the law's own :meth:`ContactLaw.step` (a point law in float32: the same with
+    :func:`newton_tolerance`). Several wheels with point laws (every
     model but the direct 3D mode): Newton over the n approaches
     (:func:`wfjax.contact.newton.solve_contact_system`, implicit-function gradients). Laws
     with their own step (the direct 3D mode, a forward reference) are coupled by
@@ -60,10 +92,15 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
         return {} if rough[i] is None else {"roughness": rough[i]}
 
     n = len(laws)
+    tol = newton_tolerance(delta_free)
     if len(laws) == 1 and extra is None:
         (law,), (state,) = laws, states
-        delta, f, r, state = law.step(delta_free[0], compliance[0, 0], s[0], state, max_iter,
-                                      **kw(0))
+        if pointwise(law) and tol is not NEWTON_TOL:  # float32
+            delta, f, r = _point_step(law, delta_free[0], compliance[0, 0], s[0], max_iter,
+                                      tol, **kw(0))
+        else:
+            delta, f, r, state = law.step(delta_free[0], compliance[0, 0], s[0], state,
+                                          max_iter, **kw(0))
         return delta[None], f[None], r[None], (state,)
     if all(pointwise(law) for law in laws):
         groups = groups or tuple((i,) for i in range(len(laws)))
@@ -92,7 +129,7 @@ def solve_contacts(laws: tuple, delta_free, compliance, s, states, max_iter: int
             return jnp.concatenate([wheels, fn(extra_params, delta[n:])])
 
         delta, f, r = solve_contact_system(
-            lambda d: forces(reps, points, d, params), delta_free, compliance, max_iter,
+            lambda d: forces(reps, points, d, params), delta_free, compliance, max_iter, tol,
             loop_force_fn=lambda d: forces(frozen, points_ng, d, params_ng),
             exact=extra is not None)
         return delta, f, r, states
