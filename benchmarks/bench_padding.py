@@ -4,11 +4,16 @@ Issue 33, item 2: "1.83 M computed for 1.66 M needed". Every device's batched lo
 lanes to its longest run, in whole blocks of ``LOOP_BLOCK`` (128) steps, so a device's share
 of a chunk computes ``lanes x loop_steps(longest)`` run-steps (``wfjax.program.grid.run_steps``).
 
-* ``--count``: the default ``wfjax sweep`` case on ``--devices`` CPU devices (default one per
+* ``--count [--sweep-args "FLAGS"]``: the default ``wfjax sweep`` case (or ``wfjax sweep
+  FLAGS``) on ``--devices`` CPU devices (default one per
   core, as the command): runs, chunks, run-steps needed and computed with this tree's
   ``lane_layout``, and with the layout before it (every device took every n-th run of its
   chunk, so each share spanned the chunk's whole range of step counts; the padding repeated
   the chunk's last, longest run), recomputed here from the same plan.
+* ``--loop``: the default sweep in one process (``wfjax.sweep``, warm: modal model, tables
+  and program reused), the layout before (``dealt_layout``) and ``lane_layout`` in turn over
+  ``--rounds`` rounds after an unrecorded warm-up: wall and CPU seconds (all threads), the
+  paired median ratios and the largest relative difference of the results.
 * ``--old TREE --new TREE``: the warm ``wfjax sweep`` (whole process) of each tree
   (``PYTHONPATH=TREE``, its own ``WFJAX_CACHE_DIR``, warmed by one unrecorded run),
   interleaved over ``--rounds`` rounds (old first in even rounds, new first in odd ones):
@@ -50,8 +55,9 @@ def _old_run_steps(runs) -> int:
     return total
 
 
-def count(n_devices: int) -> None:
-    """Print the default sweep's plan and run-steps (see the module docstring)."""
+def count(n_devices: int, sweep_args: list[str]) -> None:
+    """Print the plan and run-steps of ``wfjax sweep *sweep_args`` (see the module
+    docstring)."""
     os.environ["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={n_devices}"
     from wfjax.cli import build_parser, enable_compilation_cache
     from wfjax.commands._common import resolve_case
@@ -61,7 +67,7 @@ def count(n_devices: int) -> None:
     from wfjax.scenario.description import Scenario
 
     enable_compilation_cache()
-    case = resolve_case(build_parser().parse_args(["sweep"]), "sweep")
+    case = resolve_case(build_parser().parse_args(["sweep", *sweep_args]), "sweep")
     wheel, track, material, config = case.model()
     sc = Scenario.of(case.flats(), case["run.contact"], wheel=wheel, track=track,
                      material=material, config=config)
@@ -81,6 +87,57 @@ def count(n_devices: int) -> None:
               f"{_old_run_steps(runs) / 1e6:.3f} | {computed / 1e6:.3f} |")
 
 
+def dealt_layout(ends, n_chunks: int, width: int, n_devices: int):
+    """The layout before :func:`wfjax.program.grid.lane_layout`, as its (lanes, real): chunks
+    of ``step = ceil(n / n_chunks)`` sorted runs, each padded to ``width`` by repeating its
+    last run, dealt to the devices in turn."""
+    import numpy as np
+
+    n = ends.size
+    step = -(-n // n_chunks)
+    lanes, real = [], []
+    for lo in range(0, n, step):
+        runs = np.arange(lo, min(lo + step, n))
+        runs = np.concatenate([runs, np.repeat(runs[-1:], width - runs.size)])
+        is_real = np.arange(width) < min(step, n - lo)
+        lanes += [runs[d::n_devices] for d in range(n_devices)]
+        real += [is_real[d::n_devices] for d in range(n_devices)]
+    return np.concatenate(lanes), np.concatenate(real)
+
+
+def loop(n_devices: int, rounds: int) -> None:
+    """Print the default sweep's warm in-process time (wall, and CPU of all threads) with
+    the dealt layout and with ``lane_layout``, interleaved in one process."""
+    os.environ["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={n_devices}"
+    import numpy as np
+    from _timing import FLATS, SPEEDS
+
+    import wfjax as wf
+    from wfjax.program import grid
+
+    layouts = {"dealt": dealt_layout, "lanes": grid.lane_layout}
+    times, results = {k: [] for k in layouts}, {}
+    for r in range(rounds + 1):  # round 0: compile and warm, not recorded
+        for name in (list(layouts) if r % 2 == 0 else list(layouts)[::-1]):
+            grid.lane_layout = layouts[name]
+            c0, t0 = time.process_time(), time.perf_counter()
+            res = wf.sweep(FLATS, SPEEDS, 10, progress=False)
+            if r:
+                times[name].append((time.perf_counter() - t0, time.process_time() - c0))
+            results[name] = np.stack([res.max_force, res.min_force, res.axle_acc_peak])
+    grid.lane_layout = layouts["lanes"]
+    for name, t in times.items():
+        print(f"| {name} | {', '.join(f'{w:.2f}' for w, _ in t)} | "
+              f"{statistics.median(w for w, _ in t):.2f} | "
+              f"{statistics.median(c for _, c in t):.2f} |")
+    for i, what in enumerate(("wall", "CPU")):
+        ratio = statistics.median(n[i] / o[i] for o, n in zip(*times.values(), strict=True))
+        print(f"\npaired median ratio lanes/dealt, {what}: {ratio:.3f}")
+    a, b = results["dealt"], results["lanes"]
+    worst = np.max(np.abs(b - a) / np.maximum(np.abs(a), 1e-300))
+    print(f"largest relative difference (max, min force, axle-box peak): {worst:.1e}")
+
+
 def _cpu_children() -> float:
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
@@ -96,19 +153,21 @@ def _sweep(tree: Path, cache: Path, work: Path) -> tuple[float, float]:
     return time.perf_counter() - t0, _cpu_children() - c0
 
 
-def _largest_difference(a: Path, b: Path) -> float:
-    """Largest relative difference between the float arrays of two ``sweep.npz``."""
+def differences(a: Path, b: Path) -> dict[str, float]:
+    """Per float array of two ``sweep.npz``: the largest difference relative to each value
+    (``max_residual``, the contact's Newton residual, itself roundoff of ~1e-15 m: the largest
+    absolute difference [m]); other arrays must be equal."""
     import numpy as np
 
-    worst = 0.0
+    out = {}
     with np.load(a) as x, np.load(b) as y:
         for k in x.files:
-            if x[k].dtype.kind == "f":
-                scale = np.maximum(np.abs(x[k]), 1e-300)
-                worst = max(worst, float(np.max(np.abs(x[k] - y[k]) / scale)))
-            else:
+            if x[k].dtype.kind != "f" or not x[k].size:
                 assert np.array_equal(x[k], y[k]), k
-    return worst
+                continue
+            scale = 1.0 if k == "max_residual" else np.abs(x[k])
+            out[k] = float(np.max(np.abs(x[k] - y[k]) / np.maximum(scale, 1e-300)))
+    return out
 
 
 def timing(trees: dict[str, Path], rounds: int) -> None:
@@ -137,19 +196,26 @@ def timing(trees: dict[str, Path], rounds: int) -> None:
         ratio = statistics.median(n[i] / o[i] for o, n in zip(old, new, strict=True))
         print(f"\npaired median ratio new/old, {what}: {ratio:.3f}")
     out = [dirs[k][1] / "out" / "sweep" / "sweep.npz" for k in trees]
-    print(f"largest relative difference of the results: {_largest_difference(*out):.1e}")
+    print("largest relative differences of the results: " + ", ".join(
+        f"{k} {v:.1e}" for k, v in differences(*out).items()))
 
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--count", action="store_true", help="count the default sweep's run-steps")
     p.add_argument("--devices", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--sweep-args", default="", help="flags of the counted wfjax sweep "
+                   "(default none: the default sweep)")
     p.add_argument("--old", type=Path, help="tree of the old code")
     p.add_argument("--new", type=Path, help="tree of the new code")
     p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--loop", action="store_true",
+                   help="in-process warm sweep, dealt layout against lane_layout")
     args = p.parse_args(argv)
     if args.count:
-        count(args.devices)
+        count(args.devices, args.sweep_args.split())
+    if args.loop:
+        loop(args.devices, args.rounds)
     if args.old and args.new:
         timing({"old": args.old, "new": args.new}, args.rounds)
 

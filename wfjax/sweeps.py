@@ -280,8 +280,10 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
         contact: ``"3d"``, ``"2d"``, ``"hertz-trajectory"`` or ``"hertz-profile"``.
         wheel, track, material, config: model parameters (defaults as in :func:`simulate`).
         chunk_size: simulations per vmapped batch over all devices (default: per device
-            :func:`chunk_width`, from its memory); each chunk is padded to a multiple of the
-            device count and sharded across the devices.
+            :func:`chunk_width`, from its memory); the runs, sorted by step count, are cut
+            into chunks of one compiled width (a multiple of the device count), each device
+            taking a contiguous slice of like step counts and the padding repeating the
+            shortest run (:func:`wfjax.program.grid.lane_layout`).
         progress: print progress with ETA to stderr.
         sensors: [n_s] fixed rail positions [m] (as :func:`wfjax.simulate`): the max and min
             of each of ``sensor_quantities`` (default every one of
