@@ -37,7 +37,7 @@ from ..scenario.sensors import Detector
 from ..scenario.windows import batch_windows
 
 __all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "ResponseTable", "flat_of", "build_table",
-           "predict", "coupled_readings", "identification_config"]
+           "predict", "coupled_readings", "identification_config", "extent_bound"]
 
 _log = logging.getLogger(__name__)
 SMOOTH_DEPTH = 5e-6  # m: a round wheel's stand-in flat (new, l0 = 4 mm): no impact
@@ -64,6 +64,25 @@ def flat_of(kind: str, length, length_factor: float, wheel_radius: float,
     depth = (length / length_factor) ** 2 / (8 * wheel_radius)
     return Flat("rounded", depth=depth, length=length, wheel_radius=wheel_radius,
                 extent_bound=extent_bound)
+
+
+def extent_bound(wheel_radius: float, shapes=SHAPES, lengths=TABLE_LENGTHS) -> float:
+    """The largest half extent [m] of the ``shapes``' flats up to the longest of ``lengths``
+    [m]: the common ``extent_bound`` that sizes every parametric flat's contact tables alike,
+    so one compiled program serves every flat length (a table sized by each flat's own extent
+    would recompile the program for every flat)."""
+    top = float(np.max(lengths))
+    return max(float(flat_of(kind, top, factor, wheel_radius).half_extent)
+               for kind, factor in shapes)
+
+
+def _bounded(flat: Flat, wheel_radius: float) -> Flat:
+    """``flat`` with :func:`extent_bound` when it is parametric (new or rounded), unbounded and
+    within the bound; other flats unchanged."""
+    if flat.kind not in ("new", "rounded") or flat.extent_bound is not None:
+        return flat
+    bound = extent_bound(wheel_radius)
+    return dataclasses.replace(flat, extent_bound=bound) if flat.half_extent <= bound else flat
 
 
 def depth_of(kind: str, length, length_factor: float, wheel_radius: float):
@@ -327,6 +346,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
     material, config = material or Material(), identification_config(config)
     positions = np.asarray(positions, float)
     impacts = np.asarray(impacts, float)
+    flats = [_bounded(f, float(wheel.radius)) for f in flats]
     offsets = positions[0] - positions
     delays = impacts - impacts[0] - offsets
     ref = flats[0]
