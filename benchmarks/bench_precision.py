@@ -15,8 +15,10 @@ Jobs (``--jobs``):
   new 0.9 mm flats, 29 speeds 20-300 km/h, 10 positions, 3D tables, the default track), one
   CPU device per core as the command, warm (tables from the disk cache).
 
-Accuracy: every worker's max forces; float32 against float64 of the same tree, and each tree
-against the first (``--new``) in the same precision (largest relative difference).
+Ratios are paired medians over the rounds: float32 / float64 of the same tree, and each tree /
+the first (``--new``) in the same precision. Accuracy: every worker's max forces, float32
+against float64 of the same tree and each tree against the first in the same precision
+(largest relative difference over the runs).
 
 ``--newton-tol32 K`` (a what-if, not the code's behaviour): the float32 workers' scalar
 contact Newton (:func:`wfjax.contact.newton.bracketed_newton`) stops at
@@ -175,26 +177,30 @@ def measure(trees: dict, args) -> dict:
     return summarise(trees, keys, times, forces, args)
 
 
+def _paired(times, key, ref) -> float:
+    """Median over the rounds of the wall-time ratio key / ref (same round)."""
+    return statistics.median(a[0] / b[0] for a, b in zip(times[key], times[ref], strict=True))
+
+
 def summarise(trees, keys, times, forces, args) -> dict:
-    """Medians, paired median ratios (to the first tree's float64 of the job), accuracy."""
+    """Medians, paired median ratios (float32 / float64 of the same tree; each tree / the
+    first in the same precision), accuracy (largest relative difference of the max force)."""
     first = next(iter(trees))
     rows = []
-    for tree, job, precision in keys:
-        ref = (first, job, "float64")
-        wall = [t[0] for t in times[(tree, job, precision)]]
-        ratio = [w / t[0] for w, t in zip(wall, times[ref], strict=True)]
-        same_tree_64 = forces[(tree, job, "float64")]
-        runs = len(forces[(tree, job, precision)])
-        row = {"tree": tree, "job": job, "precision": precision, "runs": runs,
+    for key in keys:
+        tree, job, precision = key
+        wall = [t[0] for t in times[key]]
+        f64 = (tree, job, "float64")
+        row = {"tree": tree, "job": job, "precision": precision, "runs": len(forces[key]),
                "median_s": statistics.median(wall),
-               "ratio_to_ref": statistics.median(ratio),
-               "cpu_s": statistics.median(t[1] for t in times[(tree, job, precision)]),
-               "f32_vs_f64": (_max_rel(forces[(tree, job, precision)], same_tree_64)
+               "cpu_s": statistics.median(t[1] for t in times[key]),
+               "to_float64": _paired(times, key, f64),
+               "to_first_tree": _paired(times, key, (first, job, precision)),
+               "f32_vs_f64": (_max_rel(forces[key], forces[f64])
                               if precision == "float32" else None),
-               "vs_first_tree": _max_rel(forces[(tree, job, precision)],
-                                         forces[(first, job, precision)])}
+               "vs_first_tree": _max_rel(forces[key], forces[(first, job, precision)])}
         if job == "loop":
-            row["us_per_run_step"] = 1e6 * row["median_s"] / (runs * (args.steps - 1))
+            row["us_per_run_step"] = 1e6 * row["median_s"] / (row["runs"] * (args.steps - 1))
         rows.append(row)
     return {"rows": rows, "rounds": args.rounds, "batch": args.batch, "steps": args.steps,
             "contact": args.contact, "newton_tol32": args.newton_tol32,
@@ -203,16 +209,17 @@ def summarise(trees, keys, times, forces, args) -> dict:
 
 
 def markdown(result: dict) -> str:
-    head = ("| tree | job | precision | runs | median [s] | us/run-step | ratio to first "
-            "tree's float64 | max rel. diff f32 vs f64 | max rel. diff vs first tree |\n"
-            "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |\n")
+    """The rows as a Markdown table (ratios: paired medians over the rounds)."""
+    head = ("| tree | job | precision | runs | median [s] | us/run-step | / float64 (same tree) "
+            "| / first tree (same precision) | f32 vs f64: max force | vs first tree: max "
+            "force |\n| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n")
     lines = []
     for r in result["rows"]:
         per = f"{r['us_per_run_step']:.2f}" if "us_per_run_step" in r else "-"
         f32 = "-" if r["f32_vs_f64"] is None else f"{r['f32_vs_f64']:.1e}"
         lines.append(f"| {r['tree']} | {r['job']} | {r['precision']} | {r['runs']} | "
-                     f"{r['median_s']:.3f} | {per} | {r['ratio_to_ref']:.3f} | {f32} | "
-                     f"{r['vs_first_tree']:.1e} |")
+                     f"{r['median_s']:.3f} | {per} | {r['to_float64']:.3f} | "
+                     f"{r['to_first_tree']:.3f} | {f32} | {r['vs_first_tree']:.1e} |")
     return head + "\n".join(lines)
 
 
