@@ -210,10 +210,16 @@ def lane_layout(ends: np.ndarray, n_chunks: int, width: int,
     runs, preceded by the padding (``n_chunks * width - n`` lanes repeating run 0, the
     shortest), are cut into ``n_chunks * n_devices`` contiguous groups, chunk k takes groups
     k * n_devices ... (k + 1) * n_devices - 1, and within a chunk the costliest group goes to
-    the device with the least work so far (their totals stay balanced, each device's loop
-    stopping on its own). The default sweep (580 runs, 5 chunks of 2 x 58 lanes): 1.76 M
-    run-steps computed for 1.66 M needed, against 1.83 M when every device took every
-    second run of its chunk (each spanning the chunk's whole range of step counts).
+    the device with the least work so far. The default sweep (580 runs, 5 chunks of 2 x 58
+    lanes): 1.76 M run-steps computed for 1.66 M needed, against 1.83 M when every device
+    took every second run of its chunk (each spanning the chunk's whole range of step
+    counts); the Fig. 8 set 5.57 M (5.67 M) for 5.39 M.
+
+    What it saves is CPU time, not a chunk's wall time on idle cores: JAX's CPU client runs
+    one sharded chunk at a time (the next dispatch waits for the previous chunk on every
+    device, measured with jax 0.10.2), so a chunk lasts as long as its slowest device's
+    share, whose longest run is the chunk's either way. Where the cores are shared (another
+    process, or fewer cores than devices) the CPU time is the wall time.
     """
     share = width // n_devices
     pad = n_chunks * width - ends.size
