@@ -3,15 +3,15 @@ from a richer model than the identification's, identified, scored.
 
 Truth (:func:`wfjax.identify.synthetic.simulate_passage`): a four-axle wagon (wheels at 0,
 2.5, 17.5, 20 m) with one or two flats of random length U(20, 100) mm, new or rounded
-(l / l0 ~ U(1.6, 2.0)); every wagon passes one detector site ``--passages-per-wagon`` times
-(default 3), its flats striking at a new continuous random point of one circumference each
-time; each bogie coupled on its own track window; the site (``--sites`` of them, one drawn
-per wagon) is a support scatter (lognormal pad and ballast stiffness, cv 0.1) and a rail
-roughness realisation (ISO 3095 limit), drawn independently of the identification's nuisance
-realisations; 3 % relative Gaussian noise; a 5-bay detector (3.25 m, more than a wheel
-circumference of 2.83 m) with modes to 20 kHz. Identification:
-:func:`wfjax.identify.identify` with its defaults (Hertz-trajectory), the wagon's passages
-together.
+(l / l0 ~ U(1.6, 2.0)); every wagon passes one detector site once at each of
+``--speeds-kmh`` (default 60, 100, 140 km/h), its flats striking at a new continuous random
+point of one circumference each time; each bogie coupled on its own track window; the site
+(``--sites`` of them, one drawn per wagon) is a support scatter (lognormal pad and ballast
+stiffness, cv 0.1) and a rail roughness realisation (ISO 3095 limit), drawn independently
+of the identification's nuisance realisations; 3 % relative Gaussian noise; a 5-bay
+detector (3.25 m, more than a wheel circumference of 2.83 m) with modes to 20 kHz.
+Identification: :func:`wfjax.identify.identify` with its defaults (Hertz-trajectory), the
+wagon's passages together.
 
     python benchmarks/identify_study.py --flats 100 --docs     # the docs/identify.md run
     python benchmarks/identify_study.py --flats 3              # a smoke test
@@ -105,13 +105,13 @@ def markdown(summary: dict, meta: dict) -> str:
     """The study's section of docs/identify.md."""
     s = summary
     lines = [f"Run: `python benchmarks/identify_study.py --flats {meta['flats']} "
-             f"--passages-per-wagon {meta['passages_per_wagon']} --sites {meta['sites']} "
+             f"--speeds-kmh {meta['speeds_kmh']} --sites {meta['sites']} "
              f"--seed {meta['seed']} --docs`, {meta['date']}: {meta['wagons']} wagons, "
              f"{s['n_flats']} flats, {s['n_round']} round wheels; "
              f"{meta['wall_s'] / 60:.1f} min on the shared 2-core CPU (truth "
              f"{meta['simulate_s'] / 60:.1f} min, identification {meta['identify_s'] / 60:.1f}"
              f" min, median {meta['identify_median_s_per_wagon']:.0f} s per wagon of "
-             f"{meta['passages_per_wagon']} passages).", "",
+             f"{len(meta['speeds_kmh'].split(','))} passages).", "",
              f"- flats >= 30 mm flagged: {s['flagged_30mm_or_longer'][0]} of "
              f"{s['flagged_30mm_or_longer'][1]}; round wheels flagged: "
              f"{s['round_flagged'][0]} of {s['round_flagged'][1]}",
@@ -130,8 +130,13 @@ def markdown(summary: dict, meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def speeds(args) -> list[float]:
+    """[km/h] the speed of each of a wagon's passages."""
+    return [float(v) for v in str(args.speeds_kmh).split(",")]
+
+
 def run_wagon(k: int, rng, args) -> tuple[list, dict]:
-    """Wagon ``k``: its flats, ``args.passages_per_wagon`` passages over one of
+    """Wagon ``k``: its flats, one passage at each of ``args.speeds_kmh`` over one of
     ``args.sites`` detector sites, identified together; (per-wheel rows, timings [s])."""
     from wfjax.identify import identify
     from wfjax.identify.synthetic import simulate_passage
@@ -141,8 +146,8 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
     site = int(rng.integers(args.sites))
     t0 = time.perf_counter()
     passages, truth = [], None
-    for j in range(args.passages_per_wagon):
-        p, tr = simulate_passage(WAGON, flats, args.speed_kmh / 3.6, Detector(5, -1),
+    for j, speed_kmh in enumerate(speeds(args)):
+        p, tr = simulate_passage(WAGON, flats, speed_kmh / 3.6, Detector(5, -1),
                                  noise=0.03, seed=args.seed * 100003 + 101 * k + j + 1,
                                  site_seed=args.site_seed * 1009 + site)
         passages.append(p)
@@ -193,13 +198,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flats", type=int, default=100, help="flats to score (default 100)")
     ap.add_argument("--max-wagons", type=int, default=1000)
-    ap.add_argument("--passages-per-wagon", type=int, default=3)
+    ap.add_argument("--speeds-kmh", default="60,100,140",
+                    help="one passage per wagon at each of these speeds")
     ap.add_argument("--sites", type=int, default=4, help="detector sites (support scatter "
                     "and rail roughness realisations) the wagons are drawn over")
     ap.add_argument("--seed", type=int, default=31, help="the wagons' draws")
     ap.add_argument("--site-seed", type=int, default=31, help="the sites' draws")
     ap.add_argument("--coupling", type=int, default=1)
-    ap.add_argument("--speed-kmh", type=float, default=100.0)
     ap.add_argument("--docs", action="store_true")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
                                          "identify_study.json"))

@@ -51,14 +51,14 @@ def _study():
 
 
 def test_study_reduced_meets_criteria():
-    """benchmarks/identify_study.py reduced (seed 7, at least 6 flats, 3 passages per
-    wagon over the study's sites): every flat >= 30 mm flagged, no round wheel flagged,
+    """benchmarks/identify_study.py reduced (seed 7, at least 6 flats, passages at 60, 100
+    and 140 km/h over the study's sites): every flat >= 30 mm flagged, no round wheel flagged,
     median length error <= 10 %, and the 90 % intervals' coverage of length and depth with
     a 95 % Clopper-Pearson band containing 0.9."""
     study = _study()
     args = study.main.__globals__["argparse"].Namespace(
-        flats=6, max_wagons=8, passages_per_wagon=3, sites=4, seed=7, site_seed=31,
-        coupling=1, speed_kmh=100.0)
+        flats=6, max_wagons=8, speeds_kmh="60,100,140", sites=4, seed=7, site_seed=31,
+        coupling=1)
     rows, _ = study.run(args)
     s = study.summarise(rows)
     assert s["flagged_30mm_or_longer"][0] == s["flagged_30mm_or_longer"][1], s

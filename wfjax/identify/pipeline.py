@@ -27,6 +27,7 @@ __all__ = ["identify", "Identification", "WheelResult", "GROUP_GAP", "MISFIT_P"]
 
 GROUP_GAP = 4.0  # m: wheels closer than this are coupled (a bogie)
 MISFIT_P = 1e-3  # posterior-predictive p-value below which a passage is not explained
+ROUND_LENGTH = 0.015  # m: a bogie none of whose wheels has P(l >= this) >= 0.5 is not corrected
 
 
 @dataclasses.dataclass
@@ -88,7 +89,9 @@ def _estimate_flat(post: WheelPosterior, radius: float):
 
 
 def _corrections(passage: Passage, posts, settings: dict, radius: float):
-    """[n_wheels, n_bays] N: coupled minus single-wheel readings at the current estimates."""
+    """[n_wheels, n_bays] N: coupled minus single-wheel readings at the current estimates
+    (zero in a bogie whose wheels are all probably round: P(l >= :data:`ROUND_LENGTH`) < 0.5;
+    a round wheel barely moves its neighbours' readings)."""
     from ..scenario import roughness as rough_mod
 
     det = passage.detector()
@@ -98,8 +101,9 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float):
     kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"])
     p_index = settings["passage_index"]
     for group in _groups(passage.positions):
-        if len(group) < 2:
-            continue
+        if len(group) < 2 or all(posts[i].p_length_at_least(ROUND_LENGTH) < 0.5
+                                 for i in group):
+            continue  # no neighbour with a flat: no correction
         flats = [_estimate_flat(posts[i], radius) for i in group]
         impacts = [posts[i].best[2][p_index] for i in group]
         pos = passage.positions[group] - passage.positions[group[0]]
