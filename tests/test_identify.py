@@ -221,3 +221,34 @@ def test_command_writes_outputs(tmp_path, capsys, monkeypatch):
     assert summary["wheels"][0]["decision_user"] == "act (length)"
     assert 60 < summary["wheels"][0]["length_median_mm"] < 100
     assert (out / "identify.png").stat().st_size > 1000 and (out / "case.toml").exists()
+
+
+def test_site_factors_pooled_over_passages_of_one_site():
+    """Passages over the same bays share one site factor per bay: the median over every
+    wheel of every passage of reading / the table's round reading; other bays: per passage."""
+    from wfjax.identify.pipeline import pooled_site_factors, site_factors
+
+    t = _table()
+    a, b = _passage(4), _passage(4, speed=60 / 3.6)
+    b = Passage(b.speed, b.positions, b.bays, b.readings * 1.1, 0.1, 1.0)
+    got = pooled_site_factors([a, b], [t, t])
+    want = np.median(np.concatenate([a.readings, b.readings]) / 120e3, axis=0)
+    np.testing.assert_allclose(got[0], want)
+    np.testing.assert_allclose(got[1], want)
+    c = Passage(b.speed, b.positions, BAYS + 1, b.readings, 0.1, 1.0)
+    got = pooled_site_factors([a, c], [t, t])
+    np.testing.assert_allclose(got[1], site_factors(c, t))
+
+
+def test_parametric_flats_share_one_extent_bound():
+    """Every new or rounded flat of a coupled run is sized by the same extent bound (one
+    compiled program for every length); a measured-profile flat is left alone."""
+    import wfjax as wf
+
+    bound = fwd.extent_bound(0.45)
+    assert bound == pytest.approx(0.065)
+    for flat in (fwd.flat_of("new", 0.03, 1.0, 0.45), fwd.flat_of("rounded", 0.09, 1.8, 0.45)):
+        assert fwd._bounded(flat, 0.45).extent_bound == bound
+    x = np.linspace(-0.03, 0.03, 31)
+    prof = wf.Flat.from_profile(x, 1e-4 * (1 - np.abs(x) / 0.03))
+    assert fwd._bounded(prof, 0.45) is prof
