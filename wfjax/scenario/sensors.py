@@ -355,3 +355,30 @@ def detector_gate(spec: DetectorSpec, x):
     ``x``, [n_wheels, n_bays] for ``x`` [n_wheels]."""
     x = jnp.asarray(x)[..., None]
     return (x >= spec.left) & (x <= spec.right)
+
+
+def transfer_receptance(track: Track, model, freqs, x_force: float, x_sensor: float,
+                        quantity: str = "rail_disp") -> np.ndarray:
+    """A sensor's response per unit harmonic force on the rail, from the modal model.
+
+    Args:
+        track: the track (concrete numbers).
+        model: its :class:`wfjax.model.track.ModalModel`.
+        freqs: [n_f] frequencies [Hz].
+        x_force: position of the force [m].
+        x_sensor: position of the sensor [m] (:func:`check_positions`).
+        quantity: one of :data:`QUANTITIES` (``"rail_disp"``: m/N, ``"shear"``: N/N, ...).
+
+    Returns:
+        complex [n_f] (convention exp(i omega t)): the kept modes plus the truncated modes'
+        static part (the sensor's direct term), as the time loop evaluates the sensor.
+    """
+    spec = sensor_spec([x_sensor], track, model, quantities=(quantity,))
+    s = 2j * np.pi * np.asarray(freqs, dtype=float)[:, None]
+    a = ((np.asarray(spec.c_re) + 1j * np.asarray(spec.c_im))[0]
+         * np.asarray(track_mod.mode_shapes_at(model, float(x_force))))
+    lam, pair = np.asarray(model.poles), np.asarray(model.weights) > 1.5
+    h = np.where(pair, 0.5 * (a / (s - lam) + np.conj(a) / (s - np.conj(lam))),
+                 a / (s - lam)).sum(axis=1)
+    return h + float(np.asarray(track_mod.interpolate_nodal(model, spec.direct,
+                                                             float(x_force)))[0])
