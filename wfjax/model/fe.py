@@ -202,3 +202,28 @@ def static_solve(fe: FEModel, rhs) -> np.ndarray:
         return np.asarray(rhs.T @ scipy.linalg.cho_solve(factor, np.eye(n_dof))).T
     dense = rhs.toarray() if scipy.sparse.issparse(rhs) else np.asarray(rhs, dtype=float)
     return scipy.linalg.cho_solve(factor, dense)
+
+
+def element_interior_compliance(track: Track, xi) -> np.ndarray:
+    """Static compliance [m/N] that the element's shape functions miss at a point load inside
+    an element: the deflection under a unit load at fraction ``xi`` [any shape] of an element
+    clamped at both its nodes (0 at the nodes).
+
+    The Timoshenko element is exact for loads at its nodes only; a load inside it is spread
+    to the nodes by the shape functions, which cannot follow the kink of the exact deflection
+    under the load (mostly shear: about ``L / (4 kGA)`` at the middle, 8e-11 m/N for 8
+    elements of 0.65 m). The exact deflection is the FE one plus this clamped-clamped
+    part (superposition), computed exactly with a node at the load: two Timoshenko elements
+    of lengths ``xi L`` and ``(1 - xi) L``.
+    """
+    p = track_numbers(track)
+    ei, kga = float(p["bending_stiffness"]), float(p["shear_stiffness"])
+    le = float(p["sleeper_spacing"]) / int(track.elements_per_bay)
+    xi = np.asarray(xi, dtype=float)
+    out = np.zeros(xi.shape)
+    for i, x in np.ndenumerate(xi):
+        if 1e-9 < x < 1 - 1e-9:
+            ka = element_matrices(ei, kga, 1.0, 1.0, x * le)[0]
+            kb = element_matrices(ei, kga, 1.0, 1.0, (1 - x) * le)[0]
+            out[i] = np.linalg.inv(ka[2:, 2:] + kb[:2, :2])[0, 0]
+    return out

@@ -41,7 +41,14 @@ import scipy.sparse.linalg
 from .. import _cache
 from .._xla import to_device
 from ..params import Track
-from .fe import FEModel, assemble, load_vector, shape_functions, track_numbers
+from .fe import (
+    FEModel,
+    assemble,
+    element_interior_compliance,
+    load_vector,
+    shape_functions,
+    track_numbers,
+)
 from .modal import complex_modes, discrete_step_coefficients, real_times_complex
 from .sleepers import is_mirror_symmetric, is_uniform
 
@@ -89,7 +96,9 @@ def receptance(track: Track, freqs, x: float = 0.0, x_response=None) -> np.ndarr
 
     Returns:
         complex [n_f] (scalar ``x_response``) or [n_f, n_r]: displacement at ``x_response``
-        per unit harmonic force at ``x`` (convention exp(i omega t)).
+        per unit harmonic force at ``x`` (convention exp(i omega t)). A point receptance
+        includes the load's deflection inside its element that the shape functions miss
+        (:func:`wfjax.model.fe.element_interior_compliance`, static).
     """
     f = _check_freqs(freqs)
     fe = assemble(track)
@@ -104,7 +113,15 @@ def receptance(track: Track, freqs, x: float = 0.0, x_response=None) -> np.ndarr
         d = (k - w**2 * m + 1j * w * c).tocsc()
         u = scipy.sparse.linalg.spsolve(d, b.astype(complex))
         out[i] = nr.T @ u
+    if x_response is None:  # a point receptance: the load's own in-element deflection
+        out += element_interior_compliance(track, _element_fraction(fe, np.array([x])))
     return out[:, 0] if scalar else out
+
+
+def _element_fraction(fe: FEModel, x: np.ndarray) -> np.ndarray:
+    """Position of rail coordinates ``x`` [m] within their elements, in [0, 1) (0 on nodes)."""
+    xi = np.mod((np.asarray(x, dtype=float) - fe.node_x[0]) / fe.element_length, 1.0)
+    return np.where(np.minimum(xi, 1 - xi) < 1e-9, 0.0, xi)
 
 
 def static_deflection(track: Track, force: float = 118e3, x: float = 0.0) -> float:
@@ -387,21 +404,27 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
         full = _point_compliance_banded(fe, res_x)
     phi = (b.T @ u)  # [n_res, n_modes]: the same Timoshenko interpolation as mode_shapes_at
     kept = np.real(phi**2 @ (weights / -poles))
-    residual = full - kept
+    residual = full - kept + element_interior_compliance(track, _element_fraction(fe, res_x))
     return {"poles": poles, "weights": weights, "node_x": fe.node_x, "shapes": shapes,
             "residual_x": res_x, "residual": residual, "sleeper_spacing": np.array(ls),
             "element_phi": np.array(fe.phi), "sleeper_shapes": sleeper_shapes}
 
 
+RESIDUAL_POINTS_PER_ELEMENT = 8  # intervals of the residual table per rail element
+
+
 def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
-                n_residual: int = 33, use_cache: bool = True) -> ModalModel:
+                n_residual: int | None = None, use_cache: bool = True) -> ModalModel:
     """Complex-mode model of the track with a static correction (cached on disk).
 
     Method: undamped real modes of (K, M) below ``max_frequency`` (``scipy.linalg.eigh``),
     the non-proportional pad/ballast damping projected onto them, complex modes of the reduced
     2n x 2n state-space system (:func:`wfjax.model.modal.complex_modes`), mode shapes mapped back
     to the rail nodes, and the static compliance of the truncated modes tabulated across one
-    bay (``n_residual`` points). Speed independent; cached with :mod:`wfjax._cache` keyed by
+    bay (``n_residual`` points), plus the part of a point load's static deflection inside an
+    element that the shape functions miss (:func:`wfjax.model.fe.element_interior_compliance`:
+    without it the contact point is too stiff between the nodes, and the impact force
+    converged only to first order in the mesh). Speed independent; cached with :mod:`wfjax._cache` keyed by
     every track parameter, ``max_frequency``, ``n_residual`` and the wfjax version.
 
     Supports that vary from sleeper to sleeper (:mod:`wfjax.model.supports`): the cache key holds
@@ -414,13 +437,19 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
         track: track parameters (concrete numbers).
         max_frequency: highest undamped natural frequency kept [Hz] (> 0).
         cache_dir: cache directory (default ``$WFJAX_CACHE_DIR`` or ``~/.cache/wfjax``).
-        n_residual: points of the residual table across the bay (>= 2).
+        n_residual: points of the residual table across the bay (>= 2); default
+            ``8 elements_per_bay + 1`` (65 for 8 elements), so that every FE node is a table
+            point: the residual varies within an element and has kinks at the nodes (33
+            points, the default before, were off by up to 70 % of the residual at 26
+            elements per bay between misaligned points; docs/convergence.md).
         use_cache: ``False`` always rebuilds and does not touch the disk.
 
     Returns:
         :class:`ModalModel` with jax arrays.
     """
     max_frequency = check_positive_scalar("max_frequency", max_frequency, "Hz")
+    if n_residual is None:
+        n_residual = RESIDUAL_POINTS_PER_ELEMENT * int(track.elements_per_bay) + 1
     if not isinstance(n_residual, (int, np.integer)) or n_residual < 2:
         raise ValueError(f"n_residual must be an integer >= 2, got {n_residual!r}")
     p = track_numbers(track)
@@ -430,7 +459,7 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
 
     if use_cache:
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
-               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 2}
+               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 3}
         if not is_uniform(track):
             key["supports"] = "per-sleeper arrays; residual along the rail"
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
