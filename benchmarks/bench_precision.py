@@ -15,6 +15,8 @@ Jobs (``--jobs``):
   new 0.9 mm flats, 29 speeds 20-300 km/h, 10 positions, 3D tables, the default track), one
   CPU device per core as the command, warm (tables from the disk cache).
 
+Wall and CPU (user + system) seconds of each call; on a loaded machine the CPU seconds
+are the steadier measure of the work (the wall adds the time the process waits for a core).
 Ratios are paired medians over the rounds: float32 / float64 of the same tree, and each tree /
 the first (``--new``) in the same precision. Accuracy: every worker's max forces, float32
 against float64 of the same tree and each tree against the first in the same precision
@@ -177,9 +179,10 @@ def measure(trees: dict, args) -> dict:
     return summarise(trees, keys, times, forces, args)
 
 
-def _paired(times, key, ref) -> float:
-    """Median over the rounds of the wall-time ratio key / ref (same round)."""
-    return statistics.median(a[0] / b[0] for a, b in zip(times[key], times[ref], strict=True))
+def _paired(times, key, ref, i: int = 0) -> float:
+    """Median over the rounds of the ratio key / ref (same round) of wall (``i`` = 0) or CPU
+    (1) seconds."""
+    return statistics.median(a[i] / b[i] for a, b in zip(times[key], times[ref], strict=True))
 
 
 def summarise(trees, keys, times, forces, args) -> dict:
@@ -196,6 +199,8 @@ def summarise(trees, keys, times, forces, args) -> dict:
                "cpu_s": statistics.median(t[1] for t in times[key]),
                "to_float64": _paired(times, key, f64),
                "to_first_tree": _paired(times, key, (first, job, precision)),
+               "cpu_to_float64": _paired(times, key, f64, 1),
+               "cpu_to_first_tree": _paired(times, key, (first, job, precision), 1),
                "f32_vs_f64": (_max_rel(forces[key], forces[f64])
                               if precision == "float32" else None),
                "vs_first_tree": _max_rel(forces[key], forces[(first, job, precision)])}
@@ -210,16 +215,19 @@ def summarise(trees, keys, times, forces, args) -> dict:
 
 def markdown(result: dict) -> str:
     """The rows as a Markdown table (ratios: paired medians over the rounds)."""
-    head = ("| tree | job | precision | runs | median [s] | us/run-step | / float64 (same tree) "
-            "| / first tree (same precision) | f32 vs f64: max force | vs first tree: max "
-            "force |\n| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n")
+    head = ("| tree | job | precision | runs | wall [s] | CPU [s] | us/run-step | / float64 "
+            "(same tree), wall; CPU | / first tree (same precision), wall; CPU | f32 vs f64: "
+            "max force | vs first tree: max force |\n"
+            "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n")
     lines = []
     for r in result["rows"]:
         per = f"{r['us_per_run_step']:.2f}" if "us_per_run_step" in r else "-"
         f32 = "-" if r["f32_vs_f64"] is None else f"{r['f32_vs_f64']:.1e}"
         lines.append(f"| {r['tree']} | {r['job']} | {r['precision']} | {r['runs']} | "
-                     f"{r['median_s']:.3f} | {per} | {r['to_float64']:.3f} | "
-                     f"{r['to_first_tree']:.3f} | {f32} | {r['vs_first_tree']:.1e} |")
+                     f"{r['median_s']:.3f} | {r['cpu_s']:.3f} | {per} | "
+                     f"{r['to_float64']:.2f}; {r['cpu_to_float64']:.2f} | "
+                     f"{r['to_first_tree']:.2f}; {r['cpu_to_first_tree']:.2f} | {f32} | "
+                     f"{r['vs_first_tree']:.1e} |")
     return head + "\n".join(lines)
 
 
