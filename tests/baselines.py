@@ -3,7 +3,8 @@ the restructuring, which the restructured code must reproduce (``tests/test_base
 
 Each case is a function returning ``{name: array}`` through the public API only (the API the
 restructuring keeps). ``python tests/baselines.py`` writes ``tests/data/issue30_baselines.npz``
-from an empty cache (``WFJAX_CACHE_DIR`` set to a fresh directory) with the commit it ran on.
+and ``tests/data/single_wheel_reference.npz`` from an empty cache (``WFJAX_CACHE_DIR`` set to a
+fresh directory) with the commit it ran on.
 
 Tolerance of the comparison: 1e-12 relative on maxima, plus 1e-12 P absolute on minima (which
 sit near zero where contact is lost); histories are compared with the same bound on their
@@ -136,8 +137,25 @@ CASES = {
 }
 
 
+SINGLE_WHEEL_PATH = Path(__file__).parent / "data" / "single_wheel_reference.npz"
+SINGLE_WHEEL_CONTACTS = ("hertz-profile", "hertz-trajectory", "2d", "3d")
+
+
+def write_single_wheel(commit: str) -> None:
+    """Write :data:`SINGLE_WHEEL_PATH`: every contact model's histories of
+    :func:`single_wheel`, and the Hertz-trajectory run's sensors."""
+    out = {"commit": np.asarray(commit)}
+    for contact in SINGLE_WHEEL_CONTACTS:
+        res = single_wheel(contact)
+        out |= {f"{contact}/{k}": v for k, v in res.items() if not k.startswith("sensors/")}
+        if contact == "hertz-trajectory":
+            out |= {k: v for k, v in res.items() if k.startswith("sensors/")}
+    np.savez_compressed(SINGLE_WHEEL_PATH, **out)
+    print(f"wrote {SINGLE_WHEEL_PATH} ({len(out)} arrays) at {commit}")
+
+
 def main() -> None:
-    """Write :data:`PATH` from an empty cache."""
+    """Write :data:`PATH` and :data:`SINGLE_WHEEL_PATH` from an empty cache."""
     os.environ["WFJAX_CACHE_DIR"] = tempfile.mkdtemp(prefix="wfjax-baseline-")
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                             cwd=Path(__file__).parent).stdout.strip()
@@ -147,6 +165,7 @@ def main() -> None:
         out |= {f"{name}::{k}": v for k, v in fn().items()}
     np.savez_compressed(PATH, **out)
     print(f"wrote {PATH} ({len(out)} arrays) at {commit}")
+    write_single_wheel(commit)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ import wfjax as wf
 from wfjax.contact.laws import prepare
 from wfjax.model import fe as fe_mod
 from wfjax.model import geometry, sleepers, supports
+from wfjax.model import track as track_mod
 from wfjax.model import wheel as wheel_mod
 
 
@@ -24,7 +25,9 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
     sleepers (``ballast_gap > 0``) are one-sided Kelvin-Voigt supports on their DOFs,
     F = k_B e + c_B e' while e = u - gap > 0 and that is >= 0 (e' the Newmark velocity),
     solved with the wheels by Newton every step; ``supports_out``: a list that receives
-    their forces [n_steps, n_s].
+    their forces [n_steps, n_s]. A load inside an element adds its deflection there that
+    the shape functions miss (static, :func:`wfjax.model.fe.element_interior_compliance`),
+    so the reference is exact Timoshenko statics under the moving loads.
     """
     track, wheel = track or wf.Track(), wf.Wheel()
     fe = fe_mod.assemble(track)
@@ -47,6 +50,9 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
 
     def loads(x):
         return fe_mod.load_vector(fe, x).toarray()
+
+    def own(x):  # each load's deflection inside its element (exact Timoshenko statics)
+        return fe_mod.element_interior_compliance(track, track_mod.element_fraction(fe, x))
 
     hang = supports.hanging_sleepers(track)
     arrays = sleepers.support_arrays(track)
@@ -77,7 +83,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
     v, acc = np.zeros_like(u), np.zeros_like(u)
     support_forces = np.zeros((n_steps, hang.size))
     support_forces[0] = f_s
-    contact_ref = b.T @ u + (p / c_h) ** (2 / 3) + deviation(x)
+    contact_ref = b.T @ u + own(x) * p + (p / c_h) ** (2 / 3) + deviation(x)
     # wheel i around its static state: M q'' + C q' + K q = e1 (P - F_i), q1 downwards
     q, qv, qa = np.zeros((n_w, 2)), np.zeros((n_w, 2)), np.zeros((n_w, 2))
     forces = np.full((n_steps, n_w), p)
@@ -91,7 +97,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
         rhs_w = (mw @ (a0 * q + 4 / dt * qv + qa).T + cw @ (a1 * q + qv).T).T  # [n_w, 2]
         w_free = (kw_inv @ (rhs_w + np.array([p, 0.0])).T)[0]
         z = deviation(x)
-        compliance = w_c * eye + rail_c
+        compliance = w_c * eye + rail_c + np.diag(own(x))
         # all unknowns [wheel forces, support forces]: approach/closure = c0 - A y
         a_ws = b.T @ g_s
         a_mat = np.block([[compliance, -a_ws], [-e_s.T @ g, e_s.T @ g_s]])

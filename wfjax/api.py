@@ -115,7 +115,7 @@ def _run_of(scenario: Scenario, v: float, impact_position, angle0, n_steps) -> t
         raise ValueError(f"n_steps must be >= 2, got {n_steps!r}")
     else:
         dt = (s_end - s_start) / v / (int(n_steps) - 1)
-    scenario.check_travel(window, [v], [x_imp])
+    scenario.check_settings(window, [v], [x_imp])
     x_abs = x_imp + scenario.shift
     run_in = int(0.5 * RUN_IN_TIME / dt)
     return Run(0, v, dt, x_abs + s_start, x_abs, run_in, int(n_steps), 0), x_imp

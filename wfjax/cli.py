@@ -143,6 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     """
     from . import __version__, outputs
     from .commands._common import NonFiniteResult, user_words
+    from .scenario import guards
 
     first = (sys.argv[1:] if argv is None else argv)[:1]
     if first and first[0] in VERSION_FLAGS:
@@ -153,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     enable_compilation_cache()
     with _terminate_as_exception():
         try:
-            with outputs.session(args.command):
+            with outputs.session(args.command), guards.recorded():
                 return int(args._run(args) or 0)
         except ValueError as exc:
             return _fail(args.command, user_words(str(exc)), 2)

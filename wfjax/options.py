@@ -160,6 +160,7 @@ def _kind_of(default) -> str:
 def _from_field(section: str, f: dataclasses.Field, **overrides) -> Option:
     """The option of dataclass field ``f`` of ``[section]``, from its metadata."""
     m = f.metadata
+    overrides.setdefault("action", "store_true" if isinstance(f.default, bool) else None)
     return Option(section, f.name, overrides.pop("kind", _kind_of(f.default)), m["unit"],
                   m["low"], m["high"], m["low_open"], m["high_open"], m["choices"], m["doc"],
                   flag=m["flag"], aliases=m["aliases"], flag_commands=m["flag_commands"],

@@ -139,6 +139,7 @@ class OutputSet:
         self.out, self.command = Path(out), command
         self.staged: dict[str, Path] = {}
         self._paused = False
+        self.created = False
 
     @property
     def journal(self) -> Path:
@@ -156,6 +157,7 @@ class OutputSet:
             OutputError: ``out`` cannot be created or written (naming it and why).
         """
         try:
+            self.created = not self.out.exists()
             self.out.mkdir(parents=True, exist_ok=True)
             self.recover()
             clean_stale(self.out)
@@ -198,6 +200,9 @@ class OutputSet:
             with contextlib.suppress(OSError):
                 tmp.unlink()
         self.staged.clear()
+        if self.created:  # made for this run and still empty: leave no trace
+            with contextlib.suppress(OSError):
+                self.out.rmdir()
 
     def commit(self) -> list[str]:
         """Make the staged files the set in ``out`` (see the module docstring); returns their

@@ -480,6 +480,11 @@ class SimConfig:
             loss-of-contact speeds unchanged
             (benchmarks/README.md, "Precision"). ``"direct"`` 3D contact needs float64
             (its Kalker solves converge to 1e-10, below float32's resolution).
+        allow_inaccurate: run settings that the physics guards
+            (:mod:`wfjax.scenario.guards`) refuse because they cannot keep the max contact
+            force within 3 % of the converged reference; each finding becomes an
+            :class:`~wfjax.scenario.guards.AccuracyWarning`, recorded in the outputs'
+            provenance.
     """
 
     time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
@@ -506,6 +511,11 @@ class SimConfig:
                             flag_commands=("sweep", "simulate", "fit", "detector"),
                             doc="dtype of the time loop; setup stays float64 (environment: "
                                 "WFJAX_PRECISION)")
+    allow_inaccurate: bool = option(False, flag="--allow-inaccurate",
+                                    flag_commands=("sweep", "simulate", "fit", "detector"),
+                                    doc="run settings the physics guards refuse, with a "
+                                        "warning recorded in the provenance "
+                                        "(docs/convergence.md)")
 
     def __post_init__(self):
         for name, unit in positive_fields(self).items():

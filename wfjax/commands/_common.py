@@ -13,6 +13,7 @@ from pathlib import Path
 from .. import case as case_mod
 from .. import limits, options, outputs
 from ..datafiles import file_sha256
+from ..scenario import guards
 
 _SECTION_OF = {"Track": "track", "Wheel": "wheel", "Material": "material",
                "SimConfig": "config", "Flat": "flat", "Vehicle": "vehicle"}
@@ -171,6 +172,7 @@ def provenance(case: case_mod.Case, inputs: dict[str, str] | None = None) -> dic
         "jax_device_count": jax.device_count(),
         "case_sha256": case.digest(),
         "inputs_sha256": {str(p): file_sha256(p) for p in _input_files(inputs)},
+        "accuracy_warnings": guards.notes(),
     }
 
 

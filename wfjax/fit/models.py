@@ -156,7 +156,7 @@ def _batch(program, window: Flat, speeds, positions) -> tuple[Run, np.ndarray, n
     ``program.n_steps``."""
     sc = program.scenario
     v = sc.speeds(speeds)
-    sc.check_travel(window, v, positions)
+    sc.check_settings(window, v, positions)
     n_steps, dt, s0, run_in = batch_windows(window, v, sc.config)
     vv, pp = (a.ravel() for a in np.meshgrid(v, positions, indexing="ij"))
     dd, ss, rr = (np.repeat(a, np.size(positions)) for a in (dt, s0, run_in))

@@ -114,11 +114,11 @@ def receptance(track: Track, freqs, x: float = 0.0, x_response=None) -> np.ndarr
         u = scipy.sparse.linalg.spsolve(d, b.astype(complex))
         out[i] = nr.T @ u
     if x_response is None:  # a point receptance: the load's own in-element deflection
-        out += element_interior_compliance(track, _element_fraction(fe, np.array([x])))
+        out += element_interior_compliance(track, element_fraction(fe, np.array([x])))
     return out[:, 0] if scalar else out
 
 
-def _element_fraction(fe: FEModel, x: np.ndarray) -> np.ndarray:
+def element_fraction(fe: FEModel, x) -> np.ndarray:
     """Position of rail coordinates ``x`` [m] within their elements, in [0, 1) (0 on nodes)."""
     xi = np.mod((np.asarray(x, dtype=float) - fe.node_x[0]) / fe.element_length, 1.0)
     return np.where(np.minimum(xi, 1 - xi) < 1e-9, 0.0, xi)
@@ -404,7 +404,7 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
         full = _point_compliance_banded(fe, res_x)
     phi = (b.T @ u)  # [n_res, n_modes]: the same Timoshenko interpolation as mode_shapes_at
     kept = np.real(phi**2 @ (weights / -poles))
-    residual = full - kept + element_interior_compliance(track, _element_fraction(fe, res_x))
+    residual = full - kept + element_interior_compliance(track, element_fraction(fe, res_x))
     return {"poles": poles, "weights": weights, "node_x": fe.node_x, "shapes": shapes,
             "residual_x": res_x, "residual": residual, "sleeper_spacing": np.array(ls),
             "element_phi": np.array(fe.phi), "sleeper_shapes": sleeper_shapes}
@@ -424,8 +424,9 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
     bay (``n_residual`` points), plus the part of a point load's static deflection inside an
     element that the shape functions miss (:func:`wfjax.model.fe.element_interior_compliance`:
     without it the contact point is too stiff between the nodes, and the impact force
-    converged only to first order in the mesh). Speed independent; cached with :mod:`wfjax._cache` keyed by
-    every track parameter, ``max_frequency``, ``n_residual`` and the wfjax version.
+    converged only to first order in the mesh). Speed independent; cached with
+    :mod:`wfjax._cache` keyed by every track parameter, ``max_frequency``, ``n_residual`` and
+    the wfjax version.
 
     Supports that vary from sleeper to sleeper (:mod:`wfjax.model.supports`): the cache key holds
     the per-sleeper arrays; the symmetric/antisymmetric split is used only when the supports

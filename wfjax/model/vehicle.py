@@ -15,8 +15,9 @@ meet their contact points ``flat_delays`` metres of rolling after the reference 
 
 The vehicle is placed on the finite track so that its middle is over the track's middle: the
 reference impact is at ``impact_position + k L_S`` with the integer ``k`` that centres the
-wheelbase (:func:`placement`). The track must hold every wheel's path with ``END_MARGIN`` m to
-the clamped rail ends (:func:`check_on_track`); its length, mode count and cost grow with the
+wheelbase (:func:`placement`). The track must hold every wheel's path (:func:`check_on_track`),
+with the margin to the clamped rail ends that the physics guards derive
+(:func:`wfjax.scenario.guards.end_margin`); its length, mode count and cost grow with the
 wheelbase (see :func:`required_bays`).
 
 The bogie frame (the wheelsets hanging from a common frame with mass and pitch inertia) is not
@@ -45,7 +46,6 @@ from . import wheel as wheel_mod
 __all__ = [
     "Vehicle",
     "VEHICLE_PRESETS",
-    "END_MARGIN",
     "WheelSet",
     "wheel_set",
     "placement",
@@ -55,7 +55,6 @@ __all__ = [
     "transfer_receptance",
 ]
 
-END_MARGIN = 6.5  # m (10 bays of 0.65 m) kept between every wheel's path and the clamped ends
 DEFAULT_AXLE_SPACING = 2.5  # m, the bogie's
 DEFAULT_BOGIE_DISTANCE = 17.5  # m between the wagon's bogie centres (a passenger coach's)
 VEHICLE_PRESETS = ("single", "bogie", "wagon")
@@ -193,28 +192,28 @@ def placement(vehicle: Vehicle, sleeper_spacing: float) -> float:
 def check_on_track(vehicle: Vehicle, track: Track, x_ref_start: float,
                    x_ref_end: float) -> None:
     """ValueError if a wheel's path (the reference wheel from ``x_ref_start`` to ``x_ref_end``
-    [m]) comes closer than ``END_MARGIN`` to the clamped rail ends."""
+    [m]) leaves the rail. How far from the clamped ends a path must stay for the ends not to
+    matter is a physics guard (:func:`wfjax.scenario.guards.end_margin`)."""
     half = 0.5 * int(track.n_bays) * float(track.sleeper_spacing)
     offsets = vehicle.offsets()
     lo, hi = x_ref_start + offsets.min(), x_ref_end + offsets.max()
-    if lo < -half + END_MARGIN or hi > half - END_MARGIN:
+    if lo < -half or hi > half:
         raise ValueError(
-            f"the wheels travel over [{lo:.2f}, {hi:.2f}] m but the track (n_bays="
-            f"{int(track.n_bays)}) allows [{-half + END_MARGIN:.2f}, {half - END_MARGIN:.2f}] m "
-            f"({END_MARGIN} m from its clamped ends): use Track(n_bays="
-            f"{required_bays(vehicle, x_ref_end - x_ref_start, track)})")
+            f"the wheels travel over [{lo:.2f}, {hi:.2f}] m, beyond the rail of track.n_bays = "
+            f"{int(track.n_bays)} ([{-half:.2f}, {half:.2f}] m): use track.n_bays >= "
+            f"{required_bays(vehicle, x_ref_end - x_ref_start, track, 0.0)}")
 
 
-def required_bays(vehicle: Vehicle, travel: float, track: Track) -> int:
+def required_bays(vehicle: Vehicle, travel: float, track: Track, margin: float) -> int:
     """Smallest even ``n_bays`` whose rail holds the wheelbase plus ``travel`` [m] with
-    ``END_MARGIN`` at each end.
+    ``margin`` [m] at each end.
 
     The track's length grows linearly with the wheelbase, and with it the number of modes
     below ``SimConfig.track_max_frequency`` (about 8.6 per bay at 10 kHz: 599 for 70 bays)
     and the per-step cost of the modal update (linear in the mode count).
     """
     offsets = vehicle.offsets()
-    span = offsets.max() - offsets.min() + travel + 2 * END_MARGIN
+    span = offsets.max() - offsets.min() + travel + 2 * margin
     # the placement rounds the middle to a sleeper: up to half a bay off centre
     n = math.ceil(span / float(track.sleeper_spacing)) + 1
     return max(int(track.n_bays), n + n % 2)
@@ -261,9 +260,10 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
     [m]: across one bay from ``x_bay`` (x = x_bay + model.residual_x, read periodically) on a
     uniform track; along the whole rail (x = model.residual_x, absolute; ``x_bay`` unused) on
     a track whose supports vary, with wheel positions beyond the rail ends clamped to them
-    (never read: the wheels stay ``END_MARGIN`` inside). The diagonal is each wheel's own
-    residual compliance, the off-diagonal the truncated modes' static coupling (exact static
-    deflections under several wheels).
+    (never read: the wheels stay on the rail). The diagonal is each wheel's own
+    residual compliance (with the load's in-element deflection,
+    :func:`wfjax.model.fe.element_interior_compliance`), the off-diagonal the truncated
+    modes' static coupling (exact static deflections under several wheels).
 
     Returns:
         float [n_res, n, n] (symmetric in the last two axes), read by
@@ -278,7 +278,8 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
     phi = np.asarray(track_mod.mode_shapes_at(model, x))  # [n_res, n, m]
     w = np.asarray(model.weights) / (-np.asarray(model.poles))
     kept = np.real(np.einsum("rim,rjm,m->rij", phi, phi, w))
-    return full - kept
+    own = fe_mod.element_interior_compliance(track, track_mod.element_fraction(fe, x))
+    return full - kept + own[:, :, None] * np.eye(x.shape[1])  # wheels share no element
 
 
 def _static_pair_compliance(fe, x: np.ndarray) -> np.ndarray:

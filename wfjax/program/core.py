@@ -375,7 +375,7 @@ class _Sweep:
                                          self.progress)
         windows = [sc.window_flat(w) for w in sizing]
         for w in windows:
-            sc.check_travel(w, self.v, self.pos)
+            sc.check_settings(w, self.v, self.pos)
         runs = grid_mod.plan_runs(windows, self.v, self.pos + sc.shift, program.data.struct,
                                   sc.config, self.mesh, self.chunk_size, sc.n_realisations)
         fn = _sharded(self.mesh, runs.n_steps, sc.config.newton_iterations,

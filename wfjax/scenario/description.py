@@ -23,7 +23,9 @@ from ..contact import registry
 from ..model.supports import hanging_sleepers
 from ..model.vehicle import Vehicle, check_on_track, placement
 from ..params import Flat, Material, SimConfig, Track, Wheel
+from . import guards
 from .roughness import Roughness
+from .sensors import check_positions
 from .windows import (
     check_impact_positions,
     check_rail_span,
@@ -128,6 +130,8 @@ class Scenario:
         if tracks is not None:
             tracks = _check_tracks(tracks, per_wheel, sensors, detector)
             track = tracks[0]
+        if sensors is not None:
+            check_positions(sensors, track)
         rough = rail_roughness(roughness)
         _check_roughness(rough, wheel_roughness, tracks)
         if detector is not None:
@@ -174,10 +178,11 @@ class Scenario:
             return impact_positions_grid(impact_positions, float(self.track.sleeper_spacing))
         return check_impact_positions(impact_positions, self.track)
 
-    def check_travel(self, window: Flat, speeds, positions) -> None:
-        """One-line ``ValueError`` unless every wheel stays on the track and on the rail
-        roughness over the runs of ``window``'s flat at ``speeds`` [m/s] and ``positions``
-        [m]."""
+    def check_settings(self, window: Flat, speeds, positions) -> None:
+        """Refuse, in one line, the runs of ``window``'s flat at ``speeds`` [m/s] and
+        ``positions`` [m] unless every wheel stays on the track and on the rail roughness
+        and every numerical setting passes the physics guards (:mod:`.guards`; with
+        ``config.allow_inaccurate`` their findings warn instead)."""
         offsets = self.vehicle.offsets()
         s = [simulation_window(window, float(v), self.config) for v in (min(speeds),
                                                                          max(speeds))]
@@ -187,6 +192,22 @@ class Scenario:
             check_on_track(self.vehicle, self.track, lo + s0,
                            hi + s1 + float(self.track.sleeper_spacing))
         check_rail_span(self.roughness, lo + s0 + offsets.min(), hi + s1 + offsets.max())
+        guards.enforce(self.guard_findings(speeds, (lo + s0 + offsets.min(),
+                                                    hi + s1 + offsets.max())), self.config)
+
+    def guard_findings(self, speeds, path: tuple[float, float]) -> list[str]:
+        """The physics guards' findings (one line each) for runs at ``speeds`` [m/s] whose
+        wheels travel over ``path`` (lo, hi) [m]: every wheel's scales, the track, the
+        contact element, the path's distance to the clamped ends (the sensors' is checked
+        with them, :func:`wfjax.scenario.sensors.check_positions`)."""
+        out = []
+        for wheel in self.wheels:
+            sc = guards.scales(wheel, self.track, self.material)
+            out += guards.step_findings(self.config, speeds, sc)
+            out += guards.track_findings(self.track, self.config, sc)
+            out += guards.element_findings(self.contact, self.config, sc)
+        out += guards.end_findings(self.track, *path, "the wheels' path")
+        return list(dict.fromkeys(out))
 
 
 def _check_tracks(tracks, per_wheel: bool, sensors, detector) -> tuple:

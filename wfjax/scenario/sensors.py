@@ -36,7 +36,9 @@ wheel is inside that element the fixed-end (particular) solution of the point lo
 so the shear jumps by F exactly at the load. Rail displacements are the FE interpolation (no
 particular term).
 
-Valid positions: |x_s| <= (n_bays // 2 - :data:`END_BAYS`) L_S (5 bays clear of the clamps).
+Valid positions: |x_s| <= n_bays L_S / 2 - :func:`wfjax.scenario.guards.sensor_margin` (6 m
+on the paper's track), where the clamped ends' reflections no longer move a seat force by
+more than 3 % (docs/convergence.md).
 """
 
 from __future__ import annotations
@@ -55,8 +57,9 @@ from ..model import track as track_mod
 from ..model.sleepers import support_arrays
 from ..model.supports import hanging_sleepers
 from ..params import Track
+from .guards import sensor_margin
 
-__all__ = ["QUANTITIES", "END_BAYS", "SensorSpec", "sensor_spec", "evaluate", "check_positions",
+__all__ = ["QUANTITIES", "SensorSpec", "sensor_spec", "evaluate", "check_positions",
            "Detector", "DetectorSpec", "detector_spec", "detector_load",
            "detector_gate"]
 
@@ -65,12 +68,13 @@ QUANTITIES = ("rail_disp", "rail_vel", "rail_acc", "shear", "moment", "sleeper_d
 UNITS = {"rail_disp": "m", "rail_vel": "m/s", "rail_acc": "m/s^2", "shear": "N",
          "moment": "N m", "sleeper_disp": "m", "sleeper_vel": "m/s", "sleeper_acc": "m/s^2",
          "seat_force": "N"}
-END_BAYS = 5  # sensors stay this many bays clear of the clamped rail ends
 
 
 def allowed_range(track: Track) -> float:
-    """Largest |x| [m] of a sensor on ``track``: (n_bays // 2 - END_BAYS) L_S."""
-    return (int(track.n_bays) // 2 - END_BAYS) * float(track.sleeper_spacing)
+    """Largest |x| [m] of a sensor on ``track``: n_bays L_S / 2 less the end margin
+    (:func:`wfjax.scenario.guards.sensor_margin`), rounded down to the mm."""
+    half = 0.5 * int(track.n_bays) * float(track.sleeper_spacing)
+    return math.floor((half - sensor_margin(track)) * 1e3) / 1e3
 
 
 def check_positions(positions, track: Track, name: str = "sensor position") -> np.ndarray:
@@ -83,8 +87,9 @@ def check_positions(positions, track: Track, name: str = "sensor position") -> n
     for xi in x:
         if not math.isfinite(xi) or abs(xi) > half:
             raise ValueError(f"{name} {float(xi):g} m is outside the allowed range [-{half:g}, "
-                             f"{half:g}] m ({END_BAYS} bays clear of the clamped ends of the "
-                             f"{track.n_bays}-bay track)")
+                             f"{half:g}] m ({sensor_margin(track):.2f} m clear of the clamped "
+                             f"ends of the {track.n_bays}-bay track, where their reflections "
+                             "have decayed; docs/convergence.md)")
     return x
 
 

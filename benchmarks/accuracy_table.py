@@ -1,0 +1,224 @@
+"""One accuracy table: the error of any numerical setting against a fixed converged reference
+(issues 32 and 33).
+
+Run: ``python benchmarks/accuracy_table.py [--quick] [--only LABEL ...]``. Writes
+``benchmarks/results/accuracy_table.json`` (every measured number) and prints the Markdown
+table of ``docs/convergence.md``.
+
+Reference: 26 rail elements per bay, track modes to 20 kHz, time step 6.25 us and travel step
+0.25 mm, 70 bays (45.5 m), contact element 1 mm. Each row changes the settings named in its
+label and keeps the rest of the reference, except the rows labelled "default", which are whole
+configurations.
+
+Sets (R_R = 0.45 m, ``Track.comparison()``):
+
+- ``fig7``: the paper's Fig. 7 set, rounded 0.9 mm x 100 mm and new 0.9 mm, 3D contact (exact
+  table), 20-300 km/h every 10 km/h, 5 impact positions per bay: max and min force, first
+  loss-of-contact speed.
+- ``sharp``: new flats 0.9 mm at 120, 160 and 200 km/h, Hertz-trajectory, 10 impact
+  positions, with the seat forces of the bay's two sleepers and the 3-bay detector: max and
+  min force, max seat force, detector reading (largest bay).
+- receptances of the track model alone, 20 Hz - 2 kHz (40 log-spaced points): rail
+  displacement (point at 0.3 m, transfer 0.3 -> 1.0 m) and rail shear (0.3 -> 1.0 m and
+  0.3 -> -0.45 m), from the modal model with its static correction.
+
+Errors: max and min force, seat force and detector reading run by run, relative to the
+reference run's value, the largest over the set (min force: relative to the static wheel load,
+since it goes to 0); loss-of-contact speed: the first speed of the 10 km/h grid where any
+impact position loses contact, and its difference in km/h; receptances: the largest over
+frequency of |H - H_ref| / |H_ref|.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import time
+
+import numpy as np
+
+import wfjax as wf
+from wfjax.model import track as track_mod
+from wfjax.scenario import sensors as sensor_mod
+
+REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
+       "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3}
+OLD = {"elements_per_bay": 8, "track_max_frequency": 10e3, "time_step": 25e-6,
+       "travel_step": 1e-3, "n_bays": 70}
+ROWS = {  # label -> changes to REF
+    "reference": {},
+    "default (8 el., 10 kHz, 25 us / 1 mm, 70 bays)": OLD,
+    "step 50 us / 2 mm": {"time_step": 50e-6, "travel_step": 2e-3},
+    "step 100 us / 4 mm": {"time_step": 100e-6, "travel_step": 4e-3},
+    "step 200 us / 8 mm": {"time_step": 200e-6, "travel_step": 8e-3},
+    "modes 2 kHz": {"track_max_frequency": 2e3},
+    "modes 5 kHz": {"track_max_frequency": 5e3},
+    "modes 10 kHz": {"track_max_frequency": 10e3},
+    "modes 15 kHz": {"track_max_frequency": 15e3},
+    "bays 16": {"n_bays": 16},
+    "bays 20": {"n_bays": 20},
+    "bays 24": {"n_bays": 24},
+    "bays 36": {"n_bays": 36},
+    "mesh 2": {"elements_per_bay": 2},
+    "mesh 4": {"elements_per_bay": 4},
+    "mesh 8": {"elements_per_bay": 8},
+    "mesh 16": {"elements_per_bay": 16},
+    "step 25 us / 1 mm": {"time_step": 25e-6, "travel_step": 1e-3},
+    "step 12.5 us / 0.5 mm": {"time_step": 12.5e-6, "travel_step": 0.5e-3},
+    "bays 50": {"n_bays": 50},
+    "element 2 mm": {"contact_element": 2e-3},
+    "element 4 mm": {"contact_element": 4e-3},
+    "element 8 mm": {"contact_element": 8e-3},
+}
+FREQS = np.geomspace(20.0, 2000.0, 40)
+RECEPTANCES = {  # name -> (quantity, force position [m], response position [m])
+    "disp point 0.3": ("rail_disp", 0.3, 0.3),
+    "disp 0.3->1.0": ("rail_disp", 0.3, 1.0),
+    "shear 0.3->1.0": ("shear", 0.3, 1.0),
+    "shear 0.3->-0.45": ("shear", 0.3, -0.45),
+}
+SEAT_SENSORS = [0.01, 0.64]  # m: the seat forces of the sleepers at 0 and 0.65 m
+
+
+def settings(label: str) -> dict:
+    """The reference with row ``label``'s changes."""
+    return {**REF, **ROWS[label]}
+
+
+def model_inputs(s: dict):
+    """(Track, SimConfig) of the settings ``s``."""
+    track = wf.Track.comparison(elements_per_bay=s["elements_per_bay"], n_bays=s["n_bays"])
+    config = wf.SimConfig(max_time_step=s["time_step"], max_travel_step=s["travel_step"],
+                          track_max_frequency=s["track_max_frequency"],
+                          contact_element=s.get("contact_element", 1e-3),
+                          allow_inaccurate=True)  # the table measures what the guards refuse
+    return track, config
+
+
+def run_fig7(s: dict, quick: bool) -> dict:
+    """Max/min force [N] [2, n_speeds, n_positions] and speeds [km/h] of the Fig. 7 set."""
+    track, config = model_inputs(s)
+    speeds = np.arange(20.0, 301.0, 40.0 if quick else 10.0)
+    flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
+    r = wf.sweep(flats, speeds / 3.6, 3 if quick else 5, contact="3d", track=track,
+                 config=config, progress=False)
+    return {"speeds_kmh": speeds.tolist(), "max_force": np.asarray(r.max_force).tolist(),
+            "min_force": np.asarray(r.min_force).tolist(),
+            "loss": np.asarray(r.loss_of_contact).tolist()}
+
+
+def run_sharp(s: dict, quick: bool) -> dict:
+    """Max/min force, max seat force and detector reading [N], [n_speeds, n_positions]."""
+    track, config = model_inputs(s)
+    speeds = np.array([120.0, 200.0] if quick else [120.0, 160.0, 200.0])
+    r = wf.sweep(wf.Flat.new(0.9e-3), speeds / 3.6, 4 if quick else 10,
+                 contact="hertz-trajectory", track=track, config=config, progress=False,
+                 sensors=SEAT_SENSORS, sensor_quantities=("seat_force",),
+                 detector=wf.Detector())
+    seat = np.asarray(r.sensor_max)[0, :, :, 0, :].max(axis=-1)
+    return {"speeds_kmh": speeds.tolist(), "max_force": np.asarray(r.max_force)[0].tolist(),
+            "min_force": np.asarray(r.min_force)[0].tolist(), "seat_force": seat.tolist(),
+            "reading": np.asarray(r.detector_peak)[0].max(axis=-1).tolist()}
+
+
+def run_receptances(s: dict) -> dict:
+    """Complex receptances [n_f] as [re, im] lists: displacement [m/N], shear [N/N]."""
+    track, _ = model_inputs(s)
+    model = track_mod.modal_model(track, max_frequency=s["track_max_frequency"])
+    out = {}
+    for name, (quantity, xf, xr) in RECEPTANCES.items():
+        h = sensor_mod.transfer_receptance(track, model, FREQS, xf, xr, quantity)
+        out[name] = [h.real.tolist(), h.imag.tolist()]
+    out["n_modes"] = int(np.asarray(model.poles).size)
+    return out
+
+
+def first_loss_speed(speeds, loss) -> float:
+    """First speed [km/h] at which any impact position loses contact (nan: none)."""
+    hit = np.asarray(loss).any(axis=-1)
+    return float(speeds[np.argmax(hit)]) if hit.any() else float("nan")
+
+
+def errors(run: dict, ref: dict, static_load: float) -> dict:
+    """The row's errors against the reference (see the module doc)."""
+    e = {}
+    for name in ("fig7", "sharp"):
+        a, b = run[name], ref[name]
+        e[f"{name} max force %"] = 100 * _rel(a["max_force"], b["max_force"])
+        e[f"{name} min force %P"] = 100 * float(np.max(np.abs(
+            np.subtract(a["min_force"], b["min_force"])))) / static_load
+    for key, label in (("seat_force", "seat force %"), ("reading", "detector reading %")):
+        e[label] = 100 * _rel(run["sharp"][key], ref["sharp"][key])
+    sp = np.asarray(ref["fig7"]["speeds_kmh"])
+    for i, kind in enumerate(("rounded", "new")):
+        e[f"loss speed {kind} km/h"] = (
+            first_loss_speed(sp, np.asarray(run["fig7"]["loss"])[i])
+            - first_loss_speed(sp, np.asarray(ref["fig7"]["loss"])[i]))
+    e["modes"] = run["receptances"]["n_modes"]
+    for name in RECEPTANCES:
+        h = np.asarray(run["receptances"][name][0]) + 1j * np.asarray(
+            run["receptances"][name][1])
+        h0 = np.asarray(ref["receptances"][name][0]) + 1j * np.asarray(
+            ref["receptances"][name][1])
+        e[f"{name} %"] = 100 * float(np.max(np.abs(h - h0) / np.abs(h0)))
+    return e
+
+
+def _rel(a, b) -> float:
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.max(np.abs(a - b) / np.abs(b)))
+
+
+def measure(labels, quick: bool, path: pathlib.Path) -> dict:
+    """Run every row of ``labels`` not yet in ``path`` (JSON, updated after each row)."""
+    done = json.loads(path.read_text()) if path.exists() else {}
+    for label in labels:
+        if label in done and done[label].get("quick") == quick:
+            continue
+        s, t0 = settings(label), time.perf_counter()
+        done[label] = {"settings": s, "quick": quick, "fig7": run_fig7(s, quick),
+                       "sharp": run_sharp(s, quick), "receptances": run_receptances(s)}
+        done[label]["seconds"] = time.perf_counter() - t0
+        print(f"{label}: {done[label]['seconds']:.0f} s", flush=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(done))
+    return done
+
+
+COLUMNS = ("modes", "fig7 max force %", "fig7 min force %P", "loss speed rounded km/h",
+           "loss speed new km/h", "sharp max force %", "sharp min force %P", "seat force %",
+           "detector reading %", "disp point 0.3 %", "disp 0.3->1.0 %", "shear 0.3->1.0 %",
+           "shear 0.3->-0.45 %")
+
+
+def table(done: dict) -> str:
+    """The Markdown accuracy table of every measured row against the reference."""
+    ref, load = done["reference"], wf.Wheel().preload
+    lines = ["| setting | " + " | ".join(COLUMNS) + " | s |",
+             "| --- |" + " --- |" * (len(COLUMNS) + 1)]
+    for label in ROWS:
+        if label not in done:
+            continue
+        e = errors(done[label], ref, load)
+        cells = [f"{e[c]:+.0f}" if "km/h" in c else str(e[c]) if c == "modes"
+                 else f"{e[c]:.2f}" for c in COLUMNS]
+        lines.append(f"| {label} | " + " | ".join(cells)
+                     + f" | {done[label]['seconds']:.0f} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="fewer speeds and positions")
+    ap.add_argument("--only", nargs="*", default=None, help="row labels to (re)measure")
+    ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results"
+                                         / "accuracy_table.json"))
+    a = ap.parse_args()
+    labels = ["reference"] + [k for k in ROWS if k != "reference"
+                              and (a.only is None or k in a.only)]
+    print(table(measure(labels, a.quick, pathlib.Path(a.out))))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,229 @@
+"""Physics guards: numerical settings that cannot keep the maximum contact force within 3 % of
+the converged reference are refused before any work, with one line naming the setting, its
+value, the bound and why (or, with ``SimConfig.allow_inaccurate``, run with a warning that is
+recorded in the output's provenance).
+
+Each bound is a scale of the case at hand times a constant read off the accuracy table of
+``docs/convergence.md`` ("Physics guards", where the derivation is written out):
+
+- time step: ``dt <= STEP_FACTOR / f_W``, f_W the wheel's highest natural frequency on the
+  Hertz spring (:func:`wheel_frequency`), and ``v dt <= TRAVEL_FACTOR 2a``, 2a the length of
+  the contact patch (:func:`contact_length`) that filters the surface it rolls over;
+- track modes: ``track_max_frequency >= MODES_FACTOR f_W``;
+- rail mesh: elements no longer than ``1 / MESH_FACTOR`` of the rail's bending wavelength at
+  the highest kept mode (:func:`bending_wavelength`);
+- contact element (3D and 2D contact): no longer than ``ELEMENT_FACTOR`` 2a;
+- track length: every wheel's path at least ``END_FACTOR / beta`` from the clamped rail ends,
+  every sensor ``SENSOR_END_FACTOR / beta`` (:func:`wfjax.scenario.sensors.check_positions`),
+  1/beta the decay length of the rail on its supports (:func:`decay_length`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import dataclasses
+import math
+import warnings
+
+import numpy as np
+
+from ..contact.geometry3d import elliptic_hertz
+from ..params import Material, SimConfig, Track, Wheel
+
+ACCURACY = 0.03  # the largest max-force error against the reference that runs without a word
+STEP_FACTOR = 0.4  # dt f_W
+TRAVEL_FACTOR = 0.3  # v dt / 2a
+MODES_FACTOR = 0.85  # track_max_frequency / f_W
+MESH_FACTOR = 3.0  # rail elements per bending wavelength at the highest kept mode
+ELEMENT_FACTOR = 0.25  # contact element / 2a
+END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
+SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
+
+
+class InaccurateSettings(ValueError):
+    """A numerical setting outside what keeps the maximum force within 3 % of the reference."""
+
+
+class AccuracyWarning(UserWarning):
+    """A guard's finding, run anyway because ``SimConfig.allow_inaccurate`` is set."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Scales:
+    """The case's physical scales that the guards compare settings with.
+
+    Attributes:
+        contact_length: 2a, the Hertz contact length along the rail at the static load [m].
+        wheel_frequency: f_W, the wheel's highest natural frequency on the Hertz spring [Hz].
+        decay_length: 1/beta, the rail's static decay length on its supports [m].
+    """
+
+    contact_length: float
+    wheel_frequency: float
+    decay_length: float
+
+
+def contact_length(wheel: Wheel, track: Track, material: Material) -> float:
+    """2a [m]: the elliptic Hertz contact's length along the rail at the static load."""
+    a, _, _, _ = elliptic_hertz(float(wheel.preload), float(wheel.radius),
+                                float(track.rail_head_radius), material)
+    return 2 * float(a)
+
+
+def hertz_stiffness(wheel: Wheel, track: Track, material: Material) -> float:
+    """dF/ddelta [N/m] of the elliptic Hertz contact at the static load (1.5 P / delta)."""
+    _, _, delta, _ = elliptic_hertz(float(wheel.preload), float(wheel.radius),
+                                    float(track.rail_head_radius), material)
+    return 1.5 * float(wheel.preload) / delta
+
+
+def wheel_frequency(wheel: Wheel, track: Track, material: Material) -> float:
+    """f_W [Hz]: the small mass m_W between the wheel's spring k_W and the Hertz spring, held
+    at the wheelset and the rail: sqrt((k_W + k_H) / m_W) / 2 pi. The stiffest oscillator of
+    the model; the rail's modes are propagated exactly and do not limit the step."""
+    k = float(wheel.contact_stiffness) + hertz_stiffness(wheel, track, material)
+    return math.sqrt(k / float(wheel.small_mass)) / (2 * math.pi)
+
+
+def bending_wavelength(track: Track, frequency: float) -> float:
+    """Euler-Bernoulli bending wavelength of the free rail [m] at ``frequency`` [Hz]:
+    2 pi (EI / (m omega^2))^(1/4)."""
+    omega = 2 * math.pi * float(frequency)
+    return 2 * math.pi * (float(track.bending_stiffness)
+                          / (float(track.rail_mass) * omega ** 2)) ** 0.25
+
+
+def decay_length(track: Track) -> float:
+    """1/beta [m] of the rail on its supports (pad and ballast in series, smeared over the
+    bay; their mean when they vary): beta = (k / (4 EI))^(1/4)."""
+    kp = np.asarray(track.pad_stiffness, dtype=float)
+    kb = np.asarray(track.ballast_stiffness, dtype=float)
+    with np.errstate(divide="ignore"):  # a void sleeper: no support there
+        k = float(np.mean(1.0 / (1.0 / kp + 1.0 / kb))) / float(track.sleeper_spacing)
+    return float((4 * float(track.bending_stiffness) / k) ** 0.25)
+
+
+def scales(wheel: Wheel, track: Track, material: Material) -> Scales:
+    """The :class:`Scales` of a wheel on a track."""
+    return Scales(contact_length(wheel, track, material),
+                  wheel_frequency(wheel, track, material), decay_length(track))
+
+
+def end_margin(track: Track) -> float:
+    """The distance [m] every wheel's path keeps from the clamped ends."""
+    return END_FACTOR * decay_length(track)
+
+
+def sensor_margin(track: Track) -> float:
+    """The distance [m] every sensor keeps from the clamped ends (longer than the wheels':
+    a seat force or a shear feels the ends' reflections more than the contact force)."""
+    return SENSOR_END_FACTOR * decay_length(track)
+
+
+def step_findings(config: SimConfig, speeds, sc: Scales) -> list[str]:
+    """One line for the worst speed whose time step exceeds ``STEP_FACTOR / f_W`` or whose
+    travel per step exceeds ``TRAVEL_FACTOR`` 2a."""
+    worst = None
+    for v in np.atleast_1d(np.asarray(speeds, dtype=float)):
+        v = float(v)
+        dt = config.time_step_for(v)
+        bound = min(STEP_FACTOR / sc.wheel_frequency, TRAVEL_FACTOR * sc.contact_length / v)
+        if dt > bound and (worst is None or dt / bound > worst[0]):
+            worst = (dt / bound, v, dt, bound)
+    if worst is None:
+        return []
+    _, v, dt, bound = worst
+    if config.time_step is not None:
+        key, value = "config.time_step", f"{config.time_step * 1e6:g} us"
+    elif config.max_time_step * v <= config.max_travel_step:
+        key, value = "config.max_time_step", f"{config.max_time_step * 1e6:g} us"
+    else:
+        key, value = "config.max_travel_step", f"{config.max_travel_step * 1e3:g} mm"
+    return [f"{key} = {value} gives a time step of {dt * 1e6:.3g} us ({v * dt * 1e3:.3g} mm) "
+            f"at {v * 3.6:.4g} km/h, above {bound * 1e6:.3g} us: the step must stay below "
+            f"{STEP_FACTOR} / f_W = {STEP_FACTOR / sc.wheel_frequency * 1e6:.3g} us (f_W = "
+            f"{sc.wheel_frequency:.0f} Hz, the wheel's small-mass resonance on the Hertz "
+            f"spring) and travel at most {TRAVEL_FACTOR} x the contact length 2a = "
+            f"{sc.contact_length * 1e3:.1f} mm"]
+
+
+def track_findings(track: Track, config: SimConfig, sc: Scales) -> list[str]:
+    """Lines for a mode cut-off below ``MODES_FACTOR f_W`` and a rail mesh coarser than
+    ``MESH_FACTOR`` elements per bending wavelength at the cut-off."""
+    out = []
+    f_min = MODES_FACTOR * sc.wheel_frequency
+    if config.track_max_frequency < f_min:
+        out.append(f"config.track_max_frequency = {config.track_max_frequency:g} Hz is below "
+                   f"{f_min:.0f} Hz = {MODES_FACTOR} f_W, the wheel's small-mass resonance "
+                   "on the Hertz spring, which the kept track modes must reach")
+    h = float(track.sleeper_spacing) / int(track.elements_per_bay)
+    lam = bending_wavelength(track, config.track_max_frequency)
+    if h > lam / MESH_FACTOR:
+        need = math.ceil(MESH_FACTOR * float(track.sleeper_spacing) / lam)
+        out.append(f"track.elements_per_bay = {int(track.elements_per_bay)} gives "
+                   f"{h * 1e3:.0f} mm rail elements, longer than {lam / MESH_FACTOR * 1e3:.0f} "
+                   f"mm = 1/{MESH_FACTOR:g} of the bending wavelength at the highest kept mode "
+                   f"({config.track_max_frequency:g} Hz): use at least {need}")
+    return out
+
+
+def element_findings(contact: str, config: SimConfig, sc: Scales) -> list[str]:
+    """A line for a contact element above ``ELEMENT_FACTOR`` 2a (3D and 2D contact)."""
+    bound = ELEMENT_FACTOR * sc.contact_length
+    if contact not in ("3d", "2d") or config.contact_element <= bound:
+        return []
+    return [f"config.contact_element = {config.contact_element * 1e3:g} mm is above "
+            f"{bound * 1e3:.2f} mm = {ELEMENT_FACTOR} x the Hertz contact length "
+            f"2a = {sc.contact_length * 1e3:.1f} mm"]
+
+
+def end_findings(track: Track, lo: float, hi: float, what: str) -> list[str]:
+    """A line when [``lo``, ``hi``] [m] (a path or sensor span) comes within
+    :func:`end_margin` of the clamped rail ends."""
+    half = 0.5 * int(track.n_bays) * float(track.sleeper_spacing)
+    margin = end_margin(track)
+    if lo >= -half + margin and hi <= half - margin:
+        return []
+    need = math.ceil((max(hi, -lo) + margin) / float(track.sleeper_spacing)) * 2
+    return [f"track.n_bays = {int(track.n_bays)}: {what} [{lo:.2f}, {hi:.2f}] m comes within "
+            f"{margin:.2f} m = {END_FACTOR:g} / beta of the clamped rail ends at +-{half:.2f} m, "
+            f"where reflections reach the contact: use n_bays >= {need}"]
+
+
+_NOTES: contextvars.ContextVar[list | None] = contextvars.ContextVar("wfjax_guard_notes",
+                                                                      default=None)
+
+
+@contextlib.contextmanager
+def recorded():
+    """Collect the findings run anyway inside the block (yields the list, for provenance)."""
+    notes: list[str] = []
+    token = _NOTES.set(notes)
+    try:
+        yield notes
+    finally:
+        _NOTES.reset(token)
+
+
+def notes() -> list[str]:
+    """The findings run anyway so far inside :func:`recorded` (empty outside)."""
+    return list(_NOTES.get() or [])
+
+
+def enforce(findings: list[str], config: SimConfig) -> None:
+    """Refuse the first finding (one line), or warn and record every one when
+    ``config.allow_inaccurate`` is set."""
+    if not findings:
+        return
+    if not config.allow_inaccurate:
+        raise InaccurateSettings(
+            f"{findings[0]}; this keeps the max contact force within "
+            f"{ACCURACY * 100:.0f} % of the converged reference (docs/convergence.md, "
+            "Physics guards); --allow-inaccurate (config.allow_inaccurate = true) runs it "
+            "anyway")
+    bucket = _NOTES.get()
+    for line in findings:
+        warnings.warn(AccuracyWarning(line), stacklevel=3)
+        if bucket is not None and line not in bucket:
+            bucket.append(line)
