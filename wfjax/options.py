@@ -206,10 +206,10 @@ RUN_OPTIONS: tuple[Option, ...] = (
            doc="write outputs predicted above the 1 GB limit (docs/case_files.md, Limits)",
            commands=("sweep", "simulate", "detector"), flag="--allow-large-output",
            action="store_true"),
-    Option("detector", "n_bays", "int", "", 1, 60,
+    Option("detector", "n_bays", "int", "", 1, 56,  # more never fit the default track
            doc="instrumented consecutive sleeper bays of the detector", commands=("detector",),
            flag="--bays"),
-    Option("detector", "first_bay", "int", "", -30, 30,
+    Option("detector", "first_bay", "int", "", -30, 29,
            doc="index of the first bay (bay 0 spans [0, L_S), where impacts are placed)",
            commands=("detector",), flag="--first-bay"),
     Option("detector", "gauge_offset", "float", "m", 0.0, 0.75, low_open=True, high_open=True,
@@ -263,7 +263,7 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("vehicle", "bogie_distance", "float", "m", 1.0, 30.0,
            doc="distance between the wagon's bogie centres", commands=_VEHICLE_CMDS,
            flag="--bogie-distance-m"),
-    Option("vehicle", "positions", "floats", "m", 0.0, 60.0,
+    Option("vehicle", "positions", "floats", "m", 0.0, 36.0,  # the default track's span
            doc="any layout: every wheel's distance behind the leading wheel (0 first, "
                "increasing); replaces vehicle.preset", commands=_VEHICLE_CMDS,
            flag="--wheel-positions-m"),

@@ -36,7 +36,7 @@ STEP_FACTOR = 0.4  # dt f_W
 TRAVEL_FACTOR = 0.3  # v dt / 2a
 MODES_FACTOR = 0.85  # track_max_frequency / f_W
 MESH_FACTOR = 3.0  # rail elements per bending wavelength at the highest kept mode
-ELEMENT_FACTOR = 0.25  # contact element / 2a
+ELEMENT_FACTOR = 0.15  # contact element / 2a
 END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
 SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
 
