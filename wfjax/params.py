@@ -467,9 +467,9 @@ class SimConfig:
             the table for a single flat of a kind, the family for a batch of geometries of
             one kind and for fits).
         track_max_frequency: modes of the track model above this frequency [Hz] are replaced
-            by their static contribution (10 kHz: 599 modes; measured max-force change against
-            keeping all 1187 modes <= 0.1 % for 0.9 mm new and rounded flats at 60 and
-            250 km/h; 5 kHz gives up to 0.6 %).
+            by their static contribution (10 kHz: 599 modes; max force within 0.5 % of the
+            20 kHz reference, 5 kHz within 2 %: docs/convergence.md). Every setting here is
+            checked against the case by the physics guards (:mod:`wfjax.scenario.guards`).
         newton_iterations: fixed iteration count of the per-step contact equation.
         precision: ``"float64"`` (default) or ``"float32"``: the dtype of the time loop
             (modal propagation, contact law, per-step Newton solve; complex64 modes). The
