@@ -111,8 +111,8 @@ def test_deep_nesting_is_refused(suffix, text, tmp_path, capsys, no_work):
 
 def test_an_output_predicted_above_1_gb_is_refused(tmp_path, capsys, no_work):
     out = tmp_path / "o"
-    _refused(capsys, ["simulate", "--contact", "hertz-trajectory", "--sensors-m=-19:19:0.001",
-                      "--out", str(out)], "38,001 sensors", "1 GB", "--allow-large-output")
+    _refused(capsys, ["simulate", "--contact", "hertz-trajectory", "--sensors-m=-16:16:0.001",
+                      "--out", str(out)], "32,001 sensors", "1 GB", "--allow-large-output")
     _refused(capsys, ["sweep", *TINY[:2], "--speeds-kmh", "1:300:0.01", "--positions", "1000",
                       "--out", str(out)], "29,901 speeds", "--allow-large-output")
     _refused(capsys, ["detector", *TINY[:2], "--speeds-kmh", "1:300:0.01", "--positions", "100",

@@ -35,11 +35,13 @@ def scattered_track():
 
 
 def _direct_static(track, x):
-    """Static point compliance K^-1(x, x) [m/N] by one sparse LU solve (scipy)."""
+    """Static point compliance [m/N] by one sparse LU solve (scipy): K^-1(x, x) plus the
+    load's own deflection inside its element (exact Timoshenko statics)."""
     fe = fe_mod.assemble(track)
     b = fe_mod.load_vector(fe, x).toarray()
     u = scipy.sparse.linalg.splu(fe.stiffness.tocsc()).solve(b)
-    return np.einsum("ij,ij->j", b, u)
+    own = fe_mod.element_interior_compliance(track, T.element_fraction(fe, x))
+    return np.einsum("ij,ij->j", b, u) + own
 
 
 def _modal_static(model, x):
@@ -65,13 +67,18 @@ def test_uniform_track_unchanged():
                 3.6439355694977765e-12, 2.304008898468144e-12, 3.5415405033187283e-12]
     # the residual is K^-1 minus the kept modes' part, ~300x larger each: the eigensolver's
     # rounding differs between LAPACK builds/CPUs by ~1e-9 of it (seen 7.7e-10 on AMD EPYC)
-    np.testing.assert_allclose(np.asarray(m.residual), residual, rtol=1e-8)
+    # since 2026-12-03 the residual also holds the load's in-element deflection; the rest
+    # is the number of before
+    own = fe_mod.element_interior_compliance(tr, T.element_fraction(fe_mod.assemble(tr),
+                                                                    np.asarray(m.residual_x)))
+    np.testing.assert_allclose(np.asarray(m.residual) - own, residual, rtol=1e-8)
     np.testing.assert_allclose(np.asarray(m.residual_x), np.linspace(0, LS, 9), rtol=1e-15)
     h = [(7.42532591421608e-09 + 0j), (7.622790570685852e-09 - 1.2001349139328722e-09j),
          (-2.525965652381724e-10 - 1.6411188495659782e-09j),
          (-1.1893597710718377e-10 - 1.097097998042173e-10j)]
-    np.testing.assert_allclose(T.modal_receptance(m, [0.0, 50.0, 500.0, 2000.0], 0.1), h,
-                               rtol=1e-10)  # 2 kHz: 4.4e-12 off on an AMD EPYC
+    own_at = np.interp(0.1, np.asarray(m.residual_x), own)  # as the table is read
+    np.testing.assert_allclose(T.modal_receptance(m, [0.0, 50.0, 500.0, 2000.0], 0.1) - own_at,
+                               h, rtol=1e-10)  # 2 kHz: 4.4e-12 off on an AMD EPYC
 
 
 def test_constant_arrays_are_the_uniform_track(tmp_path):
@@ -145,7 +152,7 @@ def test_symmetric_void_uses_mirror_split_and_is_exact():
     for x in (0.0, 0.4):
         hm, hd = T.modal_receptance(model, f, x), T.receptance(tr, f, x)
         assert np.max(np.abs(hm / hd - 1)) < 0.01
-    assert model.residual_x.shape == (32 * NB + 1,)  # along the whole rail
+    assert model.residual_x.shape == (8 * T.RESIDUAL_POINTS_PER_ELEMENT * NB + 1,)  # along the whole rail
 
 
 def test_void_sleeper_shifts_the_receptance():
@@ -208,15 +215,17 @@ def test_sensor_seat_force_uses_the_pad_under_the_sensor():
     pad, from the sensor rows, equals the direct FE solve."""
     from wfjax.scenario import sensors
 
-    tr = S.with_supports(wfjax.Track(n_bays=NB),
-                         pad_stiffness=np.linspace(60e6, 240e6, NB - 1))
+    nb = 40  # sensors keep 8.5 / beta (6 m) from the clamped ends
+    mid = nb // 2 - 1
+    tr = S.with_supports(wfjax.Track(n_bays=nb),
+                         pad_stiffness=np.linspace(60e6, 240e6, nb - 1))
     model = T.modal_model(tr, 20e3, use_cache=False)
     spec = sensors.sensor_spec(np.array([0.0, LS]), tr, model, ("seat_force",))
     fe = fe_mod.assemble(tr)
     u = scipy.sparse.linalg.splu(fe.stiffness.tocsc()).solve(fe_mod.load_vector(fe, 0.0).toarray())
-    kp = sleepers.support_arrays(tr)["pad_stiffness"][[MID, MID + 1]]
-    rail = u[[2 * (NB // 2) * 8 - 2, 2 * (NB // 2 + 1) * 8 - 2], 0]
-    seat = kp * (rail - u[fe.n_rail_dof + np.array([MID, MID + 1]), 0])
+    kp = sleepers.support_arrays(tr)["pad_stiffness"][[mid, mid + 1]]
+    rail = u[[2 * (nb // 2) * 8 - 2, 2 * (nb // 2 + 1) * 8 - 2], 0]
+    seat = kp * (rail - u[fe.n_rail_dof + np.array([mid, mid + 1]), 0])
     q = -T.mode_shapes_at(model, 0.0) / model.poles  # modal states at rest under 1 N at 0
     got = sensors.evaluate(spec, model, q, 1.0, 0.0)[0]
     np.testing.assert_allclose(got, seat, rtol=1e-3)

@@ -123,10 +123,11 @@ def test_modal_model_layout(model):
     nx = np.asarray(model.node_x)
     assert nx[0] == pytest.approx(-35 * LS) and nx[-1] == pytest.approx(35 * LS)
     assert np.any(np.isclose(nx, 0.0)) and np.allclose(np.asarray(model.shapes)[:, [0, -1]], 0)
-    # residual: positive, periodic, small compared with the static compliance
+    # residual: positive, periodic, small compared with the static compliance (with the
+    # load's in-element deflection, about 1.1 % of it at mid-element)
     res = np.asarray(model.residual)
     assert np.all(res > 0) and res[0] == pytest.approx(res[-1], rel=0.02)
-    assert res.max() < 0.01 * T.static_deflection(wfjax.Track(), 1.0)
+    assert res.max() < 0.015 * T.static_deflection(wfjax.Track(), 1.0)
 
 
 @pytest.mark.parametrize("x", [0.0, 0.1, LS / 2, -2 * LS + 0.2])
