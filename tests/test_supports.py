@@ -152,7 +152,8 @@ def test_symmetric_void_uses_mirror_split_and_is_exact():
     for x in (0.0, 0.4):
         hm, hd = T.modal_receptance(model, f, x), T.receptance(tr, f, x)
         assert np.max(np.abs(hm / hd - 1)) < 0.01
-    assert model.residual_x.shape == (8 * T.RESIDUAL_POINTS_PER_ELEMENT * NB + 1,)  # along the whole rail
+    # along the whole rail
+    assert model.residual_x.shape == (8 * T.RESIDUAL_POINTS_PER_ELEMENT * NB + 1,)
 
 
 def test_void_sleeper_shifts_the_receptance():
