@@ -98,27 +98,48 @@ def summarise(rows: list[dict]) -> dict:
                           "observed": k / max(len(flats), 1), "cp95": [lo, hi],
                           "calibrated": lo <= level <= hi})
     out["calibration"] = table
+    out["by_kind"] = {}
+    for kind in ("new", "rounded"):
+        sub = [r for r in flats if r["kind"] == kind]
+        lg = [r for r in sub if r["length"] >= 0.04]
+        out["by_kind"][kind] = {
+            "n": len(sub),
+            "error": _median([abs(r["length_median"] - r["length"]) / r["length"] for r in sub]),
+            "width": _median([(r["length_0.9"][1] - r["length_0.9"][0]) / r["length"]
+                              for r in lg])}
     return out
 
 
-def markdown(summary: dict, meta: dict) -> str:
-    """The study's section of docs/identify.md."""
+def _median(values) -> float:
+    return float(np.median(values)) if len(values) else float("nan")
+
+
+def run_line(meta: dict) -> str:
+    """One run's command, size and times."""
+    return (f"`python benchmarks/identify_study.py --flats {meta['flats']} --speeds-kmh "
+            f"{meta['speeds_kmh']} --sites {meta['sites']} --seed {meta['seed']}` "
+            f"({meta['date']}): {meta['wagons']} wagons, {meta['wall_s'] / 60:.1f} min on the "
+            f"shared 2-core CPU (truth {meta['simulate_s'] / 60:.1f} min, identification "
+            f"{meta['identify_s'] / 60:.1f} min, median "
+            f"{meta['identify_median_s_per_wagon']:.0f} s per wagon of "
+            f"{len(str(meta['speeds_kmh']).split(','))} passages)")
+
+
+def markdown(summary: dict, metas: list[dict]) -> str:
+    """The study's section of docs/identify.md (``metas``: every run merged into it)."""
     s = summary
-    lines = [f"Run: `python benchmarks/identify_study.py --flats {meta['flats']} "
-             f"--speeds-kmh {meta['speeds_kmh']} --sites {meta['sites']} "
-             f"--seed {meta['seed']} --docs`, {meta['date']}: {meta['wagons']} wagons, "
-             f"{s['n_flats']} flats, {s['n_round']} round wheels; "
-             f"{meta['wall_s'] / 60:.1f} min on the shared 2-core CPU (truth "
-             f"{meta['simulate_s'] / 60:.1f} min, identification {meta['identify_s'] / 60:.1f}"
-             f" min, median {meta['identify_median_s_per_wagon']:.0f} s per wagon of "
-             f"{len(meta['speeds_kmh'].split(','))} passages).", "",
+    by = s["by_kind"]
+    lines = ["Runs, in parallel: " + "; ".join(run_line(m) for m in metas) +
+             f". In all {s['n_flats']} flats, {s['n_round']} round wheels.", "",
              f"- flats >= 30 mm flagged: {s['flagged_30mm_or_longer'][0]} of "
              f"{s['flagged_30mm_or_longer'][1]}; round wheels flagged: "
              f"{s['round_flagged'][0]} of {s['round_flagged'][1]}",
              f"- median absolute error of the length median: "
-             f"{100 * (s['median_abs_rel_error_length'] or float('nan')):.1f} %",
+             f"{100 * (s['median_abs_rel_error_length'] or float('nan')):.1f} % (new "
+             f"{100 * by['new']['error']:.1f} %, rounded {100 * by['rounded']['error']:.1f} %)",
              f"- median 90 % interval width / length, flats >= 40 mm: "
-             f"{100 * (s['median_width90_over_length_40mm_plus'] or float('nan')):.0f} %",
+             f"{100 * (s['median_width90_over_length_40mm_plus'] or float('nan')):.0f} % (new "
+             f"{100 * by['new']['width']:.0f} %, rounded {100 * by['rounded']['width']:.0f} %)",
              f"- kind (new/rounded) right at P >= 0.5: {s['kind_correct'][0]} of "
              f"{s['kind_correct'][1]}; wheels reported as misfit: {s['misfit_passages']}",
              "", "| quantity | nominal | observed coverage | covered / n | 95 % "
@@ -206,6 +227,8 @@ def main(argv=None) -> int:
     ap.add_argument("--site-seed", type=int, default=31, help="the sites' draws")
     ap.add_argument("--coupling", type=int, default=1)
     ap.add_argument("--docs", action="store_true")
+    ap.add_argument("--merge", nargs="+", metavar="JSON",
+                    help="merge these runs' results into --out (and the docs) instead")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
                                          "identify_study.json"))
     args = ap.parse_args(argv)
@@ -222,13 +245,31 @@ def main(argv=None) -> int:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps({"meta": meta, "summary": summary,
                                               "wheels": rows}, indent=1, default=float) + "\n")
-        text = markdown(summary, meta)
+        text = markdown(summary, [meta])
         print(text, flush=True)
         if args.docs:
             write_docs(text)
 
+    if args.merge:
+        return merge(args.merge, args.out, args.docs)
     rows, times = run(args, save)
     save(rows, times, len({r["wagon"] for r in rows}))
+    return 0
+
+
+def merge(paths: list[str], out: str, docs: bool) -> int:
+    """Merge the results of runs (``paths``, JSON) into ``out``; with ``docs`` into
+    docs/identify.md too."""
+    runs = [json.loads(Path(p).read_text()) for p in paths]
+    rows = [r | {"run": i} for i, d in enumerate(runs) for r in d["wheels"]]
+    summary = summarise(rows)
+    metas = [d["meta"] for d in runs]
+    Path(out).write_text(json.dumps({"meta": metas, "summary": summary, "wheels": rows},
+                                    indent=1, default=float) + "\n")
+    text = markdown(summary, metas)
+    print(text, flush=True)
+    if docs:
+        write_docs(text)
     return 0
 
 
