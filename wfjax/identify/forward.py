@@ -187,7 +187,8 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
 
     Runs S shapes x L ``lengths`` [m] x ``n_offsets`` in-bay impact positions x
     (``n_roughness`` x ``n_supports``) nuisance realisations; ``progress(done, total)`` is
-    called after every shape and support realisation.
+    called after every shape and support realisation. The cache key holds the speed rounded
+    to 1e-9 m/s (100 / 3.6 and 27.777777778 find the same table).
     """
     from ..contact.registry import check
     from ..fit.models import TracedLaw
@@ -195,7 +196,7 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
     check(contact)
     wheel, track = wheel or Wheel(), track or Track()
     material, config = material or Material(), identification_config(config)
-    key = dict(speed=float(speed), contact=contact, g=float(gauge_offset),
+    key = dict(speed=round(float(speed), 9), contact=contact, g=float(gauge_offset),
                c=float(calibration), shapes=[list(s) for s in shapes],
                lengths=np.asarray(lengths), j=int(n_offsets), r=int(n_roughness),
                s=int(n_supports), cv=float(scatter_cv), seed=int(seed), wheel=repr(wheel),
