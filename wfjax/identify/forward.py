@@ -200,7 +200,8 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
                c=float(calibration), shapes=[list(s) for s in shapes],
                lengths=np.asarray(lengths), j=int(n_offsets), r=int(n_roughness),
                s=int(n_supports), cv=float(scatter_cv), seed=int(seed), wheel=repr(wheel),
-               track=repr(track), material=repr(material), config=repr(config), v=1)
+               track=repr(track), material=repr(material), config=repr(config),
+               v=2)  # 2: the rail's in-element deflection (2026-12-03)
     ls = float(track.sleeper_spacing)
     offsets = np.arange(n_offsets) * ls / n_offsets
     radius = float(wheel.radius)
