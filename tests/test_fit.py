@@ -303,7 +303,8 @@ def test_fit_to_detector_readings_3d():
     """As the Hertz check with the paper's 3D contact in the notebook's reduced setting
     (2.5 mm elements, coarse steps, R_R = 0.45 m): truth from the exact 3D table, fit
     through the parametric family."""
-    config = wf.SimConfig(contact_element=2.5e-3, max_travel_step=2e-3, max_time_step=5e-5)
+    config = wf.SimConfig(contact_element=2.5e-3, max_travel_step=2e-3, max_time_step=5e-5,
+                          allow_inaccurate=True)  # outside the element guard (2.1 mm)
     track = wf.Track.comparison()
     speeds = np.linspace(40.0, 140.0, 5) / 3.6
     truth, start = wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.rounded(1.35e-3, 0.15)
