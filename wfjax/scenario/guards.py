@@ -191,6 +191,7 @@ def end_findings(track: Track, lo: float, hi: float, what: str) -> list[str]:
             f"where reflections reach the contact: use n_bays >= {need}"]
 
 
+_SHOWN: dict = {}  # the warnings registry of the guards' findings
 _NOTES: contextvars.ContextVar[list | None] = contextvars.ContextVar("wfjax_guard_notes",
                                                                       default=None)
 
@@ -223,7 +224,8 @@ def enforce(findings: list[str], config: SimConfig) -> None:
             "Physics guards); --allow-inaccurate (config.allow_inaccurate = true) runs it "
             "anyway")
     bucket = _NOTES.get()
-    for line in findings:
-        warnings.warn(AccuracyWarning(line), stacklevel=3)
+    for line in findings:  # shown once per finding, however many checks meet it
+        warnings.warn_explicit(AccuracyWarning(line), AccuracyWarning, "wfjax physics guard", 0,
+                               module=__name__, registry=_SHOWN)
         if bucket is not None and line not in bucket:
             bucket.append(line)
