@@ -155,3 +155,15 @@ def test_refusal_without_the_override_names_setting_value_bound_and_reason():
     with pytest.raises(G.InaccurateSettings):
         wf.simulate(wf.Flat.new(0.9e-3), 30.0, contact="hertz-trajectory",
                     config=dataclasses.replace(config))
+
+
+def test_fit_models_are_guarded_before_compiling(monkeypatch):
+    from wfjax.fit import models
+
+    def never(*args, **kwargs):
+        raise AssertionError("compiled before the guards ran")
+
+    monkeypatch.setattr(models, "compile_scenario", never)
+    with pytest.raises(G.InaccurateSettings, match="config.track_max_frequency = 100 Hz"):
+        models.max_force_model([30.0], wf.Flat.rounded(0.9e-3, 0.1),
+                               config=wf.SimConfig(track_max_frequency=100.0))

@@ -135,10 +135,12 @@ def _differentiation(checkpoint: bool, adjoint: bool):
     return Checkpointed() if checkpoint else Autodiff()
 
 
-def _fit_program(reference: Flat, extent_bound, model: dict, cache_dir, detector=None):
+def _fit_program(reference: Flat, extent_bound, model: dict, cache_dir, detector=None,
+                 grid=None):
     """(program, traced law, window flat) of a fit's model (``model``: the scenario's
     keyword arguments: contact, wheel, track, material, config, vehicle, roughness,
-    wheel_roughness)."""
+    wheel_roughness); ``grid`` (speeds [m/s], impact positions): checked by the physics
+    guards before the program is compiled."""
     ref = dataclasses.replace(reference, extent_bound=reference.half_extent
                               if extent_bound is None else float(extent_bound))
     contact = model.pop("contact")
@@ -146,6 +148,9 @@ def _fit_program(reference: Flat, extent_bound, model: dict, cache_dir, detector
     if scenario.n_realisations != 1:
         raise ValueError("a fit runs on one roughness realisation: give roughness values [n], "
                          f"not {scenario.n_realisations} realisations")
+    if grid is not None:
+        scenario.check_settings(scenario.window_flat(ref), scenario.speeds(grid[0]),
+                                np.atleast_1d(scenario.positions(grid[1])))
     program = compile_scenario(scenario, cache_dir)
     return program, TracedLaw.of(scenario, ref, cache_dir), scenario.window_flat(ref)
 
@@ -210,7 +215,8 @@ def max_force_model(speeds, reference: Flat, contact: str = "hertz-trajectory",
     """
     program, law, window = _fit_program(reference, extent_bound, dict(
         contact=contact, wheel=wheel, track=track, material=material, config=config,
-        vehicle=vehicle, roughness=roughness, wheel_roughness=wheel_roughness), cache_dir)
+        vehicle=vehicle, roughness=roughness, wheel_roughness=wheel_roughness), cache_dir,
+        grid=(speeds, impact_positions))
     v, pos = program.scenario.speeds(speeds), program.scenario.positions(impact_positions)
     runs, run_in, _ = _batch(program, window, v, pos)
     after = to_device(np.arange(program.n_steps)[None, :] >= run_in[:, None])
@@ -251,7 +257,7 @@ def detector_model(speeds, reference: Flat, detector=None, per_bay: bool = False
     program, law, window = _fit_program(reference, extent_bound, dict(
         contact=contact, wheel=wheel, track=track, material=material, config=config,
         vehicle=vehicle, roughness=roughness, wheel_roughness=wheel_roughness), cache_dir,
-        detector)
+        detector, grid=(speeds, impact_positions))
     v = program.scenario.speeds(speeds)
     pos = np.atleast_1d(program.scenario.positions(impact_positions))
     if per_bay and pos.size != 1:
@@ -290,7 +296,8 @@ def history_model(t, speed: float, reference: Flat, contact: str = "hertz-trajec
     """
     program, law, window = _fit_program(reference, extent_bound, dict(
         contact=contact, wheel=wheel, track=track, material=material, config=config,
-        vehicle=vehicle, roughness=roughness, wheel_roughness=wheel_roughness), cache_dir)
+        vehicle=vehicle, roughness=roughness, wheel_roughness=wheel_roughness), cache_dir,
+        grid=([speed], [impact_position]))
     pos = check_impact_position(impact_position, program.scenario.track)
     runs, _, s0 = _batch(program, window, [speed], [pos])
     dt, s0 = float(runs.dt[0]), float(s0[0])
