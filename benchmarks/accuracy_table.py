@@ -68,8 +68,8 @@ ROWS = {  # label -> changes to REF
     "step 12.5 us / 0.5 mm": {"time_step": 12.5e-6, "travel_step": 0.5e-3},
     "bays 50": {"n_bays": 50},
     "element 2 mm": {"contact_element": 2e-3},
-    "element 4 mm": {"contact_element": 4e-3},
-    "element 8 mm": {"contact_element": 8e-3},
+    "16 el., 10 kHz, 25 us / 1 mm, 70 bays": {**OLD, "elements_per_bay": 16},
+    "8 el., 15 kHz, 25 us / 1 mm, 70 bays": {**OLD, "track_max_frequency": 15e3},
 }
 FREQS = np.geomspace(20.0, 2000.0, 40)
 RECEPTANCES = {  # name -> (quantity, force position [m], response position [m])
