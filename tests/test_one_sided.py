@@ -86,8 +86,10 @@ def test_bogie_static_start_over_a_hanging_sleeper_equals_the_direct_solve():
         rail, sleeper, force = _direct_static(track, x0 + vehicle.offsets(),
                                               np.array([118e3, 90e3]))
         assert force[0] > 0
-        np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], rail, rtol=1e-9)
-        np.testing.assert_allclose(np.asarray(hist["support_force"])[0], force, rtol=1e-8)
+        # 5e-4: each wheel's own residual is read between the track table's points (8 per
+        # element; test_track's test_point_load_inside_an_element_is_exact)
+        np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], rail, rtol=5e-4)
+        np.testing.assert_allclose(np.asarray(hist["support_force"])[0], force, rtol=5e-4)
 
 
 def test_a_gap_that_never_closes_is_the_void_sleeper():

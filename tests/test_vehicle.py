@@ -106,7 +106,9 @@ def test_static_deflections_under_several_wheels_superpose_the_direct_solves():
     hist = run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
     x = x0 + vehicle.offsets()
     want = _direct_static(track, x, np.array([118e3, 90e3, 140e3]))
-    np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], want, rtol=1e-9)
+    # 5e-4: each wheel's own residual is read from the track's table (8 points per element,
+    # linear between them: test_track's test_point_load_inside_an_element_is_exact)
+    np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], want, rtol=5e-4)
     # superposition: the same from three one-wheel direct solves
     singles = sum(_direct_static(track, x, np.eye(3)[i] * w.preload)
                   for i, w in enumerate(wheels))
@@ -129,7 +131,7 @@ def test_static_deflections_under_several_wheels_on_varying_supports(name):
     for x0 in (placement(vehicle, 0.65) + 1.95 + 7 * 0.65 / 32, 2.6 + 0.65 / 32):
         hist = run_scan(laws, struct, V, 2e-5, x0, x0 + 1.0, 2)
         want = _direct_static(track, x0 + vehicle.offsets(), np.array([118e3, 90e3]))
-        np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], want, rtol=1e-9)
+        np.testing.assert_allclose(np.asarray(hist["rail_disp"])[0], want, rtol=5e-4)
 
 
 def test_cross_table_along_a_varying_track_equals_the_direct_mode_sum():
@@ -150,12 +152,12 @@ def test_cross_table_along_a_varying_track_equals_the_direct_mode_sum():
         assert got[0, 0] == 0.0
 
 
-def test_residual_pairs_are_symmetric_and_their_diagonal_is_the_tracks_residual():
+def test_residual_pairs_are_symmetric_and_leave_the_diagonal_to_the_tracks_table():
     track, config = wf.Track(), wf.SimConfig()
     model = track_mod.modal_model(track, max_frequency=config.track_max_frequency)
     pairs = residual_pairs(track, model, np.array([0.0, -2.5]))
     np.testing.assert_allclose(pairs, np.swapaxes(pairs, 1, 2), rtol=1e-10, atol=1e-22)
-    np.testing.assert_allclose(pairs[:, 0, 0], np.asarray(model.residual), rtol=1e-9)
+    assert np.all(pairs[:, [0, 1], [0, 1]] == 0.0) and np.all(pairs[:, 0, 1] > 0)
 
 
 def test_transfer_receptance_is_reciprocal_and_matches_the_direct_solve():

@@ -87,7 +87,8 @@ def residual_matrix(struct: Structure, model, x_ref):
     reference wheel at ``x_ref`` [m] (one wheel: the track's own residual there)."""
     if struct.residual_pairs is None:
         return track_mod.residual_compliance_at(model, x_ref)[None, None]
-    return track_mod.read_residual_table(model, struct.residual_pairs, x_ref)
+    own = track_mod.residual_compliance_at(model, x_ref + struct.offsets)
+    return track_mod.read_residual_table(model, struct.residual_pairs, x_ref) + jnp.diag(own)
 
 
 def modal_loads(f, phi):

@@ -261,9 +261,10 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
     uniform track; along the whole rail (x = model.residual_x, absolute; ``x_bay`` unused) on
     a track whose supports vary, with wheel positions beyond the rail ends clamped to them
     (never read: the wheels stay on the rail). The diagonal is each wheel's own
-    residual compliance (with the load's in-element deflection,
-    :func:`wfjax.model.fe.element_interior_compliance`), the off-diagonal the truncated
-    modes' static coupling (exact static deflections under several wheels).
+    residual compliance, left at zero here: the loop reads it from the model's own table at
+    each wheel's position (:func:`wfjax.loop.structure.residual_matrix`), whose points sit
+    on the element nodes, as the load's in-element deflection needs; the off-diagonal the
+    truncated modes' static coupling (exact static deflections under several wheels).
 
     Returns:
         float [n_res, n, n] (symmetric in the last two axes), read by
@@ -278,8 +279,9 @@ def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
     phi = np.asarray(track_mod.mode_shapes_at(model, x))  # [n_res, n, m]
     w = np.asarray(model.weights) / (-np.asarray(model.poles))
     kept = np.real(np.einsum("rim,rjm,m->rij", phi, phi, w))
-    own = fe_mod.element_interior_compliance(track, track_mod.element_fraction(fe, x))
-    return full - kept + own[:, :, None] * np.eye(x.shape[1])  # wheels share no element
+    # each wheel's own residual is read from the model's table, whose points sit on the
+    # element nodes (offsets generally do not): zero here, added by the loop
+    return (full - kept) * (1.0 - np.eye(x.shape[1]))
 
 
 def _static_pair_compliance(fe, x: np.ndarray) -> np.ndarray:
