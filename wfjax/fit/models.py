@@ -135,8 +135,8 @@ def _differentiation(checkpoint: bool, adjoint: bool):
     return Checkpointed() if checkpoint else Autodiff()
 
 
-def _fit_program(reference: Flat, extent_bound, model: dict, cache_dir, detector=None,
-                 grid=None):
+def _fit_program(reference: Flat, extent_bound, model: dict, cache_dir, detector=None, *,
+                 grid):
     """(program, traced law, window flat) of a fit's model (``model``: the scenario's
     keyword arguments: contact, wheel, track, material, config, vehicle, roughness,
     wheel_roughness); ``grid`` (speeds [m/s], impact positions): checked by the physics
@@ -148,9 +148,8 @@ def _fit_program(reference: Flat, extent_bound, model: dict, cache_dir, detector
     if scenario.n_realisations != 1:
         raise ValueError("a fit runs on one roughness realisation: give roughness values [n], "
                          f"not {scenario.n_realisations} realisations")
-    if grid is not None:
-        scenario.check_settings(scenario.window_flat(ref), scenario.speeds(grid[0]),
-                                np.atleast_1d(scenario.positions(grid[1])))
+    scenario.check_settings(scenario.window_flat(ref), scenario.speeds(grid[0]),
+                            np.atleast_1d(scenario.positions(grid[1])))
     program = compile_scenario(scenario, cache_dir)
     return program, TracedLaw.of(scenario, ref, cache_dir), scenario.window_flat(ref)
 
@@ -160,8 +159,7 @@ def _batch(program, window: Flat, speeds, positions) -> tuple[Run, np.ndarray, n
     slowest, their run-in steps [B], their start s_0 [B] m relative to the impact); sets
     ``program.n_steps``."""
     sc = program.scenario
-    v = sc.speeds(speeds)
-    sc.check_settings(window, v, positions)
+    v = sc.speeds(speeds)  # checked by the guards in _fit_program, before compiling
     n_steps, dt, s0, run_in = batch_windows(window, v, sc.config)
     vv, pp = (a.ravel() for a in np.meshgrid(v, positions, indexing="ij"))
     dd, ss, rr = (np.repeat(a, np.size(positions)) for a in (dt, s0, run_in))

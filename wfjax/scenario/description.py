@@ -201,12 +201,12 @@ class Scenario:
         contact element, the path's distance to the clamped ends (the sensors' is checked
         with them, :func:`wfjax.scenario.sensors.check_positions`)."""
         out = []
-        for wheel in self.wheels:
-            sc = guards.scales(wheel, self.track, self.material)
+        for sc in dict.fromkeys(guards.scales(w, self.track, self.material)
+                                for w in self.wheels):  # a vehicle's like wheels: once
             out += guards.step_findings(self.config, speeds, sc)
             out += guards.track_findings(self.track, self.config, sc)
             out += guards.element_findings(self.contact, self.config, sc)
-        out += guards.end_findings(self.track, *path, "the wheels' path")
+        out += guards.end_findings(self.track, *path)
         return list(dict.fromkeys(out))
 
 

@@ -7,8 +7,8 @@ Each bound is a scale of the case at hand times a constant read off the accuracy
 ``docs/convergence.md`` ("Physics guards", where the derivation is written out):
 
 - time step: ``dt <= STEP_FACTOR / f_W``, f_W the wheel's highest natural frequency on the
-  Hertz spring (:func:`wheel_frequency`), and ``v dt <= TRAVEL_FACTOR 2a``, 2a the length of
-  the contact patch (:func:`contact_length`) that filters the surface it rolls over;
+  Hertz spring, and ``v dt <= TRAVEL_FACTOR 2a``, 2a the length of the contact patch that
+  filters the surface it rolls over (both :func:`scales`);
 - track modes: ``track_max_frequency >= MODES_FACTOR f_W``;
 - rail mesh: elements no longer than ``1 / MESH_FACTOR`` of the rail's bending wavelength at
   the highest kept mode (:func:`bending_wavelength`);
@@ -64,28 +64,6 @@ class Scales:
     decay_length: float
 
 
-def contact_length(wheel: Wheel, track: Track, material: Material) -> float:
-    """2a [m]: the elliptic Hertz contact's length along the rail at the static load."""
-    a, _, _, _ = elliptic_hertz(float(wheel.preload), float(wheel.radius),
-                                float(track.rail_head_radius), material)
-    return 2 * float(a)
-
-
-def hertz_stiffness(wheel: Wheel, track: Track, material: Material) -> float:
-    """dF/ddelta [N/m] of the elliptic Hertz contact at the static load (1.5 P / delta)."""
-    _, _, delta, _ = elliptic_hertz(float(wheel.preload), float(wheel.radius),
-                                    float(track.rail_head_radius), material)
-    return 1.5 * float(wheel.preload) / delta
-
-
-def wheel_frequency(wheel: Wheel, track: Track, material: Material) -> float:
-    """f_W [Hz]: the small mass m_W between the wheel's spring k_W and the Hertz spring, held
-    at the wheelset and the rail: sqrt((k_W + k_H) / m_W) / 2 pi. The stiffest oscillator of
-    the model; the rail's modes are propagated exactly and do not limit the step."""
-    k = float(wheel.contact_stiffness) + hertz_stiffness(wheel, track, material)
-    return math.sqrt(k / float(wheel.small_mass)) / (2 * math.pi)
-
-
 def bending_wavelength(track: Track, frequency: float) -> float:
     """Euler-Bernoulli bending wavelength of the free rail [m] at ``frequency`` [Hz]:
     2 pi (EI / (m omega^2))^(1/4)."""
@@ -105,9 +83,16 @@ def decay_length(track: Track) -> float:
 
 
 def scales(wheel: Wheel, track: Track, material: Material) -> Scales:
-    """The :class:`Scales` of a wheel on a track."""
-    return Scales(contact_length(wheel, track, material),
-                  wheel_frequency(wheel, track, material), decay_length(track))
+    """The :class:`Scales` of a wheel on a track, from one elliptic Hertz contact at the
+    static load P: 2a along the rail, k_H = 1.5 P / delta, and f_W = sqrt((k_W + k_H) / m_W)
+    / 2 pi, the small mass m_W between the wheel's spring k_W and the Hertz spring, held at
+    the wheelset and the rail (the stiffest oscillator of the model; the rail's modes are
+    propagated exactly and do not limit the step)."""
+    a, _, delta, _ = elliptic_hertz(float(wheel.preload), float(wheel.radius),
+                                    float(track.rail_head_radius), material)
+    k = float(wheel.contact_stiffness) + 1.5 * float(wheel.preload) / float(delta)
+    return Scales(2 * float(a), math.sqrt(k / float(wheel.small_mass)) / (2 * math.pi),
+                  decay_length(track))
 
 
 def end_margin(track: Track) -> float:
@@ -178,15 +163,16 @@ def element_findings(contact: str, config: SimConfig, sc: Scales) -> list[str]:
             f"2a = {sc.contact_length * 1e3:.1f} mm"]
 
 
-def end_findings(track: Track, lo: float, hi: float, what: str) -> list[str]:
-    """A line when [``lo``, ``hi``] [m] (a path or sensor span) comes within
-    :func:`end_margin` of the clamped rail ends."""
+def end_findings(track: Track, lo: float, hi: float) -> list[str]:
+    """A line when the wheels' path [``lo``, ``hi``] [m] comes within :func:`end_margin` of
+    the clamped rail ends."""
     half = 0.5 * int(track.n_bays) * float(track.sleeper_spacing)
     margin = end_margin(track)
     if lo >= -half + margin and hi <= half - margin:
         return []
     need = math.ceil((max(hi, -lo) + margin) / float(track.sleeper_spacing)) * 2
-    return [f"track.n_bays = {int(track.n_bays)}: {what} [{lo:.2f}, {hi:.2f}] m comes within "
+    return [f"track.n_bays = {int(track.n_bays)}: the wheels' path [{lo:.2f}, {hi:.2f}] m "
+            "comes within "
             f"{margin:.2f} m = {END_FACTOR:g} / beta of the clamped rail ends at +-{half:.2f} m, "
             f"where reflections reach the contact: use n_bays >= {need}"]
 
