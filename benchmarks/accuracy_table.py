@@ -70,6 +70,14 @@ ROWS = {  # label -> changes to REF
     "element 2 mm": {"contact_element": 2e-3},
     "16 el., 10 kHz, 25 us / 1 mm, 70 bays": {**OLD, "elements_per_bay": 16},
     "8 el., 15 kHz, 25 us / 1 mm, 70 bays": {**OLD, "track_max_frequency": 15e3},
+    "26 el., 12 kHz, 25 us / 1 mm, 30 bays": {**OLD, "elements_per_bay": 26,
+                                              "track_max_frequency": 12e3, "n_bays": 30},
+    "16 el., 15 kHz, 25 us / 1 mm, 30 bays": {**OLD, "elements_per_bay": 16,
+                                              "track_max_frequency": 15e3, "n_bays": 30},
+    "26 el., 15 kHz, 25 us / 1 mm, 24 bays": {**OLD, "elements_per_bay": 26,
+                                              "track_max_frequency": 15e3, "n_bays": 24},
+    "16 el., 12.5 kHz, 25 us / 1 mm, 24 bays": {**OLD, "elements_per_bay": 16,
+                                                "track_max_frequency": 12.5e3, "n_bays": 24},
 }
 FREQS = np.geomspace(20.0, 2000.0, 40)
 RECEPTANCES = {  # name -> (quantity, force position [m], response position [m])

@@ -36,6 +36,11 @@ Groups and measurements (wall time of the subprocess unless said otherwise):
   round first; "gradient / forward" is the median of the per-call-pair ratios (in x forward,
   not seconds); the forward and gradient medians [s] are reported too.
 
+* ``rough`` (issue 33): 1,000 ISO 3095-limit rail roughness realisations as the batch axis
+  of one ``sweep`` (rounded flat 0.9 mm x 100 mm, 100 km/h, impact at 0.1 m, the exact 3D
+  table), as ``bench_roughness.py --contact 3d``: the first call (table build and compile)
+  and the second, warm call inside the same process.
+
 ``--quick`` (smoke test, not for the record): Fig. 8 with ``--fast`` (2 depths, 3 speeds, 2
 positions), the fit with 3 speeds, the gradient with 3 speeds and 3 repeats; the main job
 unchanged.
@@ -64,7 +69,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 OLD_COMMIT = "9bf324c"
 MARK = "BENCH_ISSUE30 "
-GROUPS = ("main", "fig8", "fit3d", "gradient")
+GROUPS = ("main", "fig8", "fit3d", "gradient", "rough")
 RATIO = "gradient / forward [x forward]"  # a ratio per tree, not seconds
 SUMMARY_KEYS = ("flats", "peak_axle_acc_m_s2", "wall_time_s")  # of sweep.json / fig8.json
 
@@ -139,6 +144,27 @@ print({mark!r} + json.dumps({{
     "ratio": statistics.median(g / f for f, g in zip(fwd, grd)),
     "forward_median_s": statistics.median(fwd), "gradient_median_s": statistics.median(grd),
     "loss": float(value), "grad": [float(x) for x in np.asarray(grad)]}}), flush=True)
+"""
+
+ROUGH = """
+import json, time
+t_start = time.perf_counter()
+import numpy as np
+import wfjax as wf
+R = wf.roughness
+t0 = time.perf_counter()
+flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
+rough = R.generate(R.ISO3095_LIMIT, 0, 4.0, x_start=-2.0, n_realisations={n})
+times = []
+for _ in range(2):
+    c0 = time.perf_counter()
+    res = wf.sweep(flat, [100.0 / 3.6], impact_positions=[0.1], contact="3d",
+                   roughness=rough, progress=False)
+    times.append(time.perf_counter() - c0)
+print({mark!r} + json.dumps({{
+    "wfjax_file": wf.__file__, "import_s": t0 - t_start, "cold_s": times[0],
+    "warm_s": times[1], "p50_p95_p99_kN": (res.percentiles()[0, 0] / 1e3).tolist()}}),
+    flush=True)
 """
 
 CHECK = "import json, wfjax; print({mark!r} + json.dumps({{'wfjax_file': wfjax.__file__}}))"
@@ -320,8 +346,21 @@ def group_gradient(tree: Path, cache: Path, work: Path, args) -> dict:
             "gradient, warm call": dict(r, wall_s=res["gradient_median_s"])}
 
 
+def group_rough(tree: Path, cache: Path, work: Path, args) -> dict:
+    code = ROUGH.format(n=100 if args.quick else 1000, mark=MARK)
+    r = run_timed([sys.executable, "-c", code], tree, cache, work, args.timeout)
+    _snippet_check(r, tree)
+    res = r["result"]
+    if not res:
+        failed = dict(r, rc=r["rc"] or 1)
+        return {"1,000 rough realisations, 3D table, first call": failed,
+                "1,000 rough realisations, 3D table, warm call": failed}
+    return {"1,000 rough realisations, 3D table, first call": dict(r, wall_s=res["cold_s"]),
+            "1,000 rough realisations, 3D table, warm call": dict(r, wall_s=res["warm_s"])}
+
+
 RUNNERS = {"main": group_main, "fig8": group_fig8, "fit3d": group_fit3d,
-           "gradient": group_gradient}
+           "gradient": group_gradient, "rough": group_rough}
 
 
 # ---------------------------------------------------------------------------- report

@@ -15,8 +15,6 @@ if not _jax.config.read("jax_enable_x64"):
     _jax.config.update("jax_enable_x64", True)
 
 from . import contact as contact  # noqa: E402  (after the x64 switch)
-from . import fit as fit
-from . import identify as identify  # the package is callable: wf.identify(passages)
 from . import params as params
 from ._cache import load_or_build as load_or_build
 from .api import SimResult as SimResult
@@ -48,3 +46,19 @@ from .sweeps import SweepResult as SweepResult
 from .sweeps import sweep as sweep
 
 __version__ = "0.1.0"
+
+_LAZY = ("fit", "identify")  # imported on first use: they pull in scipy.stats and optax (~1 s)
+
+
+def __getattr__(name):
+    """``wf.fit`` and ``wf.identify`` (a callable package: ``wf.identify(passages)``), imported
+    on first access so that ``import wfjax`` stays fast for simulate and sweep."""
+    if name in _LAZY:
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'wfjax' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_LAZY))
