@@ -252,3 +252,43 @@ def test_parametric_flats_share_one_extent_bound():
     x = np.linspace(-0.03, 0.03, 31)
     prof = wf.Flat.from_profile(x, 1e-4 * (1 - np.abs(x) / 0.03))
     assert fwd._bounded(prof, 0.45) is prof
+
+
+def test_train_of_80_wheels_round_trips_and_is_a_batch_of_bogies(tmp_path):
+    """A 20-wagon train's passage (80 wheels) goes through the CSV and back, and the
+    pipeline sees it as 40 bogies of one layout (one batched coupled run, not 40)."""
+    from wfjax.identify.pipeline import _groups, _layouts
+
+    rng = np.random.default_rng(2)
+    pos = np.concatenate([25.0 * k + np.array([0.0, 2.5, 17.5, 20.0]) for k in range(20)])
+    p = Passage(100 / 3.6, pos, BAYS, 120e3 + 30e3 * rng.random((pos.size, BAYS.size)))
+    (q,) = read_passages(_csv(tmp_path, passages_csv([p])))
+    assert q.n_wheels == 80
+    np.testing.assert_allclose(q.positions, pos, atol=1e-4)
+    np.testing.assert_allclose(q.readings, p.readings, rtol=1e-6)
+    groups = _groups(q.positions)
+    assert groups == [[2 * k, 2 * k + 1] for k in range(40)]
+    assert list(_layouts(q.positions, groups)) == [(0.0, 2.5)]
+
+
+def test_batch_padding():
+    assert [fwd._padded(n) for n in (1, 2, 3, 5, 8, 9, 34, 40)] == [1, 2, 4, 8, 8, 16, 40, 40]
+
+
+@pytest.mark.slow
+def test_coupled_batch_equals_coupled_runs():
+    """Bogies batched (:func:`coupled_batch`, mixed flat kinds: two batches) read what each
+    bogie's own coupled run reads."""
+    from wfjax.params import Wheel
+    from wfjax.scenario.sensors import Detector
+
+    r, det = float(Wheel().radius), Detector(5, -1)
+    smooth = fwd.flat_of("new", 0.004, 1.0, r)
+    groups = [([fwd.flat_of("new", 0.06, 1.0, r), smooth], [0.3, 0.9]),
+              ([smooth, smooth], [0.5, 1.7]),
+              ([smooth, fwd.flat_of("rounded", 0.08, 1.8, r)], [1.0, 0.2])]
+    peaks, force = fwd.coupled_batch(groups, [0.0, 2.5], 100 / 3.6, det)
+    for k, (flats, impacts) in enumerate(groups):
+        p, f = fwd.coupled_readings(flats, impacts, [0.0, 2.5], 100 / 3.6, det)
+        np.testing.assert_allclose(peaks[k], p, rtol=1e-9)
+        np.testing.assert_allclose(force[k], f, rtol=1e-9)

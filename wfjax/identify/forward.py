@@ -31,13 +31,14 @@ import numpy as np
 
 from .._cache import load_or_build
 from ..params import Flat, Material, SimConfig, Track, Wheel
-from ..program.core import Autodiff, Histories, Run, compile_scenario
+from ..program.core import Autodiff, Histories, Run, compile_scenario, run_one
 from ..scenario.description import Scenario
 from ..scenario.sensors import Detector
 from ..scenario.windows import batch_windows
 
 __all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "ResponseTable", "flat_of", "build_table",
-           "predict", "coupled_readings", "identification_config", "extent_bound"]
+           "predict", "coupled_readings", "coupled_batch", "identification_config",
+           "extent_bound"]
 
 _log = logging.getLogger(__name__)
 SMOOTH_DEPTH = 5e-6  # m: a round wheel's stand-in flat (new, l0 = 4 mm): no impact
@@ -309,6 +310,22 @@ def _interp_weights(grid: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
     return (x - grid[i0]) / (grid[i0 + 1] - grid[i0]), i0
 
 
+def _window(detector: Detector, track: Track, wheel: Wheel, config: SimConfig, positions,
+            speed: float) -> tuple[float, float, int, int]:
+    """(x_start [m], dt [s], n_steps, run_in steps) of a coupled run: a window fixed by the
+    detector and the layout (one compiled step count for every phase): every wheel starts a
+    bay and a run-in before the first gauge and ends past the last."""
+    a, b = detector.gauges(float(track.sleeper_spacing))
+    ls = float(track.sleeper_spacing)
+    lead_in = max(config.run_in, 0.3)
+    x0 = min(float(a[0]) - ls - 2 * math.pi * float(wheel.radius), float(a[0])) - lead_in
+    x1 = float(b[-1]) + 0.3 + float(positions[-1] - positions[0])
+    dt = config.time_step_for(float(speed))
+    n_steps = int(math.ceil((x1 - x0) / (speed * dt))) + 1
+    run_in = int(np.floor(0.5 * 0.02 / dt))
+    return x0, dt, n_steps, run_in
+
+
 @functools.partial(jax.jit, static_argnames=("statics",))
 def _coupled_batch(data, law, runs, statics):
     """Detector peaks [B, n_wheels, n_bays] and peak forces [B, n_wheels] [N] of ``runs``."""
@@ -358,16 +375,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
     data = jax.tree.map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a, prog.data)
-    a, b = detector.gauges(float(track.sleeper_spacing))
-    ls = float(track.sleeper_spacing)
-    # a window fixed by the detector and the layout (one compiled step count for every phase):
-    # every wheel starts a bay and a run-in before the first gauge and ends past the last
-    lead_in = max(config.run_in, 0.3)
-    x0 = min(float(a[0]) - ls - 2 * math.pi * float(wheel.radius), float(a[0])) - lead_in
-    x1 = float(b[-1]) + 0.3 + float(positions[-1] - positions[0])
-    dt = config.time_step_for(float(speed))
-    n_steps = int(math.ceil((x1 - x0) / (speed * dt))) + 1
-    run_in = int(np.floor(0.5 * 0.02 / dt))
+    x0, dt, n_steps, run_in = _window(detector, track, wheel, config, positions, speed)
     run = Run(*(jnp.asarray([c]) for c in (0, float(speed), dt, x0, float(impacts[0]), run_in,
                                            n_steps, 0)))
     law = prepare(contact, ref, sc.reference_wheel, sc.track, material, sc.config, cache_dir)
@@ -377,3 +385,111 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
     peaks.block_until_ready()
     _log.debug("coupled run %.1f s", time.perf_counter() - t0)
     return np.asarray(peaks[0]), np.asarray(force[0])
+
+
+@functools.partial(jax.jit, static_argnames=("treedef", "mapped", "statics"))
+def _bogie_batch(data, leaves, runs, treedef, mapped, statics):
+    """Detector peaks [B, n_wheels, n_bays] and peak forces [B, n_wheels] [N] of B groups of
+    one program: ``leaves`` of (reference law, the other wheels' laws, flat delays), stacked
+    along a leading axis [B] where ``mapped`` and shared otherwise, rebuilt by ``treedef``."""
+    save = Histories(instruments=False)
+
+    def one(own, run):
+        law, others, delays = jax.tree.unflatten(treedef, own)
+        d = data._replace(others=others, struct=data.struct._replace(delays=delays))
+        out = run_one(d, law, run, *statics, save)
+        after = jnp.arange(out["force"].shape[0])[:, None] >= run.run_in
+        return out["detector_peak"], jnp.max(jnp.where(after, out["force"], 0.0), axis=0)
+
+    axes = [0 if m else None for m in mapped]
+    return jax.vmap(one, in_axes=(axes, 0))(list(leaves), runs)
+
+
+def _padded(n: int) -> int:
+    """The batch size that runs ``n`` groups: a power of two up to 8, then a multiple of 8 (a
+    compiled batch serves every count that pads to its size)."""
+    return 1 << (n - 1).bit_length() if n <= 8 else -(-n // 8) * 8
+
+
+def _same(a, b) -> bool:
+    return a is b or (np.shape(a) == np.shape(b) and bool(np.array_equal(np.asarray(a),
+                                                                           np.asarray(b))))
+
+
+def coupled_batch(groups, positions, speed: float, detector: Detector,
+                  contact: str = "hertz-trajectory", roughness=None, track: Track | None = None,
+                  wheel: Wheel | None = None, material: Material | None = None,
+                  config: SimConfig | None = None, cache_dir=None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`coupled_readings` of ``B`` groups of wheels (bogies) of one layout on one track
+    and rail, each with its own flats and impacts, batched: readings [B, n, n_bays] N and peak
+    contact forces [B, n] N.
+
+    Args:
+        groups: [B] (flats [n], impacts [n]) per group, as :func:`coupled_readings` takes them.
+        positions: [n] the layout every group shares [m] (0 first).
+        The rest as :func:`coupled_readings`: one track (support scatter included) and one rail
+        ``roughness`` realisation for every group (one detector site).
+
+    One program is compiled for the layout (:func:`compile_scenario` once, not per group); a
+    group's flats enter only as its wheels' contact laws and flat delays, which are stacked
+    along a batch axis and ``vmap``-ed with the group's impact coordinate. Groups whose laws
+    share one pytree structure (the same flat kind on every wheel: a round wheel is a new
+    4 mm flat) run as one batch, padded (:func:`_padded`) so that one compiled batch serves
+    several group counts; usually one to three batches per call.
+    """
+    from ..contact.laws import prepare
+    from ..model.vehicle import Vehicle
+    from ..program.laws import vehicle_laws
+
+    wheel, track = wheel or Wheel(), track or Track()
+    material, config = material or Material(), identification_config(config)
+    positions = np.asarray(positions, float)
+    offsets = positions[0] - positions
+    radius = float(wheel.radius)
+    cases = []
+    for flats, impacts in groups:
+        impacts = np.asarray(impacts, float)
+        if len(flats) != positions.size or impacts.size != positions.size:
+            raise ValueError(f"coupled_batch: a group of {len(flats)} flats and {impacts.size} "
+                             f"impacts; the layout has {positions.size} wheels")
+        cases.append(([_bounded(f, radius) for f in flats], impacts,
+                      impacts - impacts[0] - offsets))
+    n_bays = detector.n_bays
+    if not cases:
+        return np.zeros((0, positions.size, n_bays)), np.zeros((0, positions.size))
+    f0, _, d0 = cases[0]
+    vehicle = Vehicle(tuple(positions), flats=tuple(f0), flat_wheel=0, flat_delays=tuple(d0))
+    sc = Scenario.of(f0[0], contact, wheel=wheel, track=track, material=material, config=config,
+                     vehicle=vehicle, detector=detector, roughness=roughness)
+    prog = compile_scenario(sc, cache_dir)
+    data = jax.tree.map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a, prog.data)
+    x0, dt, n_steps, run_in = _window(detector, track, wheel, config, positions, speed)
+    statics = (n_steps, sc.config.newton_iterations, sc.config.precision)
+    by_tree: dict = {}
+    for b, (flats, impacts, delays) in enumerate(cases):
+        law = prepare(contact, flats[0], sc.reference_wheel, sc.track, sc.material, sc.config,
+                      cache_dir)
+        others = vehicle_laws(contact, [None] + list(flats[1:]), list(sc.wheels), sc.track,
+                              sc.material, sc.config, cache_dir)
+        leaves, treedef = jax.tree.flatten((law, others, delays))
+        by_tree.setdefault(treedef, []).append((b, leaves, float(impacts[0])))
+    peaks = np.zeros((len(cases), positions.size, n_bays))
+    force = np.zeros((len(cases), positions.size))
+    t0 = time.perf_counter()
+    for treedef, members in by_tree.items():
+        idx = [m[0] for m in members]
+        size = _padded(len(members))
+        pad = members + [members[0]] * (size - len(members))
+        cols = list(zip(*(m[1] for m in pad), strict=True))
+        mapped = tuple(not all(_same(c[0], x) for x in c[1:]) for c in cols)
+        leaves = [jnp.stack([jnp.asarray(x) for x in c]) if m else c[0]
+                  for c, m in zip(cols, mapped, strict=True)]
+        runs = Run(*(jnp.asarray(c) for c in (
+            np.zeros(size, int), np.full(size, float(speed)), np.full(size, dt),
+            np.full(size, x0), np.array([m[2] for m in pad]), np.full(size, run_in),
+            np.full(size, n_steps), np.zeros(size, int))))
+        p, f = _bogie_batch(data, leaves, runs, treedef, mapped, statics)
+        peaks[idx], force[idx] = np.asarray(p)[:len(idx)], np.asarray(f)[:len(idx)]
+    _log.debug("coupled batch of %d groups: %.1f s", len(cases), time.perf_counter() - t0)
+    return peaks, force

@@ -2,9 +2,10 @@
 
 Iteration 0: every wheel on its own grid (shape x length x phase x nuisance realisation,
 :mod:`wfjax.identify.inference`), its neighbours absent. Iterations 1..``coupling_iterations``:
-every bogie (wheels closer than ``GROUP_GAP``) is run coupled on one track
-(:func:`wfjax.identify.forward.coupled_readings`) with its wheels at their current estimates,
-and so is every wheel alone; their difference, the neighbours' effect on each wheel's
+every bogie (wheels closer than ``GROUP_GAP``) with a probable flat is run coupled on one
+track with its wheels at their current estimates, and so is every wheel alone, batched over
+the bogies (:func:`wfjax.identify.forward.coupled_batch`: a train is a batch of bogies, each
+on its own track window); their difference, the neighbours' effect on each wheel's
 readings, is added to that wheel's prediction and its grid posterior recomputed. No joint
 grid over the wheels is ever formed.
 """
@@ -83,6 +84,16 @@ def _groups(positions: np.ndarray) -> list[list[int]]:
     return out
 
 
+def _layouts(positions: np.ndarray, groups: list[list[int]]) -> dict:
+    """The ``groups`` (bogies) by their layout: (positions behind the group's first wheel,
+    rounded to 0.1 mm) -> [groups]."""
+    out: dict = {}
+    for g in groups:
+        key = tuple(np.round(positions[g] - positions[g[0]], 4).tolist())
+        out.setdefault(key, []).append(g)
+    return out
+
+
 def _estimate_flat(post: WheelPosterior, radius: float):
     (kind, factor), length, _ = post.best
     return fwd.flat_of(kind, max(length, 0.005), factor or 1.0, radius)
@@ -91,7 +102,9 @@ def _estimate_flat(post: WheelPosterior, radius: float):
 def _corrections(passage: Passage, posts, settings: dict, radius: float):
     """[n_wheels, n_bays] N: coupled minus single-wheel readings at the current estimates
     (zero in a bogie whose wheels are all probably round: P(l >= :data:`ROUND_LENGTH`) < 0.5;
-    a round wheel barely moves its neighbours' readings)."""
+    a round wheel barely moves its neighbours' readings). The bogies to correct run as one
+    batch per layout (:func:`wfjax.identify.forward.coupled_batch`), their wheels alone as
+    one more: a train's bogies are not looped over."""
     from ..scenario import roughness as rough_mod
 
     det = passage.detector()
@@ -100,18 +113,22 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float):
     out = np.zeros((passage.n_wheels, det.n_bays))
     kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"])
     p_index = settings["passage_index"]
-    for group in _groups(passage.positions):
-        if len(group) < 2 or all(posts[i].p_length_at_least(ROUND_LENGTH) < 0.5
-                                 for i in group):
-            continue  # no neighbour with a flat: no correction
-        flats = [_estimate_flat(posts[i], radius) for i in group]
-        impacts = [posts[i].best[2][p_index] for i in group]
-        pos = passage.positions[group] - passage.positions[group[0]]
-        both, _ = fwd.coupled_readings(flats, impacts, pos, passage.speed, det, **kw)
-        for j, i in enumerate(group):
-            alone, _ = fwd.coupled_readings([flats[j]], [impacts[j]], [0.0], passage.speed,
-                                            det, **kw)
-            out[i] = both[j] - alone[0]
+    groups = [g for g in _groups(passage.positions) if len(g) > 1 and any(
+        posts[i].p_length_at_least(ROUND_LENGTH) >= 0.5 for i in g)]
+    if not groups:  # no neighbour with a flat: no correction
+        return out
+    flats = {i: _estimate_flat(posts[i], radius) for g in groups for i in g}
+    impacts = {i: posts[i].best[2][p_index] for g in groups for i in g}
+    wheels = [i for g in groups for i in g]
+    alone, _ = fwd.coupled_batch([([flats[i]], [impacts[i]]) for i in wheels], [0.0],
+                                 passage.speed, det, **kw)
+    single = dict(zip(wheels, alone[:, 0], strict=True))
+    for layout, members in _layouts(passage.positions, groups).items():
+        both, _ = fwd.coupled_batch([([flats[i] for i in g], [impacts[i] for i in g])
+                                     for g in members], layout, passage.speed, det, **kw)
+        for g, b in zip(members, both, strict=True):
+            for j, i in enumerate(g):
+                out[i] = b[j] - single[i]
     return out
 
 

@@ -3,7 +3,9 @@
 
 Every bogie (wheels closer than :data:`wfjax.identify.pipeline.GROUP_GAP`) runs coupled on
 its own track window (:func:`wfjax.identify.forward.coupled_readings`) with its own
-independent rail roughness realisation (ISO 3095 limit) and support scatter; each flat
+independent rail roughness realisation (ISO 3095 limit) and support scatter, or, over one
+site (``site_seed``), all on the site's supports and rail, batched over the bogies
+(:func:`wfjax.identify.forward.coupled_batch`); each flat
 strikes at a continuous random rail coordinate over one wheel circumference; the readings
 get relative Gaussian noise.
 """
@@ -61,6 +63,19 @@ def _groups(positions):
     return _groups(np.asarray(positions, float))
 
 
+def _layouts(positions, groups):
+    from .pipeline import _layouts
+
+    return _layouts(np.asarray(positions, float), groups)
+
+
+def _truth_flat(t: dict, radius: float):
+    """The flat of a wheel's truth (a round wheel: a new 4 mm flat, no impact)."""
+    if t["kind"] == "none":
+        return fwd.flat_of("new", 0.004, 1.0, radius)
+    return fwd.flat_of(t["kind"], t["length"], t["factor"], radius)
+
+
 def simulate_passage(positions, flats: list[TrainFlat], speed: float,
                      detector: Detector | None = None, noise: float = 0.03,
                      seed: int = 0, scatter_cv: float = 0.1, contact: str = "hertz-trajectory",
@@ -100,15 +115,26 @@ def simulate_passage(positions, flats: list[TrainFlat], speed: float,
                       "depth": depth, "impact": float(x)})
     readings = np.zeros((positions.size, detector.n_bays))
     peaks = np.zeros(positions.size)
-    for g, group in enumerate(_groups(positions)):
-        s_track, s_rough = (seed * 7 + g + 1, 10007 * (seed + 1) + g) if site_seed is None \
-            else (900001 + 7 * site_seed, 700001 + 10007 * site_seed)
+    groups = _groups(positions)
+    if site_seed is not None:  # one site: every bogie on the same track and rail, batched
+        track = Track() if scatter_cv <= 0 else scatter(Track(), 900001 + 7 * site_seed,
+                                                        scatter_cv)
+        rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 700001 + 10007 * site_seed,
+                                   fwd.ROUGHNESS_SPAN, x_start=-fwd.ROUGHNESS_SPAN / 2)
+        for layout, members in _layouts(positions, groups).items():
+            cases = [([_truth_flat(truth[i], radius) for i in g],
+                      [truth[i]["impact"] for i in g]) for g in members]
+            r, p = fwd.coupled_batch(cases, np.array(layout), speed, detector, contact,
+                                     rough, track, wheel, cache_dir=cache_dir)
+            for g, rg, pg in zip(members, r, p, strict=True):
+                readings[g], peaks[g] = rg, pg
+        groups = []
+    for g, group in enumerate(groups):  # each bogie its own track window, supports and rail
+        s_track, s_rough = seed * 7 + g + 1, 10007 * (seed + 1) + g
         track = Track() if scatter_cv <= 0 else scatter(Track(), s_track, scatter_cv)
         rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, s_rough, fwd.ROUGHNESS_SPAN,
                                    x_start=-fwd.ROUGHNESS_SPAN / 2)
-        fl = [fwd.flat_of("new", 0.004, 1.0, radius) if truth[i]["kind"] == "none"
-              else fwd.flat_of(truth[i]["kind"], truth[i]["length"], truth[i]["factor"],
-                               radius) for i in group]
+        fl = [_truth_flat(truth[i], radius) for i in group]
         r, p = fwd.coupled_readings(fl, [truth[i]["impact"] for i in group],
                                     positions[group] - positions[group[0]], speed, detector,
                                     contact, rough, track, wheel, cache_dir=cache_dir)
