@@ -109,9 +109,41 @@ def test_track_end_guard_for_one_wheel_and_the_sensor_range():
     s = half - G.sensor_margin(track)
     inside, outside = s - 0.05, s + 0.05
     assert _findings(sensors=[inside]) == []
+    # per-sleeper supports fix the track's length: a sensor too near its ends is refused
+    fixed = wf.supports.with_supports(track, pad_stiffness=np.full(track.n_bays - 1,
+                                                                   track.pad_stiffness))
     words = rf"allowed range .*\({G.sensor_margin(track):.2f} m clear of the clamped"
     with pytest.raises(ValueError, match=f"sensor position {-outside:g} m is outside the {words}"):
-        _findings(sensors=[-outside])
+        Scenario.of(wf.Flat.new(0.9e-3), "3d", track=fixed, sensors=[-outside])
+
+
+def test_a_track_with_scalar_supports_is_lengthened_to_what_the_case_needs():
+    """n_bays is the least length: sensors, detector bridges and every wheel's path get
+    their guard margins from the clamped ends of the lengthened track, never fewer bays than
+    asked; the lengthened track gives what the same track asked for explicitly gives."""
+    track, flat = wf.Track(n_bays=8), wf.Flat.new(0.9e-3)
+    half = lambda t: 0.5 * t.n_bays * t.sleeper_spacing  # noqa: E731
+    sc = Scenario.of(flat, "hertz-trajectory", track=track, sensors=[5.0])
+    assert half(sc.track) - 5.0 >= G.sensor_margin(track) > half(sc.track) - 5.0 - 0.65
+    assert sc.track.n_bays % 2 == 0
+    sc = Scenario.of(flat, "hertz-trajectory", track=track, detector=wf.Detector(5, 3))
+    assert half(sc.track) - 6.0 * 0.6 >= G.sensor_margin(track)
+    bogie = Scenario.of(flat, "hertz-trajectory", track=track, vehicle=wf.Vehicle.bogie())
+    v, pos = bogie.speeds([300 / 3.6]), bogie.positions(10)
+    long = bogie.lengthened([bogie.window_flat(flat)], v, pos)
+    lo, hi = long.path(long.window_flat(flat), v, pos)
+    offsets = long.vehicle.offsets()
+    edge = max(hi + offsets.max() + track.sleeper_spacing, -(lo + offsets.min()))
+    assert half(long.track) - edge >= G.end_margin(track) > half(long.track) - edge - 0.65
+    assert wf.Scenario.of(flat, "3d").lengthened(
+        [flat], v, pos).track.n_bays == wf.Track().n_bays  # the default holds a wheel
+    short = wf.simulate(flat, 100 / 3.6, contact="hertz-trajectory", track=track)
+    n = Scenario.of(flat, "hertz-trajectory", track=track).lengthened(
+        [flat], [100 / 3.6], [0.2]).track.n_bays
+    assert n > 8
+    same = wf.simulate(flat, 100 / 3.6, contact="hertz-trajectory",
+                       track=wf.Track(n_bays=n))
+    np.testing.assert_array_equal(short.force, same.force)
 
 
 def test_refusal_is_one_line_before_any_work(tmp_path, capsys):

@@ -232,11 +232,20 @@ def test_bogie_sweep_gives_every_wheels_extremes():
     (dict(positions=(0.0, 0.5)), "wheel diameter"),
     (dict(positions=(0.0, 2.5), flat_wheel=2), "flat_wheel"),
     (dict(positions=(0.0, -2.5)), "increase"),
-    (dict(positions=(0.0, 40.0)), "n_bays"),
 ])
 def test_bad_vehicles_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         wf.simulate(ROUNDED, V, contact="hertz-profile", vehicle=Vehicle(**kwargs))
+
+
+def test_a_vehicle_too_long_for_a_track_with_per_sleeper_supports_is_refused():
+    """Per-sleeper supports fix the track's length (a scalar track is lengthened instead)."""
+    track = wf.Track()
+    fixed = wf.supports.with_supports(track, pad_stiffness=np.full(track.n_bays - 1,
+                                                                   track.pad_stiffness))
+    with pytest.raises(ValueError, match=r"use n_bays >= 72"):
+        wf.simulate(ROUNDED, V, contact="hertz-profile", vehicle=Vehicle((0.0, 40.0)),
+                    track=fixed)
 
 
 def test_bad_wheel_load_is_refused():

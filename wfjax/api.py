@@ -79,7 +79,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
                            wheel_roughness=wheel_roughness, sensors=sensors,
                            sensor_quantities=sensor_quantities, detector=detector)
     v = check_speed(speed)
-    run, x_imp = _run_of(scenario, v, impact_position, angle0, n_steps)
+    run, x_imp, scenario = _run_of(scenario, v, impact_position, angle0, n_steps)
     program = compile_scenario(scenario, cache_dir)
     hist = program.history(run)
     fw = scenario.vehicle.flat_wheel
@@ -98,9 +98,10 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
 
 
 def _run_of(scenario: Scenario, v: float, impact_position, angle0, n_steps) -> tuple:
-    """(the :class:`Run` of :func:`simulate`, its impact position in the bay [m]): the window
-    of the scenario's flat at speed ``v`` [m/s], checked on the track and the rail
-    roughness; ``run.end`` is its step count."""
+    """(the :class:`Run` of :func:`simulate`, its impact position in the bay [m], the
+    scenario on a track long enough for it, :meth:`Scenario.lengthened`): the window of the
+    scenario's flat at speed ``v`` [m/s], checked on the track and the rail roughness;
+    ``run.end`` is its step count."""
     config, spacing = scenario.config, float(scenario.track.sleeper_spacing)
     window = scenario.window_flat(scenario.flats[0])
     s_start, s_end = simulation_window(window, v, config)
@@ -115,7 +116,8 @@ def _run_of(scenario: Scenario, v: float, impact_position, angle0, n_steps) -> t
         raise ValueError(f"n_steps must be >= 2, got {n_steps!r}")
     else:
         dt = (s_end - s_start) / v / (int(n_steps) - 1)
+    scenario = scenario.lengthened([window], [v], [x_imp])
     scenario.check_settings(window, [v], [x_imp])
     x_abs = x_imp + scenario.shift
     run_in = int(0.5 * RUN_IN_TIME / dt)
-    return Run(0, v, dt, x_abs + s_start, x_abs, run_in, int(n_steps), 0), x_imp
+    return Run(0, v, dt, x_abs + s_start, x_abs, run_in, int(n_steps), 0), x_imp, scenario

@@ -164,7 +164,10 @@ class Track(Validated):
         sleeper bonded to a linear ballast). A sleeper with g > 0 hangs: its ballast is a
         one-sided support that carries load only once the sleeper has moved down by g
         (:func:`wfjax.model.supports.hanging_sleeper`), solved in every time step with the contacts.
-        n_bays (static): number of sleeper bays of the finite model.
+        n_bays (static): the least number of sleeper bays of the finite model. A scenario
+            lengthens a track whose supports are scalars to what its wheels' paths, sensors
+            and detector need, with the physics guards' margins from the clamped ends
+            (:meth:`wfjax.Scenario.lengthened`); per-sleeper supports fix the length.
         elements_per_bay (static): rail beam elements per sleeper bay.
 
     Supports that vary from sleeper to sleeper: each of the five support fields
@@ -204,7 +207,9 @@ class Track(Validated):
     ballast_gap: Any = option(0.0, unit="m", low=0.0, high=MAX_BALLAST_GAP,
                               doc="gap between sleeper and ballast at rest (0: bonded; one per "
                                   "sleeper: supports.void_gap)")
-    n_bays: int = option(70, low=4, high=1000, doc="sleeper bays of the finite track model")
+    n_bays: int = option(70, low=4, high=1000,
+                         doc="least number of sleeper bays of the finite track model "
+                             "(lengthened to what the case's wheels and sensors need)")
     elements_per_bay: int = option(8, low=1, high=64, doc="rail beam elements per sleeper bay",
                                    flag="--elements-per-bay", flag_commands=("receptance",))
 

@@ -320,8 +320,10 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     v, pos = scenario.speeds(speeds), scenario.positions(impact_positions)
     if chunk_size is not None and (int(chunk_size) != chunk_size or chunk_size < 1):
         raise ValueError(f"chunk_size must be an integer >= 1 or None, got {chunk_size!r}")
-    for f in scenario.flats:  # before any work; each group checks its own window again
-        scenario.check_settings(scenario.window_flat(f), v, pos)
+    windows = [scenario.window_flat(f) for f in scenario.flats]
+    scenario = scenario.lengthened(windows, v, pos)
+    for w in windows:  # before any work; each group checks its own window again
+        scenario.check_settings(w, v, pos)
     program = compile_scenario(scenario, cache_dir)
     out = program.sweep(v, pos, chunk_size, progress)
     return _result(scenario, program, v, pos, out)

@@ -148,8 +148,9 @@ def _fit_program(reference: Flat, extent_bound, model: dict, cache_dir, detector
     if scenario.n_realisations != 1:
         raise ValueError("a fit runs on one roughness realisation: give roughness values [n], "
                          f"not {scenario.n_realisations} realisations")
-    scenario.check_settings(scenario.window_flat(ref), scenario.speeds(grid[0]),
-                            np.atleast_1d(scenario.positions(grid[1])))
+    speeds, positions = scenario.speeds(grid[0]), np.atleast_1d(scenario.positions(grid[1]))
+    scenario = scenario.lengthened([scenario.window_flat(ref)], speeds, positions)
+    scenario.check_settings(scenario.window_flat(ref), speeds, positions)
     program = compile_scenario(scenario, cache_dir)
     return program, TracedLaw.of(scenario, ref, cache_dir), scenario.window_flat(ref)
 

@@ -13,6 +13,7 @@ grid of speeds x impact positions x flats x realisations.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -22,7 +23,7 @@ import numpy as np
 from ..contact import registry
 from ..model.supports import hanging_sleepers
 from ..model.vehicle import Vehicle, check_on_track, placement
-from ..params import Flat, Material, SimConfig, Track, Wheel
+from ..params import SUPPORT_FIELDS, Flat, Material, SimConfig, Track, Wheel
 from . import guards
 from .roughness import Roughness
 from .sensors import check_positions
@@ -130,6 +131,7 @@ class Scenario:
         if tracks is not None:
             tracks = _check_tracks(tracks, per_wheel, sensors, detector)
             track = tracks[0]
+        track = _holding_instruments(track, sensors, detector)
         if sensors is not None:
             check_positions(sensors, track)
         rough = rail_roughness(roughness)
@@ -178,22 +180,44 @@ class Scenario:
             return impact_positions_grid(impact_positions, float(self.track.sleeper_spacing))
         return check_impact_positions(impact_positions, self.track)
 
+    def path(self, window: Flat, speeds, positions) -> tuple[float, float]:
+        """(lo, hi) [m]: the rail span that the reference wheel travels over in the runs of
+        ``window``'s flat at ``speeds`` [m/s] and ``positions`` [m]."""
+        s = [simulation_window(window, float(v), self.config) for v in (min(speeds),
+                                                                         max(speeds))]
+        s0, s1 = min(a for a, _ in s), max(b for _, b in s)
+        return (float(np.min(positions)) + self.shift + s0,
+                float(np.max(positions)) + self.shift + s1)
+
+    def lengthened(self, windows: Sequence[Flat], speeds, positions) -> Scenario:
+        """This scenario on a track long enough for the runs of every flat of ``windows``
+        at ``speeds`` [m/s] and ``positions`` [m]: a track whose supports are scalars is
+        lengthened to the least even ``n_bays`` that keeps every wheel's path
+        :func:`~wfjax.scenario.guards.end_margin` from the clamped ends (``Track.n_bays`` is
+        the least length); a track with per-sleeper supports or realisations as given (the
+        guards refuse it if it is too short)."""
+        if not _extendable(self.track) or self.tracks is not None:
+            return self
+        offsets = self.vehicle.offsets()
+        paths = [self.path(w, speeds, positions) for w in windows]
+        lo = min(p[0] for p in paths) + offsets.min()
+        hi = max(p[1] for p in paths) + offsets.max() + (
+            float(self.track.sleeper_spacing) if self.per_wheel else 0.0)
+        track = _at_least(self.track, max(hi, -lo) + guards.end_margin(self.track))
+        return self if track is self.track else dataclasses.replace(self, track=track)
+
     def check_settings(self, window: Flat, speeds, positions) -> None:
         """Refuse, in one line, the runs of ``window``'s flat at ``speeds`` [m/s] and
         ``positions`` [m] unless every wheel stays on the track and on the rail roughness
         and every numerical setting passes the physics guards (:mod:`.guards`; with
         ``config.allow_inaccurate`` their findings warn instead)."""
         offsets = self.vehicle.offsets()
-        s = [simulation_window(window, float(v), self.config) for v in (min(speeds),
-                                                                         max(speeds))]
-        s0, s1 = min(a for a, _ in s), max(b for _, b in s)
-        lo, hi = float(np.min(positions)) + self.shift, float(np.max(positions)) + self.shift
+        lo, hi = self.path(window, speeds, positions)
         if self.per_wheel:
-            check_on_track(self.vehicle, self.track, lo + s0,
-                           hi + s1 + float(self.track.sleeper_spacing))
-        check_rail_span(self.roughness, lo + s0 + offsets.min(), hi + s1 + offsets.max())
-        guards.enforce(self.guard_findings(speeds, (lo + s0 + offsets.min(),
-                                                    hi + s1 + offsets.max())), self.config)
+            check_on_track(self.vehicle, self.track, lo, hi + float(self.track.sleeper_spacing))
+        check_rail_span(self.roughness, lo + offsets.min(), hi + offsets.max())
+        guards.enforce(self.guard_findings(speeds, (lo + offsets.min(), hi + offsets.max())),
+                       self.config)
 
     def guard_findings(self, speeds, path: tuple[float, float]) -> list[str]:
         """The physics guards' findings (one line each) for runs at ``speeds`` [m/s] whose
@@ -208,6 +232,31 @@ class Scenario:
             out += guards.element_findings(self.contact, self.config, sc)
         out += guards.end_findings(self.track, *path)
         return list(dict.fromkeys(out))
+
+
+def _extendable(track: Track) -> bool:
+    """Whether ``track``'s length may grow: every support field a scalar."""
+    return all(np.ndim(getattr(track, name)) == 0 for name in SUPPORT_FIELDS)
+
+
+def _at_least(track: Track, half: float) -> Track:
+    """``track`` with the least even ``n_bays`` (never fewer than its own) whose rail reaches
+    ``half`` [m] either side of the middle sleeper."""
+    n = 2 * math.ceil(half / float(track.sleeper_spacing) - 1e-9)
+    return track if n <= int(track.n_bays) else dataclasses.replace(track, n_bays=n)
+
+
+def _holding_instruments(track: Track, sensors, detector) -> Track:
+    """``track`` lengthened (scalar supports only) so that every sensor and detector bridge
+    keeps :func:`~wfjax.scenario.guards.sensor_margin` from the clamped ends."""
+    x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
+    if detector is not None:
+        a, b = detector.gauges(float(track.sleeper_spacing))
+        x += [float(a[0]), float(b[-1])]
+    x = [abs(v) for v in x if math.isfinite(v)]
+    if not x or not _extendable(track):
+        return track
+    return _at_least(track, max(x) + guards.sensor_margin(track) + 1e-3)
 
 
 def _check_tracks(tracks, per_wheel: bool, sensors, detector) -> tuple:

@@ -38,7 +38,8 @@ particular term).
 
 Valid positions: |x_s| <= n_bays L_S / 2 - :func:`wfjax.scenario.guards.sensor_margin` (6 m
 on the paper's track), where the clamped ends' reflections no longer move a seat force by
-more than 3 % (docs/convergence.md).
+more than 3 % (docs/convergence.md). A scenario lengthens a track with scalar supports until
+its sensors are valid (:meth:`wfjax.Scenario.lengthened`); per-sleeper supports fix it.
 """
 
 from __future__ import annotations
