@@ -68,7 +68,8 @@ def bogie() -> dict:
 
 
 def rough_void() -> dict:
-    """A rough rail over a void sleeper (35, fully void) and over a hanging one (gap)."""
+    """A rough rail over a void sleeper (the middle one, x = 0.65 m, fully void) and over a
+    hanging one (gap)."""
     wf = _wf()
     from wfjax.model import supports
     from wfjax.scenario import roughness
@@ -77,9 +78,10 @@ def rough_void() -> dict:
     rough = roughness.generate(roughness.ISO3095_LIMIT, 0, 6.0, x_start=-3.0)
     flat = wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH)
     void = wf.simulate(flat, SPEED, contact="hertz-trajectory", impact_position=0.65,
-                       track=supports.void_sleeper(track, 35), roughness=rough)
+                       track=supports.void_sleeper(track, track.n_bays // 2), roughness=rough)
     hang = wf.simulate(flat, SPEED, contact="2d", impact_position=0.62,
-                       track=supports.hanging_sleeper(track, 35, 0.3e-3), roughness=rough)
+                       track=supports.hanging_sleeper(track, track.n_bays // 2, 0.3e-3),
+                       roughness=rough)
     return {"void/force": np.asarray(void.force), "void/rail_disp": np.asarray(void.rail_disp),
             "hanging/force": np.asarray(hang.force),
             "hanging/support_force": np.asarray(hang.support_force)}

@@ -137,7 +137,7 @@ def test_two_wheels_on_a_track_whose_supports_vary():
     # as the forward's (it once built its cross table per bay)
     from wfjax.model import supports
 
-    track, vehicle = supports.void_sleeper(TRACK, 35), Vehicle.bogie()
+    track, vehicle = supports.void_sleeper(TRACK, TRACK.n_bays // 2), Vehicle.bogie()
     vstruct = structure(vehicle, [WHEEL, WHEEL], track, CONFIG)
     smooth = laws.prepare("hertz-profile", wf.Flat.none(), WHEEL, track, MAT, CONFIG)
 

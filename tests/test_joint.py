@@ -108,7 +108,8 @@ def test_add_to_none_makes_a_rail_profile_over_the_model_rail():
     assert not rough.periodic and float(rough.spacing) == 5e-4
     x = rough.x
     lo, hi = rail_span()
-    assert (lo, hi) == (-22.75, 22.75)
+    half = 0.5 * wf.Track().n_bays * wf.Track().sleeper_spacing  # the default track's rail
+    assert (lo, hi) == pytest.approx((-half, half))
     assert x[0] <= lo + 1e-9 and x[-1] >= hi - 1e-9 and x[0] > lo - 5e-4
     assert np.min(np.abs(x - X0)) < 1e-12  # a sample on the joint centre
     assert np.allclose(np.asarray(rough.values), _cosine(x), rtol=0, atol=1e-15)
@@ -191,13 +192,14 @@ def test_case_file_joint_section_adds_the_dip(tmp_path):
     assert np.allclose(dip, _v(rail.x, 0.2, 0.8e-3, 0.6), rtol=0, atol=1e-15)
     none = C.resolve("simulate", None, {"joint.depth": 1e-3}, environ={})
     rail, _ = none.roughness(0.45)
-    assert rail.x[0] == pytest.approx(-22.75) and float(np.min(rail.values)) == -1e-3
+    half = 0.5 * wf.Track().n_bays * wf.Track().sleeper_spacing
+    assert rail.x[0] == pytest.approx(-half) and float(np.min(rail.values)) == -1e-3
 
 
 @pytest.mark.parametrize("flags, words", [
     ({"joint.position": 5.0}, ["joint.position = 5 m", "off the wheel's path",
                                "config.run_in"]),
-    ({"joint.position": 30.0}, ["[joint]", "model rail [-22.75, 22.75] m"]),
+    ({"joint.position": 30.0}, ["[joint]", "model rail [-7.8, 7.8] m"]),  # the default track
     ({"joint.length": 0.1, "wheel.radius": 0.8, "flat.kind": "new"},
      ["[joint]", "Joint.length must be >= 0.1257 m", "0.8 m wheel"]),
 ])

@@ -13,6 +13,7 @@ from wfjax.contact.laws import prepare
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
 from wfjax.model import fe as fe_mod
+from wfjax.model.track import RESIDUAL_POINTS_PER_ELEMENT
 from wfjax.model import sleepers, supports
 from wfjax.model import track as track_mod
 from wfjax.model.vehicle import Vehicle
@@ -21,7 +22,10 @@ from wfjax.scenario.windows import RUN_IN_TIME
 
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 V = 100 / 3.6
-SLEEPER = 35  # at x = 0.65 m
+SLEEPER = wf.Track().n_bays // 2  # at x = 0.65 m
+# a point of the residual table (8 per element) 9/32 of a bay past that sleeper
+GRID = RESIDUAL_POINTS_PER_ELEMENT * wf.Track().elements_per_bay
+X_BESIDE = 0.65 + round(9 / 32 * GRID) / GRID * 0.65
 
 
 def _direct_static(track, x_wheel, load):
@@ -62,7 +66,7 @@ def _static_start(track, x_wheel):
 def test_static_start_equals_a_direct_non_linear_static_fe_solve(gap_mm, closed):
     # two sleepers hang; the wheel on residual-grid points over and beside them
     track = supports.hanging_sleeper(wf.Track(), [SLEEPER, SLEEPER + 1], gap_mm * 1e-3)
-    for x_wheel in (0.65, 0.65 + 9 * 0.65 / 32, 1.3):
+    for x_wheel in (0.65, X_BESIDE, 1.3):
         hist = _static_start(track, x_wheel)
         rail, sleeper, force = _direct_static(track, x_wheel, wf.Wheel().preload)
         assert (force[0] > 0) == closed or x_wheel > 1.0
@@ -159,10 +163,11 @@ def test_hanging_sleeper_gradient_matches_finite_differences():
 
 
 @pytest.mark.parametrize("make, match", [
-    (lambda: supports.hanging_sleeper(wf.Track(), SLEEPER, -1e-3), r"ballast_gap\[35\]"),
+    (lambda: supports.hanging_sleeper(wf.Track(), SLEEPER, -1e-3), rf"ballast_gap\[{SLEEPER}\]"),
     (lambda: supports.hanging_sleeper(wf.Track(), SLEEPER, 0.2), "at most 0.05"),
-    (lambda: supports.hanging_sleeper(wf.Track(), 99, 1e-3), r"\[0, 68\]"),
-    (lambda: supports.hanging_sleeper(wf.Track(), list(range(30, 40)), 1e-3), "at most 8"),
+    (lambda: supports.hanging_sleeper(wf.Track(), 99, 1e-3),
+     rf"\[0, {wf.Track().n_bays - 2}\]"),
+    (lambda: supports.hanging_sleeper(wf.Track(), list(range(SLEEPER - 5, SLEEPER + 5)), 1e-3), "at most 8"),
     (lambda: supports.hanging_sleepers(wf.Track(ballast_gap=1e-3)), "per sleeper"),
 ])
 def test_bad_hanging_sleepers_are_refused(make, match):
@@ -177,8 +182,11 @@ def test_sensor_readings_at_rest_over_hanging_sleepers_equal_the_direct_static_s
     from wfjax.loop.observers import Sensors
     from wfjax.scenario import sensors as sensor_mod
 
-    track = supports.hanging_sleeper(wf.Track(), [SLEEPER, SLEEPER + 1], gap_mm * 1e-3)
-    x_wheel = 0.65 + 9 * 0.65 / 32
+    # 30 bays: the sensors up to 2.2 m keep their 6 m from the ends of the fixed-length track
+    long = wf.Track(n_bays=30)
+    track = supports.hanging_sleeper(long, [long.n_bays // 2, long.n_bays // 2 + 1],
+                                     gap_mm * 1e-3)
+    x_wheel = X_BESIDE
     config = wf.SimConfig()
     struct = structure(Vehicle.single(), [wf.Wheel()], track, config)
     law = prepare("hertz-profile", wf.Flat.none(), wf.Wheel(), track, wf.Material(), config)

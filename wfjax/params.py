@@ -207,10 +207,10 @@ class Track(Validated):
     ballast_gap: Any = option(0.0, unit="m", low=0.0, high=MAX_BALLAST_GAP,
                               doc="gap between sleeper and ballast at rest (0: bonded; one per "
                                   "sleeper: supports.void_gap)")
-    n_bays: int = option(70, low=4, high=1000,
+    n_bays: int = option(24, low=4, high=1000,
                          doc="least number of sleeper bays of the finite track model "
                              "(lengthened to what the case's wheels and sensors need)")
-    elements_per_bay: int = option(8, low=1, high=64, doc="rail beam elements per sleeper bay",
+    elements_per_bay: int = option(26, low=1, high=64, doc="rail beam elements per sleeper bay",
                                    flag="--elements-per-bay", flag_commands=("receptance",))
 
     def __post_init__(self):
@@ -472,9 +472,10 @@ class SimConfig:
             the table for a single flat of a kind, the family for a batch of geometries of
             one kind and for fits).
         track_max_frequency: modes of the track model above this frequency [Hz] are replaced
-            by their static contribution (10 kHz: 599 modes; max force within 0.5 % of the
-            20 kHz reference, 5 kHz within 2 %: docs/convergence.md). Every setting here is
-            checked against the case by the physics guards (:mod:`wfjax.scenario.guards`).
+            by their static contribution (15 kHz: 326 modes on the default 24-bay track of 26
+            elements per bay; max force within 0.16 % of the reference, docs/convergence.md).
+            Every setting here is checked against the case by the physics guards
+            (:mod:`wfjax.scenario.guards`).
         newton_iterations: fixed iteration count of the per-step contact equation.
         precision: ``"float64"`` (default) or ``"float32"``: the dtype of the time loop
             (modal propagation, contact law, per-step Newton solve; complex64 modes). The
@@ -508,7 +509,7 @@ class SimConfig:
                                     doc="side of the 3D/2D contact elements")
     contact_mode_3d: str = option("auto", choices=CONTACT_MODES_3D,
                                   doc="how the 3D contact law is evaluated")
-    track_max_frequency: float = option(10e3, unit="Hz", low=100.0, high=1e6, positive=True,
+    track_max_frequency: float = option(15e3, unit="Hz", low=100.0, high=1e6, positive=True,
                                         doc="track modes above this enter statically")
     newton_iterations: int = option(30, low=1, high=1000,
                                     doc="iterations of the per-step contact equation")

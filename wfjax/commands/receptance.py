@@ -25,6 +25,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--fmax-hz {args.fmax_hz:g}: must be > --fmin-hz ({args.fmin_hz:g} "
                          "Hz)")
     wheel, track, _, _ = case.model()
+    from wfjax.scenario import guards
+
+    # a receptance needs a long track at the lightly damped pinned-pinned peak
+    track = guards.at_least(track, 0.5 * guards.RECEPTANCE_BAYS * float(track.sleeper_spacing)
+                            ) if guards.extendable(track) else track
     preload = float(wheel.preload)
     out = _common.prepare_out(args.out)
     f = np.geomspace(args.fmin_hz, args.fmax_hz, args.points)

@@ -23,7 +23,7 @@ import numpy as np
 from ..contact import registry
 from ..model.supports import hanging_sleepers
 from ..model.vehicle import Vehicle, check_on_track, placement
-from ..params import SUPPORT_FIELDS, Flat, Material, SimConfig, Track, Wheel
+from ..params import Flat, Material, SimConfig, Track, Wheel
 from . import guards
 from .roughness import Roughness
 from .sensors import check_positions
@@ -38,7 +38,7 @@ from .windows import (
     wheel_positions,
 )
 
-__all__ = ["Scenario", "rail_roughness"]
+__all__ = ["Scenario", "rail_roughness", "holding_instruments"]
 
 
 def rail_roughness(inputs) -> Roughness | None:
@@ -131,7 +131,7 @@ class Scenario:
         if tracks is not None:
             tracks = _check_tracks(tracks, per_wheel, sensors, detector)
             track = tracks[0]
-        track = _holding_instruments(track, sensors, detector)
+        track = holding_instruments(track, sensors, detector)
         if sensors is not None:
             check_positions(sensors, track)
         rough = rail_roughness(roughness)
@@ -196,14 +196,13 @@ class Scenario:
         :func:`~wfjax.scenario.guards.end_margin` from the clamped ends (``Track.n_bays`` is
         the least length); a track with per-sleeper supports or realisations as given (the
         guards refuse it if it is too short)."""
-        if not _extendable(self.track) or self.tracks is not None:
+        if not guards.extendable(self.track) or self.tracks is not None:
             return self
         offsets = self.vehicle.offsets()
         paths = [self.path(w, speeds, positions) for w in windows]
         lo = min(p[0] for p in paths) + offsets.min()
-        hi = max(p[1] for p in paths) + offsets.max() + (
-            float(self.track.sleeper_spacing) if self.per_wheel else 0.0)
-        track = _at_least(self.track, max(hi, -lo) + guards.end_margin(self.track))
+        hi = max(p[1] for p in paths) + offsets.max()
+        track = guards.at_least(self.track, max(hi, -lo) + guards.end_margin(self.track))
         return self if track is self.track else dataclasses.replace(self, track=track)
 
     def check_settings(self, window: Flat, speeds, positions) -> None:
@@ -234,19 +233,7 @@ class Scenario:
         return list(dict.fromkeys(out))
 
 
-def _extendable(track: Track) -> bool:
-    """Whether ``track``'s length may grow: every support field a scalar."""
-    return all(np.ndim(getattr(track, name)) == 0 for name in SUPPORT_FIELDS)
-
-
-def _at_least(track: Track, half: float) -> Track:
-    """``track`` with the least even ``n_bays`` (never fewer than its own) whose rail reaches
-    ``half`` [m] either side of the middle sleeper."""
-    n = 2 * math.ceil(half / float(track.sleeper_spacing) - 1e-9)
-    return track if n <= int(track.n_bays) else dataclasses.replace(track, n_bays=n)
-
-
-def _holding_instruments(track: Track, sensors, detector) -> Track:
+def holding_instruments(track: Track, sensors, detector=None) -> Track:
     """``track`` lengthened (scalar supports only) so that every sensor and detector bridge
     keeps :func:`~wfjax.scenario.guards.sensor_margin` from the clamped ends."""
     x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
@@ -254,9 +241,9 @@ def _holding_instruments(track: Track, sensors, detector) -> Track:
         a, b = detector.gauges(float(track.sleeper_spacing))
         x += [float(a[0]), float(b[-1])]
     x = [abs(v) for v in x if math.isfinite(v)]
-    if not x or not _extendable(track):
+    if not x or not guards.extendable(track):
         return track
-    return _at_least(track, max(x) + guards.sensor_margin(track) + 1e-3)
+    return guards.at_least(track, max(x) + guards.sensor_margin(track) + 1e-3)
 
 
 def _check_tracks(tracks, per_wheel: bool, sensors, detector) -> tuple:

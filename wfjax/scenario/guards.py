@@ -29,7 +29,7 @@ import warnings
 import numpy as np
 
 from ..contact.geometry3d import elliptic_hertz
-from ..params import Material, SimConfig, Track, Wheel
+from ..params import SUPPORT_FIELDS, Material, SimConfig, Track, Wheel
 
 ACCURACY = 0.03  # the largest max-force error against the reference that runs without a word
 STEP_FACTOR = 0.4  # dt f_W
@@ -39,6 +39,8 @@ MESH_FACTOR = 3.0  # rail elements per bending wavelength at the highest kept mo
 ELEMENT_FACTOR = 0.15  # contact element / 2a
 END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
 SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
+RECEPTANCE_BAYS = 140  # a direct track receptance within 1 % of a 300-bay track's at the
+# pinned-pinned peak (70 bays: 12 %; benchmarks/track_length.py)
 
 
 class InaccurateSettings(ValueError):
@@ -70,6 +72,19 @@ def bending_wavelength(track: Track, frequency: float) -> float:
     omega = 2 * math.pi * float(frequency)
     return 2 * math.pi * (float(track.bending_stiffness)
                           / (float(track.rail_mass) * omega ** 2)) ** 0.25
+
+
+def extendable(track: Track) -> bool:
+    """Whether ``track``'s length may grow (``Track.n_bays`` is the least length): every
+    support field a scalar; per-sleeper supports fix it."""
+    return all(np.ndim(getattr(track, name)) == 0 for name in SUPPORT_FIELDS)
+
+
+def at_least(track: Track, half: float) -> Track:
+    """``track`` with the least even ``n_bays`` (never fewer than its own) whose rail reaches
+    ``half`` [m] either side of the middle sleeper."""
+    n = 2 * math.ceil(half / float(track.sleeper_spacing) - 1e-9)
+    return track if n <= int(track.n_bays) else dataclasses.replace(track, n_bays=n)
 
 
 def decay_length(track: Track) -> float:
