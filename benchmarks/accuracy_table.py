@@ -7,8 +7,8 @@ table of ``docs/convergence.md``.
 
 Reference: 26 rail elements per bay, track modes to 20 kHz, time step 6.25 us and travel step
 0.25 mm, 70 bays (45.5 m), contact element 1 mm. Each row changes the settings named in its
-label and keeps the rest of the reference, except the rows labelled "default", which are whole
-configurations.
+label and keeps the rest of the reference, except the two rows labelled "default", which are
+whole configurations: today's and the one before 2026-12-03 ("old default").
 
 Sets (R_R = 0.45 m, ``Track.comparison()``):
 
@@ -45,10 +45,12 @@ from wfjax.scenario import sensors as sensor_mod
 REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
        "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3}
 OLD = {"elements_per_bay": 8, "track_max_frequency": 10e3, "time_step": 25e-6,
-       "travel_step": 1e-3, "n_bays": 70}
+       "travel_step": 1e-3, "n_bays": 70}  # the defaults before 2026-12-03
+NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24}  # today's
 ROWS = {  # label -> changes to REF
     "reference": {},
-    "default (8 el., 10 kHz, 25 us / 1 mm, 70 bays)": OLD,
+    "default (26 el., 15 kHz, 25 us / 1 mm, 24 bays)": NEW,
+    "old default (8 el., 10 kHz, 25 us / 1 mm, 70 bays)": OLD,
     "step 50 us / 2 mm": {"time_step": 50e-6, "travel_step": 2e-3},
     "step 100 us / 4 mm": {"time_step": 100e-6, "travel_step": 4e-3},
     "step 200 us / 8 mm": {"time_step": 200e-6, "travel_step": 8e-3},
@@ -74,8 +76,6 @@ ROWS = {  # label -> changes to REF
                                               "track_max_frequency": 12e3, "n_bays": 30},
     "16 el., 15 kHz, 25 us / 1 mm, 30 bays": {**OLD, "elements_per_bay": 16,
                                               "track_max_frequency": 15e3, "n_bays": 30},
-    "26 el., 15 kHz, 25 us / 1 mm, 24 bays": {**OLD, "elements_per_bay": 26,
-                                              "track_max_frequency": 15e3, "n_bays": 24},
     "16 el., 12.5 kHz, 25 us / 1 mm, 24 bays": {**OLD, "elements_per_bay": 16,
                                                 "track_max_frequency": 12.5e3, "n_bays": 24},
 }

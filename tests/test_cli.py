@@ -267,8 +267,9 @@ def test_detector_command_writes_files_and_rejects_bad_sensors(tmp_path, capsys)
     assert len((out / "sensors.csv").read_text().splitlines()) == 3
     assert (out / "detector.png").stat().st_size > 0
     capsys.readouterr()
-    assert main(["detector", "--sensors-m", "25", "--out", str(tmp_path / "x")]) == 2
-    assert "allowed range" in _one_line_error(capsys)
+    # a sensor lengthens the track to hold it with its margin, up to track.n_bays' bound
+    assert main(["detector", "--sensors-m", "400", "--out", str(tmp_path / "x")]) == 2
+    assert "more than track.n_bays allows (1000)" in _one_line_error(capsys)
 
 
 def test_simulate_sensors_csv(tmp_path):

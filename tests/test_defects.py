@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import wfjax as wf
-
 from wfjax import case as C
 from wfjax.cli import main
 from wfjax.commands._common import user_words
@@ -30,7 +29,8 @@ def _one_error(capsys) -> str:
 PAIRS = [  # (command, flags without the companion, what the error names, the companion)
     ("sweep", ["--realisations", "5"], "--realisations", ["--roughness", "iso3095"]),
     ("sweep", ["--seed", "3"], "--seed", ["--roughness", "iso3095"]),
-    ("simulate", ["--void-gap-mm", "2"], "--void-gap-mm", ["--void-sleepers", str(wf.Track().n_bays // 2 - 1)]),
+    ("simulate", ["--void-gap-mm", "2"], "--void-gap-mm",
+     ["--void-sleepers", str(wf.Track().n_bays // 2 - 1)]),
     ("sweep", ["--support-realisations", "3"], "--support-realisations",
      ["--scatter-cv", "0.2"]),
     ("simulate", ["--joint-shape", "v"], "--joint-shape", ["--joint-depth-mm", "0.5"]),

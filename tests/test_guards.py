@@ -105,7 +105,8 @@ def test_track_end_guard_for_one_wheel_and_the_sensor_range():
     inside, outside = half - m - 0.05, half - m + 0.05
     assert _findings(path=(-1.0, inside)) == []
     out = _findings(path=(-1.0, outside))
-    assert len(out) == 1 and out[0].startswith(f"track.n_bays = {track.n_bays}: the wheels' path"), out
+    head = f"track.n_bays = {track.n_bays}: the wheels' path"
+    assert len(out) == 1 and out[0].startswith(head), out
     s = half - G.sensor_margin(track)
     inside, outside = s - 0.05, s + 0.05
     assert _findings(sensors=[inside]) == []

@@ -13,9 +13,9 @@ from wfjax.contact.laws import prepare
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
 from wfjax.model import fe as fe_mod
-from wfjax.model.track import RESIDUAL_POINTS_PER_ELEMENT
 from wfjax.model import sleepers, supports
 from wfjax.model import track as track_mod
+from wfjax.model.track import RESIDUAL_POINTS_PER_ELEMENT
 from wfjax.model.vehicle import Vehicle
 from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
@@ -167,7 +167,8 @@ def test_hanging_sleeper_gradient_matches_finite_differences():
     (lambda: supports.hanging_sleeper(wf.Track(), SLEEPER, 0.2), "at most 0.05"),
     (lambda: supports.hanging_sleeper(wf.Track(), 99, 1e-3),
      rf"\[0, {wf.Track().n_bays - 2}\]"),
-    (lambda: supports.hanging_sleeper(wf.Track(), list(range(SLEEPER - 5, SLEEPER + 5)), 1e-3), "at most 8"),
+    (lambda: supports.hanging_sleeper(wf.Track(), list(range(SLEEPER - 5, SLEEPER + 5)), 1e-3),
+     "at most 8"),
     (lambda: supports.hanging_sleepers(wf.Track(ballast_gap=1e-3)), "per sleeper"),
 ])
 def test_bad_hanging_sleepers_are_refused(make, match):

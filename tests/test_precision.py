@@ -42,7 +42,7 @@ def test_float32_time_loop_has_no_float64_operation(contact):
     assert _wide_outputs(scan.params["jaxpr"].jaxpr) == []
     carry = [str(v.aval) for v in scan.params["jaxpr"].jaxpr.invars]
     n = int(struct.track.poles.shape[0])
-    assert any(f"complex64[{n}]" in c for c in carry)  # the modal state is float32 too  # the modal state is float32 too
+    assert any(f"complex64[{n}]" in c for c in carry)  # the modal state is float32 too
 
 
 def test_float32_sweep_matches_float64():

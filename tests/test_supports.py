@@ -22,16 +22,17 @@ from wfjax.model import track as T
 LS = 0.65
 NB = 20  # bays of the validation tracks; the middle sleeper (x = 0) has index NB // 2 - 1 = 9
 MID = NB // 2 - 1
+TRACK_NB = wfjax.Track(n_bays=NB, elements_per_bay=8)  # the index arithmetic assumes 8
 
 
 @pytest.fixture(scope="module")
 def void_track():
-    return S.void_sleeper(wfjax.Track(n_bays=NB, elements_per_bay=8), MID + 2)  # 2 bays right of x = 0
+    return S.void_sleeper(TRACK_NB, MID + 2)  # 2 bays right of x = 0
 
 
 @pytest.fixture(scope="module")
 def scattered_track():
-    return S.scatter(wfjax.Track(n_bays=NB, elements_per_bay=8), jax.random.PRNGKey(7), cv=0.3)
+    return S.scatter(TRACK_NB, jax.random.PRNGKey(7), cv=0.3)
 
 
 def _direct_static(track, x):
@@ -104,7 +105,7 @@ def test_static_deflection_over_void_sleeper_equals_direct_solve(void_track):
     ms, ds = _modal_static(model, x), _direct_static(void_track, x)
     np.testing.assert_allclose(ms, ds, rtol=1e-3)
     # the void matters: over it the rail deflects far more than over a supported sleeper
-    uniform = _direct_static(wfjax.Track(n_bays=NB, elements_per_bay=8), np.array([xv]))
+    uniform = _direct_static(TRACK_NB, np.array([xv]))
     assert ds[0] > 1.5 * uniform[0]  # 1.9x
 
 
@@ -145,7 +146,7 @@ def _model_20k(track):
 def test_symmetric_void_uses_mirror_split_and_is_exact():
     """A void under the middle sleeper is mirror symmetric: the split eigenproblem is used and
     agrees with the direct solve."""
-    tr = S.void_sleeper(wfjax.Track(n_bays=NB, elements_per_bay=8), MID)
+    tr = S.void_sleeper(TRACK_NB, MID)
     assert sleepers.is_mirror_symmetric(tr) and not sleepers.is_uniform(tr)
     model = T.modal_model(tr, 20e3, use_cache=False)
     f = np.geomspace(20.0, 2000.0, 60)
@@ -160,14 +161,14 @@ def test_void_sleeper_shifts_the_receptance():
     """A hanging sleeper's mass rides on its pad: the receptance above it at the track
     resonance is larger than over a supported sleeper."""
     f = np.array([100.0])
-    uniform = np.abs(T.receptance(wfjax.Track(n_bays=NB, elements_per_bay=8), f, 0.0))
-    void = np.abs(T.receptance(S.void_sleeper(wfjax.Track(n_bays=NB, elements_per_bay=8), MID), f, 0.0))
+    uniform = np.abs(T.receptance(TRACK_NB, f, 0.0))
+    void = np.abs(T.receptance(S.void_sleeper(TRACK_NB, MID), f, 0.0))
     assert void[0] > 1.2 * uniform[0]
 
 
 # ---------------------------------------------------------------- presets and scatter
 def test_void_sleeper_preset():
-    tr = S.void_sleeper(wfjax.Track(n_bays=NB, elements_per_bay=8), [3, 4], remaining=0.1)
+    tr = S.void_sleeper(TRACK_NB, [3, 4], remaining=0.1)
     sup = sleepers.support_arrays(tr)
     np.testing.assert_allclose(sup["ballast_stiffness"][[3, 4]], 14e6)
     np.testing.assert_allclose(sup["ballast_damping"][[3, 4]], 16.5e3)
@@ -243,12 +244,12 @@ def test_bad_support_values(field, value, match):
     arr = np.full(NB - 1, 1e5)
     arr[5] = value
     with pytest.raises(ValueError, match=match) as err:
-        S.with_supports(wfjax.Track(n_bays=NB, elements_per_bay=8), **{field: arr})
+        S.with_supports(TRACK_NB, **{field: arr})
     assert "\n" not in str(err.value) and "allowed range" in str(err.value)
 
 
 def test_bad_support_shapes_indices_and_cv():
-    tr = wfjax.Track(n_bays=NB, elements_per_bay=8)
+    tr = TRACK_NB
     with pytest.raises(ValueError, match=r"n_bays - 1 = 19 values .* got shape \(20,\)"):
         S.with_supports(tr, pad_stiffness=np.ones(NB))
     with pytest.raises(ValueError, match=r"got shape \(19,\)"):

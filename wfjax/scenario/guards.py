@@ -84,6 +84,12 @@ def at_least(track: Track, half: float) -> Track:
     """``track`` with the least even ``n_bays`` (never fewer than its own) whose rail reaches
     ``half`` [m] either side of the middle sleeper."""
     n = 2 * math.ceil(half / float(track.sleeper_spacing) - 1e-9)
+    most = next(f.metadata["high"] for f in dataclasses.fields(Track) if f.name == "n_bays")
+    if n > most:
+        length = n * float(track.sleeper_spacing)
+        raise ValueError(f"the case needs a track of {n} bays ({length:g} m: its wheels, sensors or detector reach +-{half:.2f} m with the "
+                         f"margins from the clamped ends), more than track.n_bays allows "
+                         f"({most})")
     return track if n <= int(track.n_bays) else dataclasses.replace(track, n_bays=n)
 
 
