@@ -87,9 +87,9 @@ def at_least(track: Track, half: float) -> Track:
     most = next(f.metadata["high"] for f in dataclasses.fields(Track) if f.name == "n_bays")
     if n > most:
         length = n * float(track.sleeper_spacing)
-        raise ValueError(f"the case needs a track of {n} bays ({length:g} m: its wheels, sensors or detector reach +-{half:.2f} m with the "
-                         f"margins from the clamped ends), more than track.n_bays allows "
-                         f"({most})")
+        raise ValueError(f"the case needs a track of {n} bays ({length:g} m: its wheels, "
+                         f"sensors or detector reach +-{half:.2f} m with the margins from "
+                         f"the clamped ends), more than track.n_bays allows ({most})")
     return track if n <= int(track.n_bays) else dataclasses.replace(track, n_bays=n)
 
 
