@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from ..params import Track, Wheel
+from ..params import Wheel
 from ..scenario.sensors import Detector
 from . import forward as fwd
 from .passage import Passage
@@ -101,7 +101,7 @@ def simulate_passage(positions, flats: list[TrainFlat], speed: float,
     by_wheel = {f.wheel: f for f in flats}
     if any(w >= positions.size for w in by_wheel):
         raise ValueError(f"flats: wheel index beyond the layout's {positions.size} wheels")
-    ls = float(Track().sleeper_spacing)
+    ls = float(fwd.TRACK.sleeper_spacing)
     x0 = int(detector.bays()[0]) * ls  # as the identification's phase grid
     truth = []
     for i in range(positions.size):
@@ -117,7 +117,7 @@ def simulate_passage(positions, flats: list[TrainFlat], speed: float,
     peaks = np.zeros(positions.size)
     groups = _groups(positions)
     if site_seed is not None:  # one site: every bogie on the same track and rail, batched
-        track = Track() if scatter_cv <= 0 else scatter(Track(), 900001 + 7 * site_seed,
+        track = fwd.TRACK if scatter_cv <= 0 else scatter(fwd.TRACK, 900001 + 7 * site_seed,
                                                         scatter_cv)
         rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 700001 + 10007 * site_seed,
                                    fwd.ROUGHNESS_SPAN, x_start=-fwd.ROUGHNESS_SPAN / 2)
@@ -131,7 +131,7 @@ def simulate_passage(positions, flats: list[TrainFlat], speed: float,
         groups = []
     for g, group in enumerate(groups):  # each bogie its own track window, supports and rail
         s_track, s_rough = seed * 7 + g + 1, 10007 * (seed + 1) + g
-        track = Track() if scatter_cv <= 0 else scatter(Track(), s_track, scatter_cv)
+        track = fwd.TRACK if scatter_cv <= 0 else scatter(fwd.TRACK, s_track, scatter_cv)
         rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, s_rough, fwd.ROUGHNESS_SPAN,
                                    x_start=-fwd.ROUGHNESS_SPAN / 2)
         fl = [_truth_flat(truth[i], radius) for i in group]
