@@ -325,3 +325,22 @@ def test_track_modal_model_cached(tmp_path):
     T.modal_model(wfjax.Track(n_bays=8, elements_per_bay=4, pad_stiffness=100e6),
                   cache_dir=tmp_path)
     assert len(list(tmp_path.iterdir())) == 2
+
+
+def test_receptance_command_uses_a_long_track(tmp_path):
+    """``wfjax receptance`` lengthens a scalar track to guards.RECEPTANCE_BAYS (the pinned-pinned
+    peak needs it: 70 bays are 12 % off a 300-bay track there), and its pinned-pinned
+    frequency is the long track's."""
+    import json
+
+    from wfjax.cli import main
+    from wfjax.scenario import guards
+
+    assert main(["receptance", "--points", "120", "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "receptance.json").read_text())
+    assert summary["n_bays"] == guards.RECEPTANCE_BAYS
+    f = np.geomspace(700.0, 1200.0, 400)
+    long = np.abs(T.receptance(wfjax.Track(n_bays=guards.RECEPTANCE_BAYS), f, LS / 2))
+    grid = np.geomspace(20.0, 5000.0, 120)  # the command's frequencies (20 Hz - 5 kHz)
+    near = grid[np.argmin(np.abs(grid - f[np.argmax(long)]))]
+    assert summary["pinned_pinned_hz"] == pytest.approx(near, rel=0.05)

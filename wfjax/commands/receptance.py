@@ -15,6 +15,16 @@ def _db(h):
     return 20 * np.log10(np.abs(h))
 
 
+def _long(track):
+    """``track`` lengthened to ``guards.RECEPTANCE_BAYS`` (scalar supports only): a receptance
+    needs a long track at the lightly damped pinned-pinned peak (docs/convergence.md)."""
+    from wfjax.scenario import guards
+
+    if not guards.extendable(track):
+        return track
+    return guards.at_least(track, 0.5 * guards.RECEPTANCE_BAYS * float(track.sleeper_spacing))
+
+
 def run(args: argparse.Namespace) -> int:
     """Compute, write receptance.csv / receptance.json / receptance.png, print a summary."""
     from wfjax import track as T
@@ -25,11 +35,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--fmax-hz {args.fmax_hz:g}: must be > --fmin-hz ({args.fmin_hz:g} "
                          "Hz)")
     wheel, track, _, _ = case.model()
-    from wfjax.scenario import guards
-
-    # a receptance needs a long track at the lightly damped pinned-pinned peak
-    track = guards.at_least(track, 0.5 * guards.RECEPTANCE_BAYS * float(track.sleeper_spacing)
-                            ) if guards.extendable(track) else track
+    track = _long(track)
     preload = float(wheel.preload)
     out = _common.prepare_out(args.out)
     f = np.geomspace(args.fmin_hz, args.fmax_hz, args.points)
