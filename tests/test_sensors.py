@@ -24,9 +24,12 @@ LS = 0.65
 Q = {q: i for i, q in enumerate(S.QUANTITIES)}
 
 
+TRACK = wfjax.Track(n_bays=40)  # holds the sensors at -3.9 to 2.6 m with their margins
+
+
 @pytest.fixture(scope="module")
 def model():
-    return structure(Vehicle.single(), [wfjax.Wheel()], wfjax.Track(), wfjax.SimConfig()).track
+    return structure(Vehicle.single(), [wfjax.Wheel()], TRACK, wfjax.SimConfig()).track
 
 
 def static_state(model, x, force):
@@ -56,7 +59,7 @@ def fields_on_mesh(track, u, xs):
 @pytest.mark.slow
 def test_static_readings_equal_direct_fe_solve(model):
     """At rest under a wheel load every reading is the FE statics; seats sum to the load."""
-    tr = wfjax.Track()
+    tr = TRACK
     x_load = 0.2
     xs = np.array([-3.9, -0.65, -0.3, 0.0, 0.15, 0.19, 0.21, 0.325, 0.64, 0.66, 1.3, 2.6])
     y = np.asarray(S.evaluate(S.sensor_spec(xs, tr, model), model,
