@@ -146,54 +146,70 @@ def fit_flat(measured, initial: Flat, contact: str = "hertz-trajectory", *,
     _check_arguments(contact, initial, method, mode, max_iter)
     par = parametrisation or parametrisation_for(initial, extent_bound)
     theta0 = np.asarray(par.from_flat(initial), dtype=float)
-    n_par = theta0.size
-    data = validate_data(measured, n_par)
-    exact_3d = contact == "3d" and initial.kind == "profile"  # traced Kalker table build
-    if mode == "auto":
-        mode = "forward" if n_par <= 4 and not exact_3d else "reverse"
-    if mode == "forward" and exact_3d:
-        raise ValueError("contact '3d' with a measured profile needs mode='reverse' "
-                         "(its exact table's Kalker solves have custom_vjp gradients)")
+    data = validate_data(measured, theta0.size)
+    mode = _differentiation_mode(mode, contact, initial, theta0.size)
     kw = dict(contact=contact, extent_bound=par.extent_bound, wheel=wheel, track=track,
               material=material, config=config, cache_dir=cache_dir, vehicle=vehicle,
               roughness=roughness, wheel_roughness=wheel_roughness)
-    adjoint = mode == "reverse" and not _hanging(track)
     y, x, kind, build = _builder(data, kw, impact_positions, temperature, time_temperature,
-                                 checkpoint, adjoint)
+                                 checkpoint, mode == "reverse" and not _hanging(track))
     scale = float(np.mean(np.abs(y)))
-    y_j = jnp.asarray(y)
+    optimise = _optimiser(par, callback, method, learning_rate, gtol, ftol, xtol, max_step)
+    (theta, history, gnorms, message, converged, inside, family,
+     jacobian) = _rounds(build, par, theta0, jnp.asarray(y), scale, mode, int(max_iter),
+                         optimise)
 
+    flat = _concrete_flat(jax.tree_util.tree_map(np.asarray, par.to_flat(theta)))
+    warnings = _warnings(flat, par, inside, family)
+    pred, cov, params, std = _uncertainty(jacobian, theta, par, scale, y)
+    return FitResult(flat=flat, params=params, std=std, covariance=cov, theta=np.asarray(theta),
+                     loss_history=np.asarray(history), grad_norm_history=np.asarray(gnorms),
+                     n_iterations=len(history) - 1, converged=converged and not warnings,
+                     message=message + warnings, prediction=pred, measured=np.asarray(y),
+                     x=np.asarray(x), residual_rms=float(np.sqrt(np.mean((pred - y)**2))),
+                     kind=kind, contact=contact, wall_time=time.perf_counter() - start)
+
+
+def _optimiser(par, callback, method, learning_rate, gtol, ftol, xtol, max_step):
+    """``optimise(value_and_grad, loss, theta, budget)``: :func:`_optimise` with the fit's
+    settings, reporting every iteration's flat to ``callback`` (None: no report)."""
     def report(i, value, theta):
-        if callback is not None:
-            callback(i, value, par.to_flat(theta))
+        return callback(i, value, par.to_flat(theta)) if callback is not None else None
 
     def optimise(value_and_grad, loss_j, theta, budget):
         return _optimise(value_and_grad, loss_j, theta, method, budget, learning_rate, gtol,
                          ftol, xtol, max_step, report)
 
-    (theta, history, gnorms, message, converged, inside, family,
-     jacobian) = _rounds(build, par, theta0, y_j, scale, mode, int(max_iter), optimise)
+    return optimise
 
-    pred, cov, params, std = _uncertainty(jacobian, theta, par, scale, y)
-    r = pred - y
-    flat = _concrete_flat(jax.tree_util.tree_map(np.asarray, par.to_flat(theta)))
+
+def _differentiation_mode(mode: str, contact: str, initial: Flat, n_par: int) -> str:
+    """``"forward"`` or ``"reverse"``: ``mode`` with ``"auto"`` resolved (forward for <= 4
+    parameters, except a measured profile on the 3D law, whose traced Kalker table build has
+    custom_vjp gradients only)."""
+    exact_3d = contact == "3d" and initial.kind == "profile"
+    if mode == "auto":
+        return "forward" if n_par <= 4 and not exact_3d else "reverse"
+    if mode == "forward" and exact_3d:
+        raise ValueError("contact '3d' with a measured profile needs mode='reverse' "
+                         "(its exact table's Kalker solves have custom_vjp gradients)")
+    return mode
+
+
+def _warnings(flat: Flat, par, inside: bool, family) -> str:
+    """The fit's warnings ('' when none): a half length beyond the static extent bound, a
+    3D family range that never held the fitted flat."""
+    out = ""
     if flat.kind != "profile" and float(flat.length) / 2 > par.extent_bound + 1e-12:
-        message += (f"; WARNING: fitted half length {float(flat.length) / 2 * 1e3:.1f} mm "
-                    f"exceeds extent_bound {par.extent_bound * 1e3:.1f} mm, refit with a "
-                    f"larger extent_bound")
-        converged = False
+        out += (f"; WARNING: fitted half length {float(flat.length) / 2 * 1e3:.1f} mm "
+                f"exceeds extent_bound {par.extent_bound * 1e3:.1f} mm, refit with a "
+                f"larger extent_bound")
     if not inside:
         lo, hi = family.spec.depth_range
-        message += (f"; WARNING: after {MAX_FAMILY_ROUNDS} rounds the fitted flat lies outside "
-                    f"the 3D family's range (depth {lo * 1e3:.3g}-{hi * 1e3:.3g} mm), where the "
-                    "law is clamped: refit from a start closer to it")
-        converged = False
-    return FitResult(flat=flat, params=params, std=std, covariance=cov, theta=np.asarray(theta),
-                     loss_history=np.asarray(history), grad_norm_history=np.asarray(gnorms),
-                     n_iterations=len(history) - 1, converged=converged, message=message,
-                     prediction=pred, measured=np.asarray(y), x=np.asarray(x),
-                     residual_rms=float(np.sqrt(np.mean(r**2))), kind=kind, contact=contact,
-                     wall_time=time.perf_counter() - start)
+        out += (f"; WARNING: after {MAX_FAMILY_ROUNDS} rounds the fitted flat lies outside "
+                f"the 3D family's range (depth {lo * 1e3:.3g}-{hi * 1e3:.3g} mm), where the "
+                "law is clamped: refit from a start closer to it")
+    return out
 
 
 def _rounds(build, par, theta0, y_j, scale: float, mode: str, max_iter: int, optimise):
