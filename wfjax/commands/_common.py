@@ -53,9 +53,6 @@ def check_finite(what: str, **arrays) -> None:
 
 def sensor_positions(case: case_mod.Case, track) -> list[float] | None:
     """``run.sensors`` [m] as a list (None when not given), checked against ``track``."""
-    import numpy as np
-
-    from ..scenario.description import holding_instruments
     from ..scenario.sensors import check_positions
 
     value = case.get("run.sensors")
@@ -63,8 +60,7 @@ def sensor_positions(case: case_mod.Case, track) -> list[float] | None:
         return None
     if isinstance(value, str):
         value = case_mod.parse_number_list(value)
-    x = np.ravel(np.asarray(value, dtype=float))
-    track = holding_instruments(track, x if np.all(np.isfinite(x)) else None)
+    track = guards.holding_instruments(track, value)
     return [float(x) for x in check_positions(value, track, "--sensors-m / run.sensors")]
 
 

@@ -13,7 +13,6 @@ grid of speeds x impact positions x flats x realisations.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -38,7 +37,7 @@ from .windows import (
     wheel_positions,
 )
 
-__all__ = ["Scenario", "rail_roughness", "holding_instruments"]
+__all__ = ["Scenario", "rail_roughness"]
 
 
 def rail_roughness(inputs) -> Roughness | None:
@@ -131,7 +130,7 @@ class Scenario:
         if tracks is not None:
             tracks = _check_tracks(tracks, per_wheel, sensors, detector)
             track = tracks[0]
-        track = holding_instruments(track, sensors, detector)
+        track = guards.holding_instruments(track, sensors, detector)
         if sensors is not None:
             check_positions(sensors, track)
         rough = rail_roughness(roughness)
@@ -231,19 +230,6 @@ class Scenario:
             out += guards.element_findings(self.contact, self.config, sc)
         out += guards.end_findings(self.track, *path)
         return list(dict.fromkeys(out))
-
-
-def holding_instruments(track: Track, sensors, detector=None) -> Track:
-    """``track`` lengthened (scalar supports only) so that every sensor and detector bridge
-    keeps :func:`~wfjax.scenario.guards.sensor_margin` from the clamped ends."""
-    x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
-    if detector is not None:
-        a, b = detector.gauges(float(track.sleeper_spacing))
-        x += [float(a[0]), float(b[-1])]
-    x = [abs(v) for v in x if math.isfinite(v)]
-    if not x or not guards.extendable(track):
-        return track
-    return guards.at_least(track, max(x) + guards.sensor_margin(track) + 1e-3)
 
 
 def _check_tracks(tracks, per_wheel: bool, sensors, detector) -> tuple:

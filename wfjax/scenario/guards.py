@@ -80,10 +80,16 @@ def extendable(track: Track) -> bool:
     return all(np.ndim(getattr(track, name)) == 0 for name in SUPPORT_FIELDS)
 
 
+def bays_reaching(track: Track, half: float) -> int:
+    """The least even ``n_bays`` whose rail reaches ``half`` [m] either side of the middle
+    sleeper."""
+    return 2 * math.ceil(half / float(track.sleeper_spacing) - 1e-9)
+
+
 def at_least(track: Track, half: float) -> Track:
     """``track`` with the least even ``n_bays`` (never fewer than its own) whose rail reaches
     ``half`` [m] either side of the middle sleeper."""
-    n = 2 * math.ceil(half / float(track.sleeper_spacing) - 1e-9)
+    n = bays_reaching(track, half)
     most = next(f.metadata["high"] for f in dataclasses.fields(Track) if f.name == "n_bays")
     if n > most:
         length = n * float(track.sleeper_spacing)
@@ -91,6 +97,20 @@ def at_least(track: Track, half: float) -> Track:
                          f"sensors or detector reach +-{half:.2f} m with the margins from "
                          f"the clamped ends), more than track.n_bays allows ({most})")
     return track if n <= int(track.n_bays) else dataclasses.replace(track, n_bays=n)
+
+
+def holding_instruments(track: Track, sensors, detector=None) -> Track:
+    """``track`` lengthened (scalar supports only) so that every sensor [m] and bridge of
+    ``detector`` (a :class:`wfjax.scenario.sensors.Detector`) keeps :func:`sensor_margin`
+    from the clamped ends; non-finite positions are left to the sensors' own check."""
+    x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
+    if detector is not None:
+        a, b = detector.gauges(float(track.sleeper_spacing))
+        x += [float(a[0]), float(b[-1])]
+    x = [abs(v) for v in x if math.isfinite(v)]
+    if not x or not extendable(track):
+        return track
+    return at_least(track, max(x) + sensor_margin(track) + 1e-3)
 
 
 def decay_length(track: Track) -> float:
@@ -191,7 +211,7 @@ def end_findings(track: Track, lo: float, hi: float) -> list[str]:
     margin = end_margin(track)
     if lo >= -half + margin and hi <= half - margin:
         return []
-    need = math.ceil((max(hi, -lo) + margin) / float(track.sleeper_spacing)) * 2
+    need = bays_reaching(track, max(hi, -lo) + margin)
     return [f"track.n_bays = {int(track.n_bays)}: the wheels' path [{lo:.2f}, {hi:.2f}] m "
             "comes within "
             f"{margin:.2f} m = {END_FACTOR:g} / beta of the clamped rail ends at +-{half:.2f} m, "
