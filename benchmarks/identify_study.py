@@ -166,19 +166,59 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
     flats = draw_flats(rng)
     site = int(rng.integers(args.sites))
     t0 = time.perf_counter()
-    passages, truth = [], None
-    for j, speed_kmh in enumerate(speeds(args)):
-        p, tr = simulate_passage(WAGON, flats, speed_kmh / 3.6, Detector(5, -1),
-                                 noise=0.03, seed=args.seed * 100003 + 101 * k + j + 1,
-                                 site_seed=args.site_seed * 1009 + site)
-        passages.append(p)
-        truth = truth or tr
+    cached = _cached_passages(args, k)
+    if cached is not None:
+        passages, truth = cached
+    else:
+        passages, truth = [], None
+        for j, speed_kmh in enumerate(speeds(args)):
+            p, tr = simulate_passage(WAGON, flats, speed_kmh / 3.6, Detector(5, -1),
+                                     noise=0.03, seed=args.seed * 100003 + 101 * k + j + 1,
+                                     site_seed=args.site_seed * 1009 + site)
+            passages.append(p)
+            truth = truth or tr
+        _store_passages(args, k, passages, truth)
     t1 = time.perf_counter()
+    if getattr(args, "simulate_only", False):
+        rows = [t | {"wagon": k, "site": site, "flagged": False} for t in truth]
+        return rows, {"simulate_s": t1 - t0, "identify_s": 0.0}
     res = identify(passages, coupling_iterations=args.coupling)
     t2 = time.perf_counter()
     rows = [score_wheel(t, w) | {"wagon": k, "site": site}
             for t, w in zip(truth, res.wheels, strict=True)]
     return rows, {"simulate_s": t1 - t0, "identify_s": t2 - t1}
+
+
+def _passage_file(args, k: int):
+    """The ``--passages`` cache file of wagon ``k`` (None without ``--passages``): named by
+    everything that draws it (seeds, sites, speeds), not by the code's version: clear the
+    folder when the model changes."""
+    folder = getattr(args, "passages", None)
+    if not folder:
+        return None
+    tag = f"s{args.seed}-ss{args.site_seed}-n{args.sites}-v{args.speeds_kmh.replace(',', '_')}"
+    return Path(folder) / f"wagon-{tag}-{k}.pkl"
+
+
+def _cached_passages(args, k: int):
+    """(passages, truth) of wagon ``k`` from the ``--passages`` folder, or None."""
+    import pickle
+
+    path = _passage_file(args, k)
+    if path is None or not path.exists():
+        return None
+    return pickle.loads(path.read_bytes())
+
+
+def _store_passages(args, k: int, passages, truth) -> None:
+    import pickle
+
+    path = _passage_file(args, k)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_bytes(pickle.dumps((passages, truth)))
+        tmp.replace(path)
 
 
 def run(args, checkpoint=None) -> tuple[list, dict]:
@@ -196,6 +236,11 @@ def run(args, checkpoint=None) -> tuple[list, dict]:
         times["identify_s"] += t["identify_s"]
         times["identify_per_wagon_s"].append(t["identify_s"])
         times["wall_s"] = time.perf_counter() - t0
+        if getattr(args, "simulate_only", False):
+            print(f"  wagon {k + 1} simulated ({times['wall_s']:.0f} s)", file=sys.stderr,
+                  flush=True)
+            k += 1
+            continue
         print(f"  wagon {k + 1}: " + ", ".join(
             f"{r['kind']} {r['length'] * 1e3:.0f}->{r['length_median'] * 1e3:.0f} mm"
             f"{'*' if r['flagged'] else ''}" for r in wrows),
@@ -227,6 +272,10 @@ def main(argv=None) -> int:
     ap.add_argument("--site-seed", type=int, default=31, help="the sites' draws")
     ap.add_argument("--coupling", type=int, default=1)
     ap.add_argument("--docs", action="store_true")
+    ap.add_argument("--passages", metavar="DIR", help="keep every wagon's simulated "
+                    "passages and truth here and reuse them (the truth is most of the time)")
+    ap.add_argument("--simulate-only", action="store_true",
+                    help="simulate (and keep, with --passages) the passages; identify none")
     ap.add_argument("--merge", nargs="+", metavar="JSON",
                     help="merge these runs' results into --out (and the docs) instead")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
@@ -252,6 +301,11 @@ def main(argv=None) -> int:
 
     if args.merge:
         return merge(args.merge, args.out, args.docs)
+    if args.simulate_only:
+        rows, times = run(args)
+        print(f"{len({r['wagon'] for r in rows})} wagons simulated in "
+              f"{times['simulate_s'] / 60:.1f} min", flush=True)
+        return 0
     rows, times = run(args, save)
     save(rows, times, len({r["wagon"] for r in rows}))
     return 0

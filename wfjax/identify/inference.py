@@ -25,8 +25,34 @@ from . import forward as fwd
 
 PHASE_REFINE = 4  # phase points per table position interval (linear in between)
 
-__all__ = ["PHASE_REFINE", "Prior", "WheelPosterior", "loglik_grid", "posterior",
-           "weighted_quantile"]
+__all__ = ["PHASE_REFINE", "Prior", "WheelPosterior", "CorrectionMixture", "loglik_grid",
+           "posterior", "weighted_quantile"]
+
+
+@dataclasses.dataclass(frozen=True)
+class CorrectionMixture:
+    """The neighbours' effect on one wheel's readings in one passage, uncertain: ``values``
+    [M, n_bays] N, each the coupled-minus-alone readings with the neighbours at one
+    configuration of their impact phases, and ``weights`` [M] (sum 1) the configurations'
+    probabilities under the neighbours' phase posteriors. The likelihood marginalises over
+    it: p(y | theta) = sum_m weights_m p(y | theta, values_m). One configuration of weight 1
+    is the plain additive correction."""
+
+    weights: np.ndarray
+    values: np.ndarray
+
+    @classmethod
+    def of(cls, correction) -> CorrectionMixture | None:
+        """``correction`` as a mixture: None stays None; an array [n_bays] N is one
+        configuration of weight 1."""
+        if correction is None or isinstance(correction, cls):
+            return correction
+        values = np.atleast_2d(np.asarray(correction, float))
+        return cls(np.ones(1), values)
+
+    def mode(self) -> np.ndarray:
+        """[n_bays] N: the most probable configuration's values."""
+        return self.values[int(np.argmax(self.weights))]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,22 +77,33 @@ class Prior:
 
 def loglik_grid(table: fwd.ResponseTable, bays, readings, lengths, sigma: float,
                 peak_only: bool = False, correction=None):
-    """(log-likelihood [S, n_len, P, R], chi2 [S, n_len, P, R], phases [P] m) of one wheel's
-    ``readings`` [n_bays] N (or [1] its peak when ``peak_only``) under the relative Gaussian
-    of total relative standard deviation ``sigma``; ``correction`` [n_bays] N is added to the
-    prediction (the neighbours' effect)."""
+    """(log-likelihood [S, n_len, P, R], chi-square tail probability [S, n_len, P, R],
+    phases [P] m) of one wheel's ``readings`` [n_bays] N (or [1] its peak when
+    ``peak_only``) under the relative Gaussian of total relative standard deviation
+    ``sigma``. ``correction``: the neighbours' effect, [n_bays] N added to the prediction,
+    or a :class:`CorrectionMixture` over which the likelihood is marginalised (each cell's
+    tail probability P(chi2_n > chi2(y)) then averaged with the configurations'
+    responsibilities)."""
     phases = fwd.phase_grid(table, bays, PHASE_REFINE)
-    mu = fwd.predict_refined(table, bays, lengths, PHASE_REFINE)  # [S, L, P, R, n_bays]
-    if correction is not None:
-        mu = mu + np.asarray(correction)[None, None, None, None, :]
-    if peak_only:
-        mu = mu.max(axis=-1, keepdims=True)
+    mu0 = fwd.predict_refined(table, bays, lengths, PHASE_REFINE)  # [S, L, P, R, n_bays]
+    mix = CorrectionMixture.of(correction)
     y = np.asarray(readings, float)
-    sd = sigma * mu
-    z = (y - mu) / sd
-    c2 = np.sum(z**2, axis=-1)
-    ll = -0.5 * c2 - np.sum(np.log(sd), axis=-1) - 0.5 * y.size * np.log(2 * np.pi)
-    return ll, c2, phases
+    lls, tails = [], []
+    for c in (mix.values if mix is not None else [None]):
+        mu = mu0 if c is None else mu0 + c[None, None, None, None, :]
+        if peak_only:
+            mu = mu.max(axis=-1, keepdims=True)
+        sd = sigma * mu
+        c2 = np.sum(((y - mu) / sd) ** 2, axis=-1)
+        lls.append(-0.5 * c2 - np.sum(np.log(sd), axis=-1) - 0.5 * y.size * np.log(2 * np.pi))
+        tails.append(chi2.sf(c2, y.size))
+    if mix is None or len(lls) == 1:
+        return lls[0], tails[0], phases
+    lw = np.log(np.maximum(np.asarray(mix.weights, float), 1e-300))
+    ll = np.stack(lls) + lw[:, None, None, None, None]  # [M, S, L, P, R]
+    total = logsumexp(ll, axis=0)
+    resp = np.exp(ll - total[None])
+    return total, np.sum(resp * np.stack(tails), axis=0), phases
 
 
 def weighted_quantile(lo, hi, weights, q) -> np.ndarray:
@@ -155,7 +192,8 @@ def posterior(tables, bays, readings, prior: Prior | None = None, noise: float =
               ) -> WheelPosterior:
     """The :class:`WheelPosterior` of one wheel seen in passages ``p``: ``tables[p]`` (its
     speed's :class:`~wfjax.identify.forward.ResponseTable`), detector ``bays[p]``,
-    ``readings[p]`` [n_bays] N (or [1] peak), ``corrections[p]`` [n_bays] N or None."""
+    ``readings[p]`` [n_bays] N (or [1] peak), ``corrections[p]`` [n_bays] N, a
+    :class:`CorrectionMixture` or None."""
     prior = prior or Prior()
     lengths = prior.lengths()
     sigma = float(np.hypot(noise, model))
@@ -163,27 +201,26 @@ def posterior(tables, bays, readings, prior: Prior | None = None, noise: float =
     parts = []
     for p, table in enumerate(tables):
         corr = None if corrections is None else corrections[p]
-        ll, c2, phases = loglik_grid(table, bays[p], readings[p], lengths, sigma, peak_only,
-                                     corr)
+        ll, tail, phases = loglik_grid(table, bays[p], readings[p], lengths, sigma,
+                                       peak_only, corr)
         n_pr = ll.shape[2] * ll.shape[3]
         total = total + logsumexp(ll, axis=(2, 3)) - np.log(n_pr)
-        parts.append((ll, c2, phases))
+        parts.append((ll, tail, phases))
     w = np.exp(total - logsumexp(total))
     phases, phase_w, p_values, fits = [], [], [], []
     s_best, l_best = np.unravel_index(int(np.argmax(w)), w.shape)
-    for p, (ll, c2, ph) in enumerate(parts):
+    for p, (ll, tail, ph) in enumerate(parts):
         joint = ll + np.log(np.maximum(w, 1e-300))[:, :, None, None] - (
             logsumexp(ll, axis=(2, 3))[:, :, None, None])
         jw = np.exp(joint - logsumexp(joint))  # [S, L, P, R] posterior of (theta, phase, r)
         phases.append(ph)
         phase_w.append(jw.sum(axis=(0, 1, 3)))
-        n = np.size(readings[p])
-        p_values.append(float(np.sum(jw * chi2.sf(c2, n))))
+        p_values.append(float(np.sum(jw * tail)))
         i_p = int(np.argmax(jw[s_best, l_best].sum(axis=-1)))
         mu = fwd.predict_refined(tables[p], bays[p], lengths[[l_best]],
                                  PHASE_REFINE)[s_best, 0, i_p]
-        mu = mu.mean(axis=0) + (0 if corrections is None or corrections[p] is None
-                                else np.asarray(corrections[p]))
+        mix = None if corrections is None else CorrectionMixture.of(corrections[p])
+        mu = mu.mean(axis=0) + (0 if mix is None else mix.mode())
         fits.append(mu.max(keepdims=True) if peak_only else mu)
     best = (tables[0].shapes[s_best], float(lengths[l_best]),
             [float(ph[int(np.argmax(pw))]) for ph, pw in zip(phases, phase_w, strict=True)])

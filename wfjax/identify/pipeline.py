@@ -6,7 +6,10 @@ every bogie (wheels closer than ``GROUP_GAP``) with a probable flat is run coupl
 track with its wheels at their current estimates, and so is every wheel alone, batched over
 the bogies (:func:`wfjax.identify.forward.coupled_batch`: a train is a batch of bogies, each
 on its own track window); their difference, the neighbours' effect on each wheel's
-readings, is added to that wheel's prediction and its grid posterior recomputed. No joint
+readings, is added to that wheel's prediction and its grid posterior recomputed. A
+neighbour's phase is not one estimate: the coupled runs cover its few most probable phase
+modes (:func:`phase_modes`), and each wheel's likelihood is marginalised over them with
+the modes' probabilities (:class:`wfjax.identify.inference.CorrectionMixture`). No joint
 grid over the wheels is ever formed.
 """
 
@@ -21,7 +24,7 @@ import numpy as np
 from ..params import Wheel
 from . import forward as fwd
 from . import rules as rules_mod
-from .inference import Prior, WheelPosterior, posterior
+from .inference import CorrectionMixture, Prior, WheelPosterior, posterior
 from .passage import Passage
 
 __all__ = ["identify", "Identification", "WheelResult", "GROUP_GAP", "MISFIT_P"]
@@ -99,36 +102,91 @@ def _estimate_flat(post: WheelPosterior, radius: float):
     return fwd.flat_of(kind, max(length, 0.005), factor or 1.0, radius)
 
 
-def _corrections(passage: Passage, posts, settings: dict, radius: float):
-    """[n_wheels, n_bays] N: coupled minus single-wheel readings at the current estimates
-    (zero in a bogie whose wheels are all probably round: P(l >= :data:`ROUND_LENGTH`) < 0.5;
-    a round wheel barely moves its neighbours' readings). The bogies to correct run as one
-    batch per layout (:func:`wfjax.identify.forward.coupled_batch`), their wheels alone as
-    one more: a train's bogies are not looped over."""
+def phase_modes(phases, weights, n_max: int = 4, half_width: float = 0.1,
+                mass: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """The few most probable modes of a wheel's phase posterior: (impact coordinates [M] m,
+    probabilities [M], sum 1), M <= ``n_max``.
+
+    Greedy: the most probable grid point, its mode's mass the posterior within
+    ``half_width`` [m] of it; those points removed, again, until ``n_max`` modes or
+    ``mass`` of the posterior is held. The first mode is the posterior's most probable
+    phase; a point mass gives one mode of probability 1."""
+    x, w = np.asarray(phases, float), np.asarray(weights, float)
+    w = w / np.sum(w)
+    left = np.ones(x.size, bool)
+    xs, ms = [], []
+    while len(xs) < max(int(n_max), 1) and sum(ms) < mass and left.any():
+        i = int(np.argmax(np.where(left, w, -1.0)))
+        near = left & (np.abs(x - x[i]) <= half_width + 1e-12)
+        xs.append(float(x[i]))
+        ms.append(float(w[near].sum()))
+        left &= ~near
+    ms = np.asarray(ms)
+    return np.asarray(xs), ms / ms.sum()
+
+
+def _configurations(g: list[int], modes: dict, n_max: int) -> dict:
+    """For every wheel i of bogie ``g``: [(the bogie's mode indices per wheel (i at its
+    most probable phase, 0), probability)] over the product of its neighbours' phase modes
+    (each neighbour at most ``n_max ** (1 / (n - 1))`` modes, so at most about ``n_max``
+    configurations per wheel)."""
+    import itertools
+
+    per = max(1, int(math.floor(n_max ** (1.0 / max(len(g) - 1, 1)) + 1e-9)))
+    out = {}
+    for i in g:
+        axes = [[(0, 1.0)] if j == i else list(enumerate(modes[j][1][:per])) for j in g]
+        confs = []
+        for combo in itertools.product(*axes):
+            confs.append((tuple(c[0] for c in combo), float(np.prod([c[1] for c in combo]))))
+        total = sum(c[1] for c in confs)
+        out[i] = [(idx, p / total) for idx, p in confs]
+    return out
+
+
+def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list:
+    """Per wheel a :class:`CorrectionMixture` of [n_bays] N: coupled minus single-wheel
+    readings, over the neighbours' phase modes (:func:`phase_modes` of their posteriors in
+    this passage, ``settings["phase_modes"]`` at most; a probably round neighbour,
+    P(l >= :data:`ROUND_LENGTH`) < 0.5, only at its most probable phase), every wheel's own
+    flat and phase at its posterior mode. None for a wheel whose bogie is all probably round
+    (a round wheel barely moves its neighbours' readings). The bogies' configurations run as
+    one batch per layout (:func:`wfjax.identify.forward.coupled_batch`), their wheels alone
+    as one more: a train's bogies are not looped over."""
     from ..scenario import roughness as rough_mod
 
     det = passage.detector()
     rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, settings["seed"] + 7919,
                                fwd.ROUGHNESS_SPAN, x_start=-fwd.ROUGHNESS_SPAN / 2)
-    out = np.zeros((passage.n_wheels, det.n_bays))
+    out: list = [None] * passage.n_wheels
     kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"])
-    p_index = settings["passage_index"]
-    groups = [g for g in _groups(passage.positions) if len(g) > 1 and any(
-        posts[i].p_length_at_least(ROUND_LENGTH) >= 0.5 for i in g)]
+    k, n_max = settings["passage_index"], int(settings.get("phase_modes", 4))
+    flat = {i: posts[i].p_length_at_least(ROUND_LENGTH) >= 0.5
+            for i in range(passage.n_wheels)}
+    groups = [g for g in _groups(passage.positions) if len(g) > 1 and any(flat[i] for i in g)]
     if not groups:  # no neighbour with a flat: no correction
         return out
-    flats = {i: _estimate_flat(posts[i], radius) for g in groups for i in g}
-    impacts = {i: posts[i].best[2][p_index] for g in groups for i in g}
     wheels = [i for g in groups for i in g]
-    alone, _ = fwd.coupled_batch([([flats[i]], [impacts[i]]) for i in wheels], [0.0],
+    flats = {i: _estimate_flat(posts[i], radius) for i in wheels}
+    modes = {i: phase_modes(posts[i].phases[k], posts[i].phase_weights[k], n_max)
+             if flat[i] and n_max > 1 else (np.array([posts[i].best[2][k]]), np.ones(1))
+             for i in wheels}
+    alone, _ = fwd.coupled_batch([([flats[i]], [modes[i][0][0]]) for i in wheels], [0.0],
                                  passage.speed, det, **kw)
     single = dict(zip(wheels, alone[:, 0], strict=True))
     for layout, members in _layouts(passage.positions, groups).items():
-        both, _ = fwd.coupled_batch([([flats[i] for i in g], [impacts[i] for i in g])
-                                     for g in members], layout, passage.speed, det, **kw)
-        for g, b in zip(members, both, strict=True):
+        confs = {tuple(g): _configurations(g, modes, n_max) for g in members}
+        runs = sorted({(tuple(g), idx) for g in members for c in confs[tuple(g)].values()
+                       for idx, _ in c})
+        both, _ = fwd.coupled_batch([([flats[i] for i in g], [modes[i][0][m] for i, m in
+                                                              zip(g, idx, strict=True)])
+                                     for g, idx in runs], layout, passage.speed, det, **kw)
+        got = dict(zip(runs, both, strict=True))
+        for g in members:
             for j, i in enumerate(g):
-                out[i] = b[j] - single[i]
+                c = confs[tuple(g)][i]
+                out[i] = CorrectionMixture(np.array([p for _, p in c]), np.stack(
+                    [got[(tuple(g), idx)][j] - single[i] for idx, _ in c]))
     return out
 
 
@@ -136,8 +194,9 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
              model: float = 0.02, prior: Prior | None = None, flag_length: float = 0.02,
              flag_probability: float = 0.9, line_speed: float | None = None,
              force_level: float = 350e3, user_rule=None, coupling_iterations: int = 1,
-             table_options: dict | None = None, wheel: Wheel | None = None, seed: int = 0,
-             cache_dir=None, progress=None) -> Identification:
+             phase_modes: int = 4, table_options: dict | None = None,
+             wheel: Wheel | None = None, seed: int = 0, cache_dir=None,
+             progress=None) -> Identification:
     """Every wheel's flat from detector ``passages`` (:func:`wfjax.identify.read_passages`).
 
     Args:
@@ -151,6 +210,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
             first passage's speed).
         user_rule: a :class:`wfjax.identify.rules.RuleSet` or None.
         coupling_iterations: neighbour-correction sweeps (0: wheels independent).
+        phase_modes: the most phase modes of a neighbour the correction is marginalised over
+            (1: its most probable phase only, the correction before 2026-12-04).
         table_options: keyword arguments of :func:`wfjax.identify.forward.build_table`.
         progress: ``progress(stage: str, done, total)`` or None.
 
@@ -179,7 +240,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
     corr = [[None] * len(passages) for _ in range(n)]
     posts = [posterior(ptables, bays, [p.readings[i] for p in passages], corrections=None, **kw)
              for i in range(n)]
-    settings = dict(contact=contact, seed=seed, cache_dir=cache_dir)
+    settings = dict(contact=contact, seed=seed, cache_dir=cache_dir, phase_modes=phase_modes)
     for it in range(coupling_iterations if n > 1 else 0):
         for k, p in enumerate(passages):
             c = _corrections(p, posts, settings | {"passage_index": k}, float(wheel.radius))
@@ -196,6 +257,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         contact=contact, noise=noise, model=model, prior=dataclasses.asdict(prior),
         flag_length_m=flag_length, flag_probability=flag_probability, line_speed_ms=line,
         force_level_N=force_level, coupling_iterations=coupling_iterations,
+        phase_modes=phase_modes,
         misfit_p=MISFIT_P, seed=seed, site_factors=[f.tolist() for f in factors],
         table_options={k: v for k, v in opts.items() if k not in ("wheel", "cache_dir")},
         user_rule=None if user_rule is None else dataclasses.asdict(user_rule)),

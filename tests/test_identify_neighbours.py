@@ -1,0 +1,127 @@
+"""The neighbour correction marginalised over the neighbours' phase posteriors (fast: synthetic
+tables, a stand-in for the coupled runs): the phase modes, the likelihood's mixture over the
+neighbours' configurations, and the corrections' plumbing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wfjax.identify import forward as fwd
+from wfjax.identify import pipeline
+from wfjax.identify.inference import CorrectionMixture, Prior, WheelPosterior, posterior
+from wfjax.identify.passage import Passage
+
+BAYS = np.arange(-1, 4)
+
+
+def _table(slope=0.6e6):
+    """A synthetic table: bay offset 0 reads 120 kN + slope * l, the others 120 kN."""
+    lengths = np.linspace(0.0, 0.13, 14)
+    reads = np.full((1, lengths.size, 4, 1, 2 * fwd.REACH + 1), 120e3)
+    reads[..., fwd.REACH] += slope * lengths[None, :, None, None]
+    return fwd.ResponseTable(100 / 3.6, 0.65, 0.45, (("new", 0.0),), lengths,
+                             np.arange(4) * 0.65 / 4, reads, reads[..., fwd.REACH])
+
+
+def test_phase_modes_point_mass_and_two_bumps():
+    x = np.arange(280) * 0.01
+    w = np.zeros(280)
+    w[97] = 1.0
+    xs, ps = pipeline.phase_modes(x, w)
+    np.testing.assert_allclose(xs, [0.97])
+    np.testing.assert_allclose(ps, [1.0])
+    w = np.exp(-0.5 * ((x - 0.5) / 0.02) ** 2) * 0.7 + np.exp(-0.5 * ((x - 2.0) / 0.02) ** 2)
+    xs, ps = pipeline.phase_modes(x, w, n_max=4)
+    assert xs[0] == pytest.approx(2.0) and xs[1] == pytest.approx(0.5)
+    np.testing.assert_allclose(ps, [1 / 1.7, 0.7 / 1.7], rtol=1e-6)
+    xs, ps = pipeline.phase_modes(x, w, n_max=1)  # one mode: the most probable phase
+    np.testing.assert_allclose(xs, [2.0])
+    np.testing.assert_allclose(ps, [1.0])
+
+
+def test_one_configuration_is_the_plain_correction():
+    """A mixture of one configuration (a neighbour whose phase posterior is a point mass),
+    or of two equal ones, gives the posterior of the plain additive correction."""
+    t = _table()
+    y = np.array([120e3, 120e3, 140e3, 121e3, 119e3])
+    c = np.array([0.0, 0.0, 5e3, 0.0, 0.0])
+    plain = posterior([t], [BAYS], [y], prior=Prior(p_new=1.0), corrections=[c])
+    for mix in (CorrectionMixture(np.ones(1), c[None]),
+                CorrectionMixture(np.array([0.3, 0.7]), np.stack([c, c]))):
+        got = posterior([t], [BAYS], [y], prior=Prior(p_new=1.0), corrections=[mix])
+        np.testing.assert_allclose(got.weights, plain.weights, rtol=1e-12, atol=1e-300)
+        assert got.ppc_p == pytest.approx(plain.ppc_p, rel=1e-12)
+        np.testing.assert_allclose(got.best_fit[0], plain.best_fit[0])
+
+
+def test_mixture_spares_a_round_wheel_that_the_mode_flags():
+    """A round wheel whose bay 1 reads 25 kN high because its neighbour struck there; the
+    neighbour's phase posterior puts 0.6 on a phase that disturbs bay 3 and 0.4 on the true
+    one. With the most probable phase only, the disturbance is explained as a 40 mm flat
+    (flagged: P(l >= 20 mm) >= 0.9); marginalised over both phases, it is not."""
+    t = _table()
+    y = np.array([120e3, 120e3, 145e3, 120e3, 120e3])
+    wrong, right = np.zeros(5), np.zeros(5)
+    wrong[4], right[2] = 25e3, 25e3
+    kw = dict(prior=Prior(p_new=1.0), noise=0.03, model=0.0)
+    mode = posterior([t], [BAYS], [y], corrections=[wrong], **kw)
+    mix = posterior([t], [BAYS], [y], corrections=[
+        CorrectionMixture(np.array([0.6, 0.4]), np.stack([wrong, right]))], **kw)
+    assert mode.p_length_at_least(0.02) >= 0.9
+    assert mix.p_length_at_least(0.02) < 0.5
+    assert mix.ppc_p > mode.ppc_p
+
+
+def _post(phases, phase_w, length):
+    """A WheelPosterior of one new flat of ``length`` [m] with this phase posterior."""
+    lengths = Prior().lengths()
+    w = np.zeros((1, lengths.size))
+    w[0, int(np.argmin(np.abs(lengths - length)))] = 1.0
+    best = (("new", 0.0), length, [float(phases[int(np.argmax(phase_w))])])
+    return WheelPosterior((("new", 0.0),), lengths, 0.45, w, [phases], [phase_w], 0.5, [],
+                          best)
+
+
+def test_corrections_run_every_neighbour_mode(monkeypatch):
+    """The corrections' plumbing, with a stand-in for the coupled runs whose wheel j reads
+    1 kN x (the sum of the other wheels' impact coordinates [m]) in every bay: a neighbour
+    with one phase mode gives the single-phase correction; with two modes, one configuration
+    each, at the modes' impacts, with their probabilities."""
+    calls = []
+
+    def fake(groups, positions, speed, det, **kw):
+        calls.append((len(groups), len(positions)))
+        out = np.zeros((len(groups), len(positions), det.n_bays))
+        for g, (_, impacts) in enumerate(groups):
+            for j in range(len(positions)):
+                out[g, j] = 120e3 + 1e3 * (np.sum(impacts) - impacts[j])
+        return out, np.zeros((len(groups), len(positions)))
+
+    monkeypatch.setattr(fwd, "coupled_batch", fake)
+    passage = Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, np.full((2, 5), 120e3))
+    x = np.arange(280) * 0.01
+    one, two = np.zeros(280), np.zeros(280)
+    one[50] = 1.0
+    two[50], two[200] = 0.25, 0.75
+    settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0)
+    round_post = _post(x, one, 0.0)
+    out = pipeline._corrections(passage, [round_post, _post(x, one, 0.06)],
+                                settings | {"phase_modes": 4}, 0.45)
+    np.testing.assert_allclose(out[0].weights, [1.0])
+    np.testing.assert_allclose(out[0].values, [[500.0] * 5])  # the neighbour at 0.50 m
+    out = pipeline._corrections(passage, [round_post, _post(x, two, 0.06)],
+                                settings | {"phase_modes": 4}, 0.45)
+    np.testing.assert_allclose(out[0].weights, [0.75, 0.25])
+    np.testing.assert_allclose(out[0].values[:, 0], [2000.0, 500.0])
+    # the flat wheel's own correction: its round neighbour only at its most probable phase
+    np.testing.assert_allclose(out[1].weights, [1.0])
+    np.testing.assert_allclose(out[1].values, [[500.0] * 5])
+    single = pipeline._corrections(passage, [round_post, _post(x, two, 0.06)],
+                                   settings | {"phase_modes": 1}, 0.45)
+    np.testing.assert_allclose(single[0].values, [[2000.0] * 5])
+    np.testing.assert_allclose(single[0].weights, [1.0])
+    # an all-round bogie: no runs, no correction
+    n_calls = len(calls)
+    out = pipeline._corrections(passage, [round_post, round_post], settings, 0.45)
+    assert out == [None, None] and len(calls) == n_calls
