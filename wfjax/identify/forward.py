@@ -56,10 +56,11 @@ STEP = 25e-6  # s: the time step cap its study ran at (SimConfig's default then)
 
 
 def identification_config(config: SimConfig | None = None) -> SimConfig:
-    """``config`` (default: :class:`SimConfig` with the time step cap :data:`STEP`) with the
+    """``config`` (default: :class:`SimConfig` with the time step cap :data:`STEP` and a float64
+    loop, as its study ran) with the
     track modes to 20 kHz, as ``wfjax detector`` (the crib shear converges at 15 kHz and
     above, docs/convergence.md)."""
-    return dataclasses.replace(config or SimConfig(max_time_step=STEP),
+    return dataclasses.replace(config or SimConfig(max_time_step=STEP, precision="float64"),
                                track_max_frequency=20e3)
 
 
