@@ -160,33 +160,59 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
     """Wagon ``k``: its flats, one passage at each of ``args.speeds_kmh`` over one of
     ``args.sites`` detector sites, identified together; (per-wheel rows, timings [s])."""
     from wfjax.identify import identify
-    from wfjax.identify.synthetic import simulate_passage
-    from wfjax.scenario.sensors import Detector
 
     flats = draw_flats(rng)
     site = int(rng.integers(args.sites))
     t0 = time.perf_counter()
-    cached = _cached_passages(args, k)
-    if cached is not None:
-        passages, truth = cached
-    else:
-        passages, truth = [], None
-        for j, speed_kmh in enumerate(speeds(args)):
-            p, tr = simulate_passage(WAGON, flats, speed_kmh / 3.6, Detector(5, -1),
-                                     noise=0.03, seed=args.seed * 100003 + 101 * k + j + 1,
-                                     site_seed=args.site_seed * 1009 + site)
-            passages.append(p)
-            truth = truth or tr
-        _store_passages(args, k, passages, truth)
+    passages, truths = simulate_wagon(k, flats, site, args)
     t1 = time.perf_counter()
     if getattr(args, "simulate_only", False):
-        rows = [t | {"wagon": k, "site": site, "flagged": False} for t in truth]
+        rows = [t | {"wagon": k, "site": site, "flagged": False} for t in truths[0]]
         return rows, {"simulate_s": t1 - t0, "identify_s": 0.0}
-    res = identify(passages, coupling_iterations=args.coupling)
+    res = identify(passages, coupling_iterations=args.coupling,
+                   phase_modes=getattr(args, "phase_modes", 4))
     t2 = time.perf_counter()
-    rows = [score_wheel(t, w) | {"wagon": k, "site": site}
-            for t, w in zip(truth, res.wheels, strict=True)]
+    rows = [score_wheel(t, w) | {"wagon": k, "site": site} | passes(i, passages, truths)
+            for i, (t, w) in enumerate(zip(truths[0], res.wheels, strict=True))]
     return rows, {"simulate_s": t1 - t0, "identify_s": t2 - t1}
+
+
+def simulate_wagon(k: int, flats, site: int, args) -> tuple[list, list]:
+    """(passages, per passage the wheels' truth) of wagon ``k`` (kept in and reused from the
+    ``--passages`` folder; a kept first passage's truth only: the others' impacts redrawn by
+    :func:`wfjax.identify.synthetic.truth_of`, their peak forces unknown)."""
+    from wfjax.identify.synthetic import simulate_passage, truth_of
+    from wfjax.scenario.sensors import Detector
+
+    seeds = [args.seed * 100003 + 101 * k + j + 1 for j in range(len(speeds(args)))]
+    cached = _cached_passages(args, k)
+    if cached is not None:
+        passages, truths = cached
+        if isinstance(truths[0], dict):  # the first passage's truth only
+            truths = [truths] + [truth_of(len(WAGON), flats, s) for s in seeds[1:]]
+        return passages, truths
+    passages, truths = [], []
+    for s, speed_kmh in zip(seeds, speeds(args), strict=True):
+        p, tr = simulate_passage(WAGON, flats, speed_kmh / 3.6, Detector(5, -1),
+                                 noise=0.03, seed=s, site_seed=args.site_seed * 1009 + site)
+        passages.append(p)
+        truths.append(tr)
+    _store_passages(args, k, passages, truths)
+    return passages, truths
+
+
+def passes(i: int, passages, truths) -> dict:
+    """Wheel ``i`` in each passage: its flat's impact coordinate [m], whether it lies inside a
+    gauge's gate (between the bay's bridges), the wheel's true peak contact force [N] (NaN
+    where not kept) and its highest reading [N]."""
+    from wfjax.identify import forward as fwd
+
+    det = passages[0].detector()
+    a, b = det.gauges(float(fwd.TRACK.sleeper_spacing))
+    x = [float(t[i]["impact"]) for t in truths]
+    return {"impacts": x, "in_gate": [bool(np.any((a <= v) & (v <= b))) for v in x],
+            "peak_forces": [float(t[i].get("peak_force", float("nan"))) for t in truths],
+            "max_readings": [float(np.max(p.readings[i])) for p in passages]}
 
 
 def _passage_file(args, k: int):
@@ -271,6 +297,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=31, help="the wagons' draws")
     ap.add_argument("--site-seed", type=int, default=31, help="the sites' draws")
     ap.add_argument("--coupling", type=int, default=1)
+    ap.add_argument("--phase-modes", type=int, default=4, help="a neighbour's phase modes "
+                    "its correction is marginalised over (1: its most probable phase)")
     ap.add_argument("--docs", action="store_true")
     ap.add_argument("--passages", metavar="DIR", help="keep every wagon's simulated "
                     "passages and truth here and reuse them (the truth is most of the time)")

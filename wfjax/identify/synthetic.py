@@ -22,7 +22,7 @@ from ..scenario.sensors import Detector
 from . import forward as fwd
 from .passage import Passage
 
-__all__ = ["TrainFlat", "simulate_passage", "parse_flats"]
+__all__ = ["TrainFlat", "simulate_passage", "truth_of", "parse_flats"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,6 +76,37 @@ def _truth_flat(t: dict, radius: float):
     return fwd.flat_of(t["kind"], t["length"], t["factor"], radius)
 
 
+def truth_of(n_wheels: int, flats: list[TrainFlat], seed: int = 0,
+             detector: Detector | None = None, wheel: Wheel | None = None) -> list[dict]:
+    """Per wheel the truth :func:`simulate_passage` draws with ``seed`` (kind, length [m],
+    l / l0, depth [m], impact [m]), without simulating (its peak force is not known here)."""
+    wheel, detector = wheel or Wheel(), detector or Detector(5, -1)
+    return _draw_truth(n_wheels, flats, np.random.default_rng(seed + 104729), detector,
+                       float(wheel.radius))
+
+
+def _draw_truth(n_wheels: int, flats, rng, detector: Detector, radius: float) -> list[dict]:
+    """Per wheel its truth; each flat without a given impact strikes at a rail coordinate
+    drawn uniformly over one circumference from the detector's first bay (``rng``: one draw
+    per wheel, round ones too)."""
+    by_wheel = {f.wheel: f for f in flats}
+    if any(w >= n_wheels for w in by_wheel):
+        raise ValueError(f"flats: wheel index beyond the layout's {n_wheels} wheels")
+    ls = float(fwd.TRACK.sleeper_spacing)
+    x0 = int(detector.bays()[0]) * ls  # as the identification's phase grid
+    truth = []
+    for i in range(n_wheels):
+        f = by_wheel.get(i)
+        x = x0 + rng.uniform(0, 2 * math.pi * radius) if f is None or f.impact is None \
+            else f.impact
+        kind, length, factor = ("none", 0.0, 1.0) if f is None else (f.kind, f.length,
+                                                                    f.factor)
+        depth = 0.0 if f is None else float(fwd.depth_of(kind, length, factor, radius))
+        truth.append({"wheel": i, "kind": kind, "length": length, "factor": factor,
+                      "depth": depth, "impact": float(x)})
+    return truth
+
+
 def simulate_passage(positions, flats: list[TrainFlat], speed: float,
                      detector: Detector | None = None, noise: float = 0.03,
                      seed: int = 0, scatter_cv: float = 0.1, contact: str = "hertz-trajectory",
@@ -98,21 +129,7 @@ def simulate_passage(positions, flats: list[TrainFlat], speed: float,
     radius = float(wheel.radius)
     positions = np.asarray(positions, float)
     rng = np.random.default_rng(seed + 104729)
-    by_wheel = {f.wheel: f for f in flats}
-    if any(w >= positions.size for w in by_wheel):
-        raise ValueError(f"flats: wheel index beyond the layout's {positions.size} wheels")
-    ls = float(fwd.TRACK.sleeper_spacing)
-    x0 = int(detector.bays()[0]) * ls  # as the identification's phase grid
-    truth = []
-    for i in range(positions.size):
-        f = by_wheel.get(i)
-        x = x0 + rng.uniform(0, 2 * math.pi * radius) if f is None or f.impact is None \
-            else f.impact
-        kind, length, factor = ("none", 0.0, 1.0) if f is None else (f.kind, f.length,
-                                                                    f.factor)
-        depth = 0.0 if f is None else float(fwd.depth_of(kind, length, factor, radius))
-        truth.append({"wheel": i, "kind": kind, "length": length, "factor": factor,
-                      "depth": depth, "impact": float(x)})
+    truth = _draw_truth(positions.size, flats, rng, detector, radius)
     readings = np.zeros((positions.size, detector.n_bays))
     peaks = np.zeros(positions.size)
     groups = _groups(positions)
