@@ -35,12 +35,18 @@ def _wf():
     return wfjax
 
 
+def _f64(wf):
+    """The float64 loop: the baselines hold to 1e-12, which float32 (the forward default since
+    2026-12-04, ``SimConfig.precision="auto"``) cannot; tests/test_precision.py bounds it."""
+    return wf.SimConfig(precision="float64")
+
+
 def default_sweep() -> dict:
     """The README's main job: ``wfjax sweep`` (Fig. 7 case, 3D tables)."""
     wf = _wf()
     flats = [wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH), wf.Flat.new(ROUNDED_DEPTH)]
     speeds = np.arange(20.0, 300.0 + 1e-9, 10.0) / 3.6
-    res = wf.sweep(flats, speeds, 10, contact="3d", progress=False)
+    res = wf.sweep(flats, speeds, 10, contact="3d", progress=False, config=_f64(wf))
     return {"max_force": np.asarray(res.max_force), "min_force": np.asarray(res.min_force)}
 
 
@@ -49,7 +55,7 @@ def single_wheel(contact: str) -> dict:
     wf = _wf()
     res = wf.simulate(wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH), SPEED, contact=contact,
                       impact_position=0.1, sensors=[0.2, 0.5],
-                      sensor_quantities=("shear", "seat_force"))
+                      sensor_quantities=("shear", "seat_force"), config=_f64(wf))
     out = {k: np.asarray(getattr(res, k)) for k in ("force", "rail_disp", "wheel_disp",
                                                     "approach")}
     out |= {f"sensors/{q}": np.asarray(v) for q, v in res.sensors.items()}
@@ -62,7 +68,8 @@ def bogie() -> dict:
     from wfjax.model.vehicle import Vehicle
 
     res = wf.simulate(wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH), SPEED,
-                      contact="hertz-trajectory", impact_position=0.2, vehicle=Vehicle.bogie())
+                      contact="hertz-trajectory", impact_position=0.2, vehicle=Vehicle.bogie(),
+                      config=_f64(wf))
     return {"wheel_force": np.asarray(res.wheel_force), "force": np.asarray(res.force),
             "axle_acc": np.asarray(res.wheel_axle_acc)}
 
@@ -78,10 +85,11 @@ def rough_void() -> dict:
     rough = roughness.generate(roughness.ISO3095_LIMIT, 0, 6.0, x_start=-3.0)
     flat = wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH)
     void = wf.simulate(flat, SPEED, contact="hertz-trajectory", impact_position=0.65,
-                       track=supports.void_sleeper(track, track.n_bays // 2), roughness=rough)
+                       track=supports.void_sleeper(track, track.n_bays // 2), roughness=rough,
+                       config=_f64(wf))
     hang = wf.simulate(flat, SPEED, contact="2d", impact_position=0.62,
                        track=supports.hanging_sleeper(track, track.n_bays // 2, 0.3e-3),
-                       roughness=rough)
+                       roughness=rough, config=_f64(wf))
     return {"void/force": np.asarray(void.force), "void/rail_disp": np.asarray(void.rail_disp),
             "hanging/force": np.asarray(hang.force),
             "hanging/support_force": np.asarray(hang.support_force)}
@@ -95,9 +103,9 @@ def detector() -> dict:
     flat = wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH)
     det = Detector(n_bays=3)
     res = wf.simulate(flat, SPEED, contact="hertz-trajectory", impact_position=0.3,
-                      detector=det)
+                      detector=det, config=_f64(wf))
     sw = wf.sweep([flat], np.array([40.0, 120.0]) / 3.6, 3, contact="hertz-trajectory",
-                  detector=det, progress=False)
+                  detector=det, progress=False, config=_f64(wf))
     return {"sim/detector_peak": np.asarray(res.detector_peak),
             "sim/detector_load": np.asarray(res.detector_load),
             "sweep/detector_peak": np.asarray(sw.detector_peak),

@@ -126,7 +126,7 @@ def test_flag_beats_file_beats_environment_beats_default(tmp_path):
     path = _write(tmp_path, "[config]\nprecision = \"float64\"\n[run]\ncontact = \"2d\"\n"
                             "[track]\nrail_head_radius = 0.45\npad_stiffness = 60e6\n")
     env32 = {"WFJAX_PRECISION": "float32"}
-    assert C.resolve("sweep", environ={})["config.precision"] == "float64"
+    assert C.resolve("sweep", environ={})["config.precision"] == "auto"
     assert C.resolve("sweep", environ=env32)["config.precision"] == "float32"
     case = C.resolve("sweep", path, environ=env32)
     assert case["config.precision"] == "float64" and case["run.contact"] == "2d"

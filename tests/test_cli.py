@@ -53,7 +53,7 @@ def test_tiny_sweep_from_config_files_ordinary_permissions_and_round_trip(tmp_pa
     assert case["track"]["pad_stiffness"] == 100e6
     assert case["wheel"] == {f: getattr(wf.Wheel(), f) for f in case["wheel"]}  # defaults too
     prov = summary["provenance"]
-    assert prov["wfjax_version"] == wf.__version__ and prov["precision"] == "float64"
+    assert prov["wfjax_version"] == wf.__version__ and prov["precision"] == "auto"
     assert prov["jax_device_count"] >= 1 and prov["command"] == "sweep"
     for name in ("sweep.csv", "sweep.json", "sweep.png", "sweep.npz", "case.toml"):
         assert stat.S_IMODE((out / name).stat().st_mode) == 0o644, name

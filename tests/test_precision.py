@@ -94,3 +94,36 @@ def test_float32_newton_tolerance_is_its_rounding_floor():
     assert np.all(np.asarray(r_new) <= 8 * eps * np.asarray(d_free))  # within 6 iterations
     r_old = jax.vmap(lambda d: solve(d, 1e-15, 30))(d_free)
     assert np.any(np.asarray(r_old) > 1e-15)  # some never reach 1e-15 m: 30 iterations
+
+
+def test_auto_is_float32_forward_and_float64_for_gradients_and_direct_3d():
+    assert wf.SimConfig().precision == "auto"
+    assert wf.SimConfig().loop_precision() == "float32"
+    assert wf.SimConfig().loop_precision(gradients=True) == "float64"
+    assert wf.SimConfig(contact_mode_3d="direct").loop_precision() == "float64"
+    for p in ("float64", "float32"):  # an explicit choice is kept, gradients or not
+        assert wf.SimConfig(precision=p).loop_precision(gradients=True) == p
+
+
+def test_default_sweep_runs_the_float32_loop_and_returns_float64_arrays():
+    speeds = np.array([60.0, 250.0]) / 3.6
+    run = {p: wf.sweep(FLAT, speeds, impact_positions=2, contact="hertz-trajectory",
+                       config=wf.SimConfig(precision=p), progress=False)
+           for p in ("auto", "float32", "float64")}
+    np.testing.assert_array_equal(run["auto"].max_force, run["float32"].max_force)
+    assert not np.array_equal(run["auto"].max_force, run["float64"].max_force)
+    assert np.asarray(run["auto"].max_force).dtype == np.float64  # widened on the way out
+    sim = wf.simulate(FLAT, speeds[0], contact="hertz-trajectory", impact_position=0.1)
+    assert np.asarray(sim.force).dtype == np.float64
+    # t from the uncast float64 step: the same grid as a float64 run's
+    ref = wf.simulate(FLAT, speeds[0], contact="hertz-trajectory", impact_position=0.1,
+                      config=wf.SimConfig(precision="float64"))
+    np.testing.assert_array_equal(np.asarray(sim.t), np.asarray(ref.t))
+
+
+def test_a_fit_program_takes_its_gradients_in_float64():
+    from wfjax.program.core import compile_scenario
+    from wfjax.scenario.description import Scenario
+
+    program = compile_scenario(Scenario.of(FLAT, "hertz-trajectory"))
+    assert program.statics[2] == "float64"

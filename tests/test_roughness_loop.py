@@ -16,6 +16,8 @@ from wfjax.scenario import roughness as rough_mod
 from wfjax.scenario.description import Scenario
 from wfjax.scenario.windows import check_impact_positions
 
+F64 = wf.SimConfig(precision="float64")  # identities to rounding: the float64 loop
+
 REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 V = 100 / 3.6
@@ -31,8 +33,9 @@ def _sine(amplitude, wavelength=0.1, phase=0.0):
 def _fluctuation(contact, rough, flat=None, **kw):
     """(force [n], force minus the smooth run's [n], t [n]) of a run with ``rough``."""
     flat = flat or wf.Flat.none()
-    base = wf.simulate(flat, V, contact=contact, impact_position=0.1, **kw)
-    res = wf.simulate(flat, V, contact=contact, impact_position=0.1, roughness=rough, **kw)
+    base = wf.simulate(flat, V, contact=contact, impact_position=0.1, **kw, config=F64)
+    res = wf.simulate(flat, V, contact=contact, impact_position=0.1, roughness=rough, **kw,
+                      config=F64)
     return np.asarray(res.force), np.asarray(res.force) - np.asarray(base.force), res
 
 
@@ -49,8 +52,8 @@ def test_zero_roughness_reproduces_the_smooth_loop(contact):
     # compared with the same table's run without roughness as well
     ref = np.load(REFERENCE)
     res = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1,
-                      roughness=_sine(0.0))
-    plain = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1)
+                      roughness=_sine(0.0), config=F64)
+    plain = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1, config=F64)
     for key in ("force", "rail_disp", "wheel_disp", "approach"):
         got = np.asarray(getattr(res, key))
         for want, tol in ((np.asarray(getattr(plain, key)), 1e-9),
@@ -72,9 +75,10 @@ def test_raised_rail_adds_approach():
     # a constant 1 um raised rail is a static offset: the force does not change, the
     # kinematic approach xi_W - xi_R drops by the offset (the wheel rides 1 um higher)
     flat = wf.Flat.none()
-    base = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1)
+    base = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1, config=F64)
     up = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1,
-                     roughness=rough_mod.Roughness(float(X[0]), DX, np.full(X.size, 1e-6)))
+                     roughness=rough_mod.Roughness(float(X[0]), DX, np.full(X.size, 1e-6)),
+                     config=F64)
     assert np.max(np.abs(np.asarray(up.force) - np.asarray(base.force))) < 1e-6 * 118e3
     assert np.asarray(up.approach) == pytest.approx(np.asarray(base.approach) - 1e-6,
                                                     abs=1e-12)
@@ -92,9 +96,10 @@ def test_wheel_roughness_equals_the_same_rail_roughness_under_one_wheel():
                                 periodic=True)
     rail = _sine(1e-6, lam, phase=-2 * np.pi * 0.1 / lam)
     flat = wf.Flat.none()
-    a = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1, roughness=rail)
+    a = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1, roughness=rail,
+                    config=F64)
     b = wf.simulate(flat, V, contact="hertz-profile", impact_position=0.1,
-                    wheel_roughness=wheel)
+                    wheel_roughness=wheel, config=F64)
     fa, fb = np.asarray(a.force), np.asarray(b.force)
     assert np.max(np.abs(fa - fb)) < 1e-3 * np.ptp(fa)
 

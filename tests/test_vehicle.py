@@ -23,6 +23,8 @@ from wfjax.model.vehicle import Vehicle, placement, residual_pairs, transfer_rec
 from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
 
+F64 = wf.SimConfig(precision="float64")  # identities to rounding: the float64 loop
+
 REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 V = 100 / 3.6
@@ -34,9 +36,9 @@ V = 100 / 3.6
 def test_one_wheel_vehicle_reproduces_the_single_wheel_loop(contact):
     # tests/data holds the histories of the one-wheel loop before the several-wheels rewrite
     ref = np.load(REFERENCE)
-    plain = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1)
+    plain = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1, config=F64)
     one = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1,
-                      vehicle=Vehicle.single())
+                      vehicle=Vehicle.single(), config=F64)
     for res in (plain, one):
         for key in ("force", "rail_disp", "wheel_disp", "approach"):
             want = ref[f"{contact}/{key}"]
@@ -48,7 +50,7 @@ def test_one_wheel_vehicle_reproduces_the_single_wheel_loop(contact):
 def test_one_wheel_sensors_reproduce_the_single_wheel_loop():
     ref = np.load(REFERENCE)
     res = wf.simulate(ROUNDED, V, contact="hertz-trajectory", impact_position=0.1,
-                      sensors=[0.2, 0.5], sensor_quantities=("shear", "seat_force"))
+                      sensors=[0.2, 0.5], sensor_quantities=("shear", "seat_force"), config=F64)
     for q, hist in res.sensors.items():
         want = ref[f"sensors/{q}"]
         assert np.max(np.abs(np.asarray(hist) - want)) <= 1e-9 * np.max(np.abs(want))

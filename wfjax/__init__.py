@@ -5,8 +5,10 @@ Nielsen (2014), Wear 314, 273-281. SI units throughout the Python API.
 
 Precision: importing wfjax switches on ``jax_enable_x64`` -- the one place in the package where
 JAX configuration is touched: the setup (track modes, 3D tables, trajectories) is always
-float64. ``SimConfig(precision="float32")`` runs the time loop in float32 (GPUs; the command
-line's ``--precision``, case key ``config.precision``, environment ``WFJAX_PRECISION``).
+float64. The time loop runs in float32 for forward runs and in float64 where gradients are
+taken (``SimConfig(precision="auto")``, the default; ``"float64"`` or ``"float32"`` force one:
+the command line's ``--precision``, case key ``config.precision``, environment
+``WFJAX_PRECISION``).
 """
 
 import jax as _jax

@@ -31,15 +31,28 @@ from .fields import (
 )
 
 __all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT_KINDS",
-           "SUPPORT_FIELDS"]
+           "SUPPORT_FIELDS", "loop_precision"]
 
 MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (half-space, Eq. 1)
 MAX_FLAT_LENGTH = 0.3  # m; about a tenth of a 0.45 m wheel's circumference
 FLAT_KINDS = ("new", "rounded", "profile", "sections", "none")
 CONTACT_MODES_3D = ("auto", "table", "parametric", "direct")
-PRECISIONS = ("float64", "float32")
+PRECISIONS = ("auto", "float64", "float32")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
 MAX_SPEED = 150.0  # m/s (540 km/h): the speed range of every entry point, (0, MAX_SPEED]
+
+
+def loop_precision(precision: str, gradients: bool = False, direct: bool = False) -> str:
+    """``"float64"`` or ``"float32"``: the time loop's dtype for a :attr:`SimConfig.precision`.
+
+    ``"auto"`` resolves to float64 where gradients are taken (``gradients``: a fit's program,
+    the adjoint; float32 gradients are only within 1e-3 of float64's) or a contact law solves
+    its own steps (``direct``: the direct 3D mode), else to float32; the others are returned
+    as they are.
+    """
+    if precision != "auto":
+        return precision
+    return "float64" if gradients or direct else "float32"
 
 
 def kmh(speed_kmh: float) -> float:
@@ -477,15 +490,19 @@ class SimConfig:
             Every setting here is checked against the case by the physics guards
             (:mod:`wfjax.scenario.guards`).
         newton_iterations: fixed iteration count of the per-step contact equation.
-        precision: ``"float64"`` (default) or ``"float32"``: the dtype of the time loop
-            (modal propagation, contact law, per-step Newton solve; complex64 modes). The
-            setup stays float64 either way (track modes, 3D tables and families, trajectory
-            grids, the per-step propagation coefficients exp(pole dt)), and so does the
-            process (``jax_enable_x64``). Measured on the paper's Fig. 7 and Fig. 8 sets:
-            max force within 2.0e-4 (Fig. 7) and 1.3e-4 (Fig. 8) relative of float64,
-            loss-of-contact speeds unchanged
-            (benchmarks/README.md, "Precision"). ``"direct"`` 3D contact needs float64
-            (its Kalker solves converge to 1e-10, below float32's resolution).
+        precision: ``"auto"`` (default), ``"float64"`` or ``"float32"``: the dtype of the
+            time loop (modal propagation, contact law, per-step Newton solve; complex64
+            modes). ``"auto"`` is float32 for forward runs of point contact laws (simulate,
+            sweep, detector, Monte Carlo: 0.58-0.65x the float64 time of the default sweep on
+            a CPU) and float64 where gradients are taken (a fit's program, the adjoint) and
+            for the ``"direct"`` 3D contact, whose Kalker solves converge to 1e-10, below
+            float32's resolution (:func:`loop_precision`). The setup stays float64 either
+            way (track modes, 3D tables and families, trajectory grids, the per-step
+            propagation coefficients exp(pole dt)), and so does the process
+            (``jax_enable_x64``). Measured against float64: max force within 2.0e-4
+            (Fig. 7) and 1.3e-4 (Fig. 8) relative, loss-of-contact speeds unchanged, 2000
+            times inside the model's 0.5 % accuracy (benchmarks/README.md, "Precision";
+            docs/convergence.md).
         allow_inaccurate: run settings that the physics guards
             (:mod:`wfjax.scenario.guards`) refuse because they cannot keep the max contact
             force within 3 % of the converged reference; each finding becomes an
@@ -513,10 +530,11 @@ class SimConfig:
                                         doc="track modes above this enter statically")
     newton_iterations: int = option(30, low=1, high=1000,
                                     doc="iterations of the per-step contact equation")
-    precision: str = option("float64", choices=PRECISIONS, flag="--precision",
+    precision: str = option("auto", choices=PRECISIONS, flag="--precision",
                             flag_commands=("sweep", "simulate", "fit", "detector"),
-                            doc="dtype of the time loop; setup stays float64 (environment: "
-                                "WFJAX_PRECISION)")
+                            doc="dtype of the time loop (auto: float32 forward, float64 for "
+                                "gradients and direct 3D); setup stays float64 "
+                                "(environment: WFJAX_PRECISION)")
     allow_inaccurate: bool = option(False, flag="--allow-inaccurate",
                                     flag_commands=("sweep", "simulate", "fit", "detector"),
                                     doc="run settings the physics guards refuse, with a "
@@ -552,6 +570,11 @@ class SimConfig:
             raise ValueError(
                 f"SimConfig.newton_iterations must be >= 1, got {self.newton_iterations!r}"
             )
+
+    def loop_precision(self, gradients: bool = False) -> str:
+        """The time loop's precision for this config (:func:`loop_precision`)."""
+        return loop_precision(self.precision, gradients=gradients,
+                              direct=self.contact_mode_3d == "direct")
 
     def time_step_for(self, speed: float) -> float:
         """Time step [s] used at ``speed`` [m/s]."""

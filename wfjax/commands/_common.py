@@ -168,7 +168,7 @@ def provenance(case: case_mod.Case, inputs: dict[str, str] | None = None) -> dic
         "wfjax_version": wfjax.__version__,
         "jax_version": jax.__version__,
         "command": case.command,
-        "precision": case.get("config.precision", "float64"),
+        "precision": case.get("config.precision", "auto"),
         "jax_backend": jax.default_backend(),
         "jax_device_count": jax.device_count(),
         "case_sha256": case.digest(),

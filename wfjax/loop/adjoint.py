@@ -68,6 +68,7 @@ import jax.numpy as jnp
 
 from ..contact.newton import solve_small
 from ..fields import pytree
+from ..params import loop_precision
 from .contacts import pointwise, roughness_inputs
 from .observers import LoopContext, OwnCompliance, Reading
 from .run import StepOutput, run_scan, time_loop
@@ -482,6 +483,7 @@ def adjoint_runs(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     """
     single = not isinstance(law, tuple)
     laws = (law,) if single else law
+    precision = loop_precision(precision, gradients=True)
     observers = tuple(observers)
     _check_supported(laws, struct, observers)
     args = tuple(jnp.asarray(a) for a in (speed, dt, x_start, impact_position))
@@ -542,7 +544,8 @@ def adjoint_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
         speed: v [m/s]; dt: time step [s]; x_start: rail coordinate of the reference wheel at
             t = 0 [m]; impact_position: where s = 0 [m] (none of them differentiated).
         n_steps: steps incl. t = 0 (static). max_iter: Newton iteration cap (static).
-        precision: ``"float64"`` or ``"float32"`` (static).
+        precision: ``"float64"`` or ``"float32"`` (static; ``"auto"``: float64, as for every
+            gradient, :func:`wfjax.params.loop_precision`).
         roughness: a :class:`wfjax.scenario.patch.LoopRoughness` or None (not differentiated).
         observers: instruments (:class:`wfjax.loop.observers.Sensors`,
             :class:`~wfjax.loop.observers.DetectorReadings`, history on or off; not

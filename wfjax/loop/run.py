@@ -30,7 +30,8 @@ import jax.numpy as jnp
 
 from .._xla import LOOP_COMPILER_OPTIONS
 from ..model import track as track_mod
-from .contacts import law_groups, roughness_inputs, solve_contacts, support_force
+from ..params import loop_precision
+from .contacts import law_groups, pointwise, roughness_inputs, solve_contacts, support_force
 from .observers import HangingSleepers, LoopContext, Reading
 from .setup import (
     LoopSetup,
@@ -39,6 +40,7 @@ from .setup import (
     cast_precision,
     loop_setup,
     static_start,
+    widen,
 )
 from .structure import modal_loads, rail_compliance_fn, rail_reads, shapes_fn
 
@@ -204,10 +206,13 @@ def time_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
             in the scan; their per-step values and summaries join the result by name. With
             hanging sleepers (``struct.supports``) the loop adds
             :class:`~wfjax.loop.observers.HangingSleepers`.
-        precision: ``"float64"`` or ``"float32"`` (static, :attr:`SimConfig.precision`): the
-            loop's dtype (observers are cast with it). The propagation coefficients are
-            computed in the inputs' precision (float64) and then cast: their series in
-            pole dt cancels to ~1e-3 relative in float32.
+        precision: ``"float64"``, ``"float32"`` or ``"auto"`` (static,
+            :attr:`SimConfig.precision`; :func:`wfjax.params.loop_precision` with the laws:
+            float64 if a law solves its own steps, else float32): the loop's dtype
+            (observers are cast with it). The propagation coefficients are computed in the
+            inputs' precision (float64) and then cast: their series in
+            pole dt cancels to ~1e-3 relative in float32. The outputs are returned in the
+            inputs' precision (:func:`wfjax.loop.setup.widen`).
         roughness: a :class:`wfjax.scenario.patch.LoopRoughness` (traced: ``vmap`` over its
             realisations), or None. Point-contact laws see the contact-filtered roughness
             added to the approach; laws with ``rough_nodes`` (2D bedding, direct 3D) see it
@@ -223,6 +228,7 @@ def time_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
     """
     single = not isinstance(law, tuple)
     laws = (law,) if single else law
+    precision = loop_precision(precision, direct=not all(pointwise(lw) for lw in laws))
     groups = law_groups(laws)  # before the precision cast, which copies every law
     ls = loop_setup(laws, struct, speed, dt, x_start, impact_position, precision, roughness)
     observers = tuple(cast_precision(tuple(observers), precision))
@@ -253,7 +259,8 @@ def time_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
         result = {k: a[:, 0] for k, a in result.items()}
         summaries = {k: (a[0] if k == "detector_peak" else a) for k, a in summaries.items()}
     result |= {k: jnp.concatenate([first_saved[k][None], a]) for k, a in saved.items()}
-    return result | summaries | {"t": ls.dt * jnp.arange(n_steps)}
+    out = result | summaries | {"t": dt * jnp.arange(n_steps)}  # t from the uncast step
+    return out if precision == "float64" else widen(out)
 
 
 _LOOP_STATIC = ("n_steps", "max_iter", "checkpoint", "precision")

@@ -39,6 +39,20 @@ def cast_precision(tree, precision: str):
     return jax.tree.map(narrow, tree)
 
 
+def widen(tree):
+    """``tree`` with float32/complex64 array leaves cast to float64/complex128: the loop's
+    outputs in the inputs' precision (a float32 loop's values keep float32's accuracy)."""
+    wide = {np.dtype(v): k for k, v in _NARROW.items()}
+
+    def up(x):
+        dtype = getattr(x, "dtype", None)
+        if dtype is None or np.dtype(dtype) not in wide:
+            return x
+        return x.astype(wide[np.dtype(dtype)])
+
+    return jax.tree.map(up, tree)
+
+
 class LoopSetup(NamedTuple):
     """What the time loop computes before its scan, in the loop's precision
     (:func:`loop_setup`; :func:`time_loop` and :mod:`wfjax.loop.adjoint` read the same one).

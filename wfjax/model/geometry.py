@@ -103,7 +103,7 @@ def _deviation(flat: Flat, x, xp):
         return _profile_flat(flat.profile_x, flat.profile_z, x, xp)
     if flat.kind == "sections":
         return surface.centre_line(flat.profile_x, flat.section_y, flat.section_z, x, xp)
-    return xp.zeros_like(x, dtype=float)
+    return xp.zeros_like(x, dtype=xp.result_type(x, float))  # float32 stays float32
 
 
 def profile_deviation_small_depth(flat: Flat, x):
@@ -203,7 +203,8 @@ def centre_trajectory(flat: Flat, x, n_coarse: int = 256, n_fine: int = 64):
     Returns:
         [n] centre height relative to the undamaged wheel [m].
     """
-    x = jnp.asarray(x, dtype=jnp.result_type(float))
+    x = jnp.asarray(x)
+    x = x.astype(jnp.result_type(x, float))  # keeps a float32 loop in float32
     if flat.kind == "none":
         return jnp.zeros_like(x)
     return _centre_trajectory(flat, x, _trajectory_window(flat), n_coarse, n_fine)

@@ -268,9 +268,10 @@ class Program:
 
     @property
     def statics(self) -> tuple:
-        """(n_steps, max_iter, precision) of :func:`run_one`."""
+        """(n_steps, max_iter, precision) of :func:`run_one` in the batches :meth:`forward`
+        runs for the fits (``"auto"`` precision: float64, as gradients are taken)."""
         config = self.scenario.config
-        return self.n_steps, config.newton_iterations, config.precision
+        return self.n_steps, config.newton_iterations, config.loop_precision(gradients=True)
 
     def history(self, run: Run, save=Histories()) -> dict:
         """One run's outputs (default every step's histories) over its ``run.end`` steps with

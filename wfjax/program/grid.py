@@ -317,7 +317,7 @@ def bytes_per_run(n_steps: int, n_modes: int, precision: str = "float64",
     left to ``MEMORY_FRACTION``. Every further wheel of a vehicle adds its shapes, their
     products and the gathered nodal rows (8 complex vectors) and its outputs per step.
     """
-    real = 8 if precision == "float64" else 4
+    real = 4 if precision == "float32" else 8  # "auto" sized as float64 (the direct 3D mode)
     return real * (2 * n_steps * n_wheels + (24 + 8 * (n_wheels - 1)) * 2 * n_modes)
 
 
