@@ -87,11 +87,12 @@ def test_corrections_run_every_neighbour_mode(monkeypatch):
     """The corrections' plumbing, with a stand-in for the coupled runs whose wheel j reads
     1 kN x (the sum of the other wheels' impact coordinates [m]) in every bay: a neighbour
     with one phase mode gives the single-phase correction; with two modes, one configuration
-    each, at the modes' impacts, with their probabilities."""
+    each, at the modes' impacts, with their probabilities; the corrected wheel is round in
+    its runs."""
     calls = []
 
     def fake(groups, positions, speed, det, **kw):
-        calls.append((len(groups), len(positions)))
+        calls.append([[round(f.length, 4) for f in fl] for fl, _ in groups])
         out = np.zeros((len(groups), len(positions), det.n_bays))
         for g, (_, impacts) in enumerate(groups):
             for j in range(len(positions)):
@@ -114,9 +115,10 @@ def test_corrections_run_every_neighbour_mode(monkeypatch):
                                 settings | {"phase_modes": 4}, 0.45)
     np.testing.assert_allclose(out[0].weights, [0.75, 0.25])
     np.testing.assert_allclose(out[0].values[:, 0], [2000.0, 500.0])
-    # the flat wheel's own correction: its round neighbour only at its most probable phase
-    np.testing.assert_allclose(out[1].weights, [1.0])
-    np.testing.assert_allclose(out[1].values, [[500.0] * 5])
+    # the corrected wheel runs round (4 mm) beside the neighbour's estimated 60 mm flat;
+    # the flat wheel's neighbour is round: no correction for it
+    assert calls[-2] == [[0.004]] and calls[-1] == [[0.004, 0.06], [0.004, 0.06]]
+    assert out[1] is None
     single = pipeline._corrections(passage, [round_post, _post(x, two, 0.06)],
                                    settings | {"phase_modes": 1}, 0.45)
     np.testing.assert_allclose(single[0].values, [[2000.0] * 5])

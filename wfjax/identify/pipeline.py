@@ -145,14 +145,21 @@ def _configurations(g: list[int], modes: dict, n_max: int) -> dict:
 
 
 def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list:
-    """Per wheel a :class:`CorrectionMixture` of [n_bays] N: coupled minus single-wheel
-    readings, over the neighbours' phase modes (:func:`phase_modes` of their posteriors in
-    this passage, ``settings["phase_modes"]`` at most; a probably round neighbour,
-    P(l >= :data:`ROUND_LENGTH`) < 0.5, only at its most probable phase), every wheel's own
-    flat and phase at its posterior mode. None for a wheel whose bogie is all probably round
-    (a round wheel barely moves its neighbours' readings). The bogies' configurations run as
-    one batch per layout (:func:`wfjax.identify.forward.coupled_batch`), their wheels alone
-    as one more: a train's bogies are not looped over."""
+    """Per wheel a :class:`CorrectionMixture` of [n_bays] N, the neighbours' effect on its
+    readings: the wheel **round** in its bogie with its neighbours at their estimates, minus
+    the wheel round alone, over the neighbours' phase modes (:func:`phase_modes` of their
+    posteriors in this passage, ``settings["phase_modes"]`` at most), each neighbour's flat
+    at its posterior mode; None for a wheel none of whose neighbours probably has a flat
+    (P(l >= :data:`ROUND_LENGTH`) >= 0.5: a round wheel barely moves its neighbours'
+    readings).
+
+    The wheel is round in these runs, not at its own estimate: a neighbour's impact that
+    rings while the wheel stands in a gate reads as a flat of its own at iteration 0, and
+    a correction computed with that flat in place finds nothing left to correct (the gated
+    peak is the larger of the two events, not their sum). The corrections add to the
+    wheel's own modelled readings. The runs go as one batch per layout
+    (:func:`wfjax.identify.forward.coupled_batch`), the wheels alone as one more: a train's
+    bogies are not looped over."""
     from ..scenario import roughness as rough_mod
 
     det = passage.detector()
@@ -163,30 +170,33 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     k, n_max = settings["passage_index"], int(settings.get("phase_modes", 4))
     flat = {i: posts[i].p_length_at_least(ROUND_LENGTH) >= 0.5
             for i in range(passage.n_wheels)}
-    groups = [g for g in _groups(passage.positions) if len(g) > 1 and any(flat[i] for i in g)]
-    if not groups:  # no neighbour with a flat: no correction
+    todo = [(g, i) for g in _groups(passage.positions) if len(g) > 1 for i in g
+            if any(flat[j] for j in g if j != i)]
+    if not todo:  # no wheel has a neighbour with a flat: no correction
         return out
-    wheels = [i for g in groups for i in g]
+    wheels = sorted({j for g, _ in todo for j in g})
     flats = {i: _estimate_flat(posts[i], radius) for i in wheels}
+    smooth = fwd.flat_of("new", 0.004, 1.0, radius)
     modes = {i: phase_modes(posts[i].phases[k], posts[i].phase_weights[k], n_max)
              if flat[i] and n_max > 1 else (np.array([posts[i].best[2][k]]), np.ones(1))
              for i in wheels}
-    alone, _ = fwd.coupled_batch([([flats[i]], [modes[i][0][0]]) for i in wheels], [0.0],
+    mine = sorted({i for _, i in todo})
+    alone, _ = fwd.coupled_batch([([smooth], [modes[i][0][0]]) for i in mine], [0.0],
                                  passage.speed, det, **kw)
-    single = dict(zip(wheels, alone[:, 0], strict=True))
-    for layout, members in _layouts(passage.positions, groups).items():
-        confs = {tuple(g): _configurations(g, modes, n_max) for g in members}
-        runs = sorted({(tuple(g), idx) for g in members for c in confs[tuple(g)].values()
-                       for idx, _ in c})
-        both, _ = fwd.coupled_batch([([flats[i] for i in g], [modes[i][0][m] for i, m in
-                                                              zip(g, idx, strict=True)])
-                                     for g, idx in runs], layout, passage.speed, det, **kw)
+    single = dict(zip(mine, alone[:, 0], strict=True))
+    for layout, members in _layouts(passage.positions, [g for g, _ in todo]).items():
+        confs = {(tuple(g), i): _configurations(g, modes, n_max)[i] for g, i in todo
+                 if g in members}
+        runs = sorted({(key, idx) for key, c in confs.items() for idx, _ in c})
+        both, _ = fwd.coupled_batch(
+            [([smooth if j == key[1] else flats[j] for j in key[0]],
+              [modes[j][0][m] for j, m in zip(key[0], idx, strict=True)])
+             for key, idx in runs], layout, passage.speed, det, **kw)
         got = dict(zip(runs, both, strict=True))
-        for g in members:
-            for j, i in enumerate(g):
-                c = confs[tuple(g)][i]
-                out[i] = CorrectionMixture(np.array([p for _, p in c]), np.stack(
-                    [got[(tuple(g), idx)][j] - single[i] for idx, _ in c]))
+        for (g, i), c in confs.items():
+            j = g.index(i)
+            out[i] = CorrectionMixture(np.array([p for _, p in c]), np.stack(
+                [got[((g, i), idx)][j] - single[i] for idx, _ in c]))
     return out
 
 
