@@ -86,13 +86,49 @@ def line(r: dict) -> str:
             f"| mode: {ans(r['modes1'])} | mixture: {ans(r['modes4'])}{blind}")
 
 
+def study_blindness(path: str, speeds_kmh=(60.0, 100.0, 140.0)) -> dict:
+    """Every flat of a study's results (``path``, JSON) with its blind fraction at each
+    passage's speed (the response tables from the cache; no simulation): the missed flats
+    >= 30 mm, and the expected number of flats >= 30 mm whose every passage falls where the
+    detector reads them as round (the sum over flats of the product of their blind
+    fractions: impacts drawn uniformly over the circumference, independently per passage)."""
+    from wfjax.identify import forward as fwd
+
+    rows = json.loads(Path(path).read_text())["wheels"]
+    bays = np.arange(-1, 4)
+    tables = [fwd.build_table(v / 3.6) for v in speeds_kmh]
+    long = [r for r in rows if r["kind"] != "none" and r["length"] >= 0.03]
+    for r in long:
+        factor = r["length"] / np.sqrt(8 * tables[0].wheel_radius * r["depth"])  # l / l0
+        r["blind"] = [blind_fraction(t, bays, r["kind"], factor, r["length"]) for t in tables]
+    missed = [r for r in long if not r["flagged"]]
+    for r in missed:
+        lo, hi = r["length_0.9"]
+        print(f"missed: wagon {r['wagon']} {r['kind']} {r['length'] * 1e3:.0f} mm, impacts "
+              f"{''.join('g' if g else '-' for g in r.get('in_gate', []))}, max readings "
+              f"{'/'.join(f'{m / 1e3:.0f}' for m in r.get('max_readings', []))} kN, P(l >= "
+              f"20 mm) {r['p_flag']:.2f}, median {r['length_median'] * 1e3:.0f} mm, 90 % "
+              f"[{lo * 1e3:.0f}, {hi * 1e3:.0f}] mm "
+              f"({'covers' if lo <= r['length'] <= hi else 'misses'} the truth), blind "
+              f"{'/'.join(f'{b:.2f}' for b in r['blind'])}")
+    expected = float(sum(np.prod(r["blind"]) for r in long))
+    print(f"flats >= 30 mm: {len(long)}, missed {len(missed)}; expected all-blind: "
+          f"{expected:.2f}; median blind fraction per passage "
+          f"{np.median([b for r in long for b in r['blind']]):.2f}")
+    return {"n_long": len(long), "missed": missed, "expected_all_blind": expected,
+            "blind": [{"kind": r["kind"], "length": r["length"], "blind": r["blind"]}
+                      for r in long]}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=31)
     ap.add_argument("--site-seed", type=int, default=31)
     ap.add_argument("--sites", type=int, default=4)
     ap.add_argument("--speeds-kmh", default="60,100,140")
-    ap.add_argument("--wagons", type=int, nargs="+", required=True)
+    ap.add_argument("--wagons", type=int, nargs="+", default=[])
+    ap.add_argument("--study", metavar="JSON", help="instead: the blind fractions of a "
+                    "study's flats (identify_study.py's results) and its missed flats")
     ap.add_argument("--passages", metavar="DIR")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
                                          "identify_diagnose.json"))
@@ -100,6 +136,12 @@ def main(argv=None) -> int:
     from wfjax.cli import enable_compilation_cache
 
     enable_compilation_cache()
+    if args.study:
+        out = Path(args.out)
+        old = json.loads(out.read_text()) if out.exists() else {}
+        old["study_blindness"] = study_blindness(args.study)
+        out.write_text(json.dumps(old, indent=1, default=float) + "\n")
+        return 0
     study = _study()
     rng = np.random.default_rng(args.seed)
     rows = []
