@@ -43,13 +43,15 @@ from wfjax.model import track as track_mod
 from wfjax.scenario import sensors as sensor_mod
 
 REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
-       "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3}
+       "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3, "precision": "float64"}
 OLD = {"elements_per_bay": 8, "track_max_frequency": 10e3, "time_step": 25e-6,
        "travel_step": 1e-3, "n_bays": 70}  # the defaults before 2026-12-03
-NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24}  # today's
+NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
+       "precision": "auto"}  # today's: float32 forward runs since 2026-12-04
 ROWS = {  # label -> changes to REF
     "reference": {},
-    "default (26 el., 15 kHz, 25 us / 1 mm, 24 bays)": NEW,
+    "default (26 el., 15 kHz, 25 us / 1 mm, 24 bays, float32)": NEW,
+    "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float64": {**NEW, "precision": "float64"},
     "old default (8 el., 10 kHz, 25 us / 1 mm, 70 bays)": OLD,
     "step 50 us / 2 mm": {"time_step": 50e-6, "travel_step": 2e-3},
     "step 100 us / 4 mm": {"time_step": 100e-6, "travel_step": 4e-3},
@@ -78,6 +80,10 @@ ROWS = {  # label -> changes to REF
                                               "track_max_frequency": 15e3, "n_bays": 30},
     "16 el., 12.5 kHz, 25 us / 1 mm, 24 bays": {**OLD, "elements_per_bay": 16,
                                                 "track_max_frequency": 12.5e3, "n_bays": 24},
+    "26 el., 15 kHz, 50 us / 1 mm, 24 bays": {**NEW, "time_step": 50e-6},
+    "26 el., 15 kHz, 65 us / 1 mm, 24 bays": {**NEW, "time_step": 65e-6},
+    "26 el., 15 kHz, 50 us / 1.5 mm, 24 bays": {**NEW, "time_step": 50e-6,
+                                                "travel_step": 1.5e-3},
 }
 FREQS = np.geomspace(20.0, 2000.0, 40)
 RECEPTANCES = {  # name -> (quantity, force position [m], response position [m])
@@ -100,6 +106,7 @@ def model_inputs(s: dict):
     config = wf.SimConfig(max_time_step=s["time_step"], max_travel_step=s["travel_step"],
                           track_max_frequency=s["track_max_frequency"],
                           contact_element=s.get("contact_element", 1e-3),
+                          precision=s.get("precision", "float64"),
                           allow_inaccurate=True)  # the table measures what the guards refuse
     return track, config
 
