@@ -117,12 +117,18 @@ def _median(values) -> float:
 def run_line(meta: dict) -> str:
     """One run's command, size and times."""
     return (f"`python benchmarks/identify_study.py --flats {meta['flats']} --speeds-kmh "
-            f"{meta['speeds_kmh']} --sites {meta['sites']} --seed {meta['seed']}` "
+            f"{meta['speeds_kmh']} --sites {meta['sites']} --seed {meta['seed']}"
+            f"{_truth_option(meta)}` "
             f"({meta['date']}): {meta['wagons']} wagons, {meta['wall_s'] / 60:.1f} min on the "
             f"shared 2-core CPU (truth {meta['simulate_s'] / 60:.1f} min, identification "
             f"{meta['identify_s'] / 60:.1f} min, median "
             f"{meta['identify_median_s_per_wagon']:.0f} s per wagon of "
             f"{len(str(meta['speeds_kmh']).split(','))} passages)")
+
+
+def _truth_option(meta: dict) -> str:
+    truth = meta.get("truth_contact", "hertz-trajectory")
+    return "" if truth == "hertz-trajectory" else f" --truth-contact {truth}"
 
 
 def markdown(summary: dict, metas: list[dict]) -> str:
@@ -194,7 +200,8 @@ def simulate_wagon(k: int, flats, site: int, args) -> tuple[list, list]:
     passages, truths = [], []
     for s, speed_kmh in zip(seeds, speeds(args), strict=True):
         p, tr = simulate_passage(WAGON, flats, speed_kmh / 3.6, Detector(5, -1),
-                                 noise=0.03, seed=s, site_seed=args.site_seed * 1009 + site)
+                                 noise=0.03, seed=s, site_seed=args.site_seed * 1009 + site,
+                                 contact=getattr(args, "truth_contact", "hertz-trajectory"))
         passages.append(p)
         truths.append(tr)
     _store_passages(args, k, passages, truths)
@@ -223,6 +230,8 @@ def _passage_file(args, k: int):
     if not folder:
         return None
     tag = f"s{args.seed}-ss{args.site_seed}-n{args.sites}-v{args.speeds_kmh.replace(',', '_')}"
+    truth = getattr(args, "truth_contact", "hertz-trajectory")
+    tag += "" if truth == "hertz-trajectory" else f"-{truth}"
     return Path(folder) / f"wagon-{tag}-{k}.pkl"
 
 
@@ -297,6 +306,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=31, help="the wagons' draws")
     ap.add_argument("--site-seed", type=int, default=31, help="the sites' draws")
     ap.add_argument("--coupling", type=int, default=1)
+    ap.add_argument("--truth-contact", default="hertz-trajectory",
+                    help="the truth's contact model (3d: each flat's exact 3D table; the "
+                    "identification stays Hertz-trajectory)")
     ap.add_argument("--phase-modes", type=int, default=4, help="a neighbour's phase modes "
                     "its correction is marginalised over (1: its most probable phase)")
     ap.add_argument("--docs", action="store_true")

@@ -425,6 +425,42 @@ def _same(a, b) -> bool:
                                                                            np.asarray(b))))
 
 
+def _group_laws(flats, sc: Scenario, contact: str, cache_dir) -> tuple:
+    """(the first wheel's law, the other wheels' laws) of one group's ``flats``."""
+    from ..contact.laws import prepare
+    from ..program.laws import vehicle_laws
+
+    return (prepare(contact, flats[0], sc.reference_wheel, sc.track, sc.material, sc.config,
+                    cache_dir),
+            vehicle_laws(contact, [None] + list(flats[1:]), list(sc.wheels), sc.track,
+                         sc.material, sc.config, cache_dir))
+
+
+def _common_columns(laws, sc: Scenario):
+    """``laws`` with every exact 3D table (:class:`wfjax.contact.table_law.TableLaw`) widened
+    to one column count (:func:`wfjax.contact.interpolation.pad_columns`: the same forces),
+    at least that of the longest parametric flat (:data:`TABLE_LENGTHS`' last), so that the
+    groups of one call stack into one batch and one compiled program serves every call;
+    other laws unchanged."""
+    from ..contact.interpolation import pad_columns
+    from ..contact.table_law import TableLaw, table_specs_3d
+
+    def is_table(x):
+        return isinstance(x, TableLaw)
+
+    tables = [x for pair in laws for x in jax.tree.leaves(pair, is_leaf=is_table)
+              if is_table(x)]
+    if not tables:
+        return laws
+    radius = float(sc.reference_wheel.radius)
+    top = [flat_of(k, float(TABLE_LENGTHS[-1]), f, radius) for k, f in SHAPES]
+    n_s = max([sp.n_s for sp in table_specs_3d(top, radius, float(sc.track.rail_head_radius),
+                                               sc.material, sc.config.contact_element)] +
+              [int(np.shape(t.table.onset)[0]) for t in tables])
+    return [jax.tree.map(lambda x: TableLaw(pad_columns(x.table, n_s)) if is_table(x) else x,
+                         pair, is_leaf=is_table) for pair in laws]
+
+
 def coupled_batch(groups, positions, speed: float, detector: Detector,
                   contact: str = "hertz-trajectory", roughness=None, track: Track | None = None,
                   wheel: Wheel | None = None, material: Material | None = None,
@@ -447,9 +483,7 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
     4 mm flat) run as one batch, padded (:func:`_padded`) so that one compiled batch serves
     several group counts; usually one to three batches per call.
     """
-    from ..contact.laws import prepare
     from ..model.vehicle import Vehicle
-    from ..program.laws import vehicle_laws
 
     wheel, track = wheel or Wheel(), track or TRACK
     material, config = material or Material(), identification_config(config)
@@ -476,11 +510,9 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
     x0, dt, n_steps, run_in = _window(detector, track, wheel, config, positions, speed)
     statics = (n_steps, sc.config.newton_iterations, sc.config.precision)
     by_tree: dict = {}
-    for b, (flats, impacts, delays) in enumerate(cases):
-        law = prepare(contact, flats[0], sc.reference_wheel, sc.track, sc.material, sc.config,
-                      cache_dir)
-        others = vehicle_laws(contact, [None] + list(flats[1:]), list(sc.wheels), sc.track,
-                              sc.material, sc.config, cache_dir)
+    laws = _common_columns([_group_laws(f, sc, contact, cache_dir) for f, _, _ in cases], sc)
+    for b, ((_, impacts, delays), (law, others)) in enumerate(zip(cases, laws,
+                                                                       strict=True)):
         leaves, treedef = jax.tree.flatten((law, others, delays))
         by_tree.setdefault(treedef, []).append((b, leaves, float(impacts[0])))
     peaks = np.zeros((len(cases), positions.size, n_bays))

@@ -2,15 +2,16 @@
 
 Iteration 0: every wheel on its own grid (shape x length x phase x nuisance realisation,
 :mod:`wfjax.identify.inference`), its neighbours absent. Iterations 1..``coupling_iterations``:
-every bogie (wheels closer than ``GROUP_GAP``) with a probable flat is run coupled on one
-track with its wheels at their current estimates, and so is every wheel alone, batched over
-the bogies (:func:`wfjax.identify.forward.coupled_batch`: a train is a batch of bogies, each
-on its own track window); their difference, the neighbours' effect on each wheel's
-readings, is added to that wheel's prediction and its grid posterior recomputed. A
-neighbour's phase is not one estimate: the coupled runs cover its few most probable phase
-modes (:func:`phase_modes`), and each wheel's likelihood is marginalised over them with
-the modes' probabilities (:class:`wfjax.identify.inference.CorrectionMixture`). No joint
-grid over the wheels is ever formed.
+every wheel with a probable flat among its bogie's other wheels (wheels closer than
+``GROUP_GAP``) is run round, coupled on one track with those neighbours at their current
+estimates, and round alone, batched over the bogies
+(:func:`wfjax.identify.forward.coupled_batch`: a train is a batch of bogies, each on its own
+track window); their difference, the neighbours' effect on the wheel's readings, is added
+to that wheel's prediction and its grid posterior recomputed. A neighbour's phase is not
+one estimate: the coupled runs cover its few most probable phase modes
+(:func:`phase_modes`), and each wheel's likelihood is marginalised over them with the
+modes' probabilities (:class:`wfjax.identify.inference.CorrectionMixture`). No joint grid
+over the wheels is ever formed.
 """
 
 from __future__ import annotations
