@@ -120,10 +120,16 @@ def run_line(meta: dict) -> str:
             f"{meta['speeds_kmh']} --sites {meta['sites']} --seed {meta['seed']}"
             f"{_truth_option(meta)}` "
             f"({meta['date']}): {meta['wagons']} wagons, {meta['wall_s'] / 60:.1f} min on the "
-            f"shared 2-core CPU (truth {meta['simulate_s'] / 60:.1f} min, identification "
+            f"shared 2-core CPU ({_truth_time(meta)}, identification "
             f"{meta['identify_s'] / 60:.1f} min, median "
             f"{meta['identify_median_s_per_wagon']:.0f} s per wagon of "
             f"{len(str(meta['speeds_kmh']).split(','))} passages)")
+
+
+def _truth_time(meta: dict) -> str:
+    if meta.get("passages") and meta["simulate_s"] < 60:
+        return "truth read from `--passages`, simulated beforehand by `--simulate-only`"
+    return f"truth {meta['simulate_s'] / 60:.1f} min"
 
 
 def _truth_option(meta: dict) -> str:
@@ -135,7 +141,8 @@ def markdown(summary: dict, metas: list[dict]) -> str:
     """The study's section of docs/identify.md (``metas``: every run merged into it)."""
     s = summary
     by = s["by_kind"]
-    lines = ["Runs, in parallel: " + "; ".join(run_line(m) for m in metas) +
+    lines = [("Runs, in parallel: " if len(metas) > 1 else "Run: ") +
+             "; ".join(run_line(m) for m in metas) +
              f". In all {s['n_flats']} flats, {s['n_round']} round wheels.", "",
              f"- flats >= 30 mm flagged: {s['flagged_30mm_or_longer'][0]} of "
              f"{s['flagged_30mm_or_longer'][1]}; round wheels flagged: "
