@@ -46,7 +46,8 @@ def sweep_case(chunk_size: int | None = None):
 
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
     sw = wf.sweep(flat, np.array([40.0, 80.0, 120.0, 160.0]) / 3.6, impact_positions=2,
-                  contact="hertz-profile", progress=False, chunk_size=chunk_size)
+                  contact="hertz-profile", progress=False, chunk_size=chunk_size,
+                  config=wf.SimConfig(precision="float64"))  # equal to 1e-12 across splits
     return np.stack([sw.max_force, sw.min_force, sw.loss_of_contact_duration,
                      sw.loss_of_contact])
 

@@ -12,6 +12,8 @@ from wfjax.loop.structure import node_major_shapes, rail_terms, structure
 from wfjax.model.vehicle import Vehicle
 from wfjax.scenario.windows import RUN_IN_TIME, n_steps_for, run_windows, simulation_window
 
+F64 = wf.SimConfig(precision="float64")  # identities to rounding: the float64 loop
+
 ROUNDED = wf.Flat.rounded(0.9e-3, 0.1)
 NEW = wf.Flat.new(0.9e-3)
 
@@ -54,7 +56,7 @@ def test_quasi_static_run_follows_rigid_trajectory():
 
 @pytest.mark.slow
 def test_loss_of_contact_is_exact():
-    res = wf.simulate(NEW, 100 / 3.6, contact="hertz-trajectory")
+    res = wf.simulate(NEW, 100 / 3.6, contact="hertz-trajectory", config=F64)
     f = np.asarray(res.force)
     assert bool(res.loss_of_contact) and float(res.min_force) == 0.0
     lost = f == 0.0
@@ -69,10 +71,11 @@ def test_loss_of_contact_is_exact():
 def test_sweep_equals_looped_simulate():
     speeds = np.array([40.0, 120.0]) / 3.6
     positions = np.array([0.1, 0.4])
-    sw = wf.sweep(ROUNDED, speeds, positions, contact="2d", progress=False, chunk_size=3)
+    sw = wf.sweep(ROUNDED, speeds, positions, contact="2d", progress=False, chunk_size=3,
+                  config=F64)
     for j, v in enumerate(speeds):
         for k, p in enumerate(positions):  # each run in simulate's own window and time step
-            r = wf.simulate(ROUNDED, float(v), contact="2d", impact_position=float(p))
+            r = wf.simulate(ROUNDED, float(v), contact="2d", impact_position=float(p), config=F64)
             assert sw.max_force[0, j, k] == pytest.approx(float(r.max_force), rel=1e-9)
             assert sw.min_force[0, j, k] == pytest.approx(float(r.min_force), rel=1e-9,
                                                            abs=1e-6)

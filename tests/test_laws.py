@@ -20,7 +20,8 @@ from wfjax.program.core import _sharded
 from wfjax.program.laws import common_extent, prepare_batch
 from wfjax.scenario.windows import n_steps_for, run_windows, simulation_window
 
-COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
+COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5,
+                       precision="float64")  # batch = single runs to rounding: float64
 MODEL = (wf.Wheel(), wf.Track.comparison(), wf.Material(), COARSE)
 FLATS = [wf.Flat.rounded(0.6e-3, 0.08), wf.Flat.rounded(0.9e-3, 0.1),
          wf.Flat.rounded(1.2e-3, 0.12)]
@@ -222,7 +223,8 @@ def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path, monkeypatch):
     import importlib
 
     core = importlib.import_module("wfjax.program.core")
-    config = wf.SimConfig(contact_element=2e-3, max_travel_step=2e-3, max_time_step=5e-5)
+    config = wf.SimConfig(contact_element=2e-3, max_travel_step=2e-3, max_time_step=5e-5,
+                          precision="float64")
     track = wf.Track()
     flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
     speeds, position = np.array([120.0]) / 3.6, 0.2

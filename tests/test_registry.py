@@ -9,7 +9,8 @@ import wfjax as wf
 from wfjax.contact import laws, registry
 from wfjax.fields import pytree
 
-COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
+COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5,
+                       precision="float64")  # identities to rounding: float64
 FLAT = wf.Flat.rounded(0.9e-3, 0.1)
 RUN = dict(impact_position=0.2, track=wf.Track.comparison(), config=COARSE)
 

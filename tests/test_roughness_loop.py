@@ -132,10 +132,10 @@ def test_monte_carlo_percentiles_equal_a_loop_over_the_realisations():
                                n_realisations=5)
     speeds = [V, 120 / 3.6]
     res = wf.sweep(ROUNDED, speeds, impact_positions=[0.1], contact="hertz-trajectory",
-                   roughness=rough, progress=False, chunk_size=4)
+                   roughness=rough, progress=False, chunk_size=4, config=F64)
     loop = np.array([[wf.simulate(ROUNDED, v, contact="hertz-trajectory", impact_position=0.1,
                                   roughness=dataclasses.replace(rough, values=rough.values[r])
-                                  ).max_force for r in range(5)]
+                                  , config=F64).max_force for r in range(5)]
                      for v in speeds])
     got = np.asarray(res.realisation_max_force)[0, :, 0, :]
     assert got == pytest.approx(loop, rel=1e-9)

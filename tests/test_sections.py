@@ -14,6 +14,8 @@ from wfjax.contact import table_spec as ts
 from wfjax.model import geometry, surface
 from wfjax.params import Flat, Material, SimConfig, Track, Wheel
 
+F64 = SimConfig(precision="float64")  # identities to rounding: the float64 loop
+
 RR = 0.45  # rail head radius of the comparison track [m]
 RW = 0.45
 
@@ -109,7 +111,8 @@ def test_sections_reproduce_from_profile_simulation():
 
     fp, fs, _ = _profile_pair(half=0.02, depth=0.3e-3)
     for contact in ("hertz-profile", "hertz-trajectory", "2d", "3d"):
-        a, b = (np.asarray(wf.simulate(f, 30.0, contact=contact, track=Track.comparison()).force)
+        a, b = (np.asarray(wf.simulate(f, 30.0, contact=contact, track=Track.comparison(),
+                                       config=F64).force)
                 for f in (fp, fs))
         assert np.max(np.abs(a - b)) <= 1e-9 * np.max(a), contact
 
