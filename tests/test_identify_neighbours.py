@@ -127,3 +127,31 @@ def test_corrections_run_every_neighbour_mode(monkeypatch):
     n_calls = len(calls)
     out = pipeline._corrections(passage, [round_post, round_post], settings, 0.45)
     assert out == [None, None] and len(calls) == n_calls
+
+
+@pytest.mark.slow
+def test_exact_3d_tables_widened_to_one_column_count():
+    """The 3D truth's laws (exact tables of a new 40 mm and a rounded 80 mm flat): widened by
+    ``_common_columns`` to one column count, at least the longest parametric flat's, with the
+    same forces at every flat position and approach."""
+    from wfjax.contact.laws import prepare
+    from wfjax.params import Wheel
+    from wfjax.scenario.description import Scenario
+
+    r = float(Wheel().radius)
+    flats = [fwd.flat_of("new", 0.04, 1.0, r), fwd.flat_of("rounded", 0.08, 1.8, r)]
+    sc = Scenario.of(flats[0], "3d", track=fwd.TRACK, config=fwd.identification_config())
+    laws = [(prepare("3d", f, sc.reference_wheel, sc.track, sc.material, sc.config), ())
+            for f in flats]
+    assert len({np.shape(w.table.onset)[0] for w, _ in laws}) == 2  # 87 and 127 columns
+    wide = fwd._common_columns(laws, sc)
+    sizes = {np.shape(w.table.onset)[0] for w, _ in wide}
+    assert len(sizes) == 1 and sizes.pop() >= max(np.shape(w.table.onset)[0] for w, _ in laws)
+    for (law, _), (big, _) in zip(laws, wide, strict=True):
+        for s in np.linspace(-0.06, 0.06, 13):
+            col = law.point(s)
+            for c in (2e-5, 6e-5, 1.2e-4):  # compressions [m] beyond the rigid onset
+                delta = float(col.onset) + c
+                a = float(law.point_force(col, delta))
+                b = float(big.point_force(big.point(s), delta))
+                assert a > 1e3 and b == pytest.approx(a, rel=1e-9), (s, c)
