@@ -18,10 +18,11 @@ SCRIPT = textwrap.dedent("""
 
     assert len(jax.devices()) == int(sys.argv[2]), jax.devices()
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
+    f64 = wf.SimConfig(precision="float64")  # equal to 1e-12 across devices: the float64 loop
     out = []
     for chunk in (64, 4):  # one chunk of 6 runs; 3 + 3 runs (padded to 4 + 4 on 2 devices)
         sw = wf.sweep(flat, np.array([50.0, 100.0]) / 3.6, impact_positions=3,
-                      contact="hertz-profile", progress=False, chunk_size=chunk)
+                      contact="hertz-profile", progress=False, chunk_size=chunk, config=f64)
         out.append(np.stack([sw.max_force, sw.min_force, sw.loss_of_contact_duration,
                              sw.loss_of_contact]))
     np.save(sys.argv[1], np.stack(out))
@@ -29,7 +30,7 @@ SCRIPT = textwrap.dedent("""
     sw = wf.sweep(flat, np.array([50.0, 100.0]) / 3.6, impact_positions=3,
                   contact="hertz-profile", progress=False, chunk_size=4, sensors=[0.1, 0.6],
                   sensor_quantities=("shear", "seat_force"),
-                  detector=Detector(n_bays=1, first_bay=0))
+                  detector=Detector(n_bays=1, first_bay=0), config=f64)
     np.save(sys.argv[1][:-4] + "_sensors.npy",
             np.concatenate([sw.sensor_max.ravel(), sw.sensor_min.ravel(),
                             sw.detector_peak.ravel()]))
