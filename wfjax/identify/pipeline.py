@@ -178,7 +178,8 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     wheels = sorted({j for g, _ in todo for j in g})
     flats = {i: _estimate_flat(posts[i], radius) for i in wheels}
     smooth = fwd.flat_of("new", 0.004, 1.0, radius)
-    modes = {i: phase_modes(posts[i].phases[k], posts[i].phase_weights[k], n_max)
+    width = float(settings.get("phase_mode_width", 0.1))
+    modes = {i: phase_modes(posts[i].phases[k], posts[i].phase_weights[k], n_max, width)
              if flat[i] and n_max > 1 else (np.array([posts[i].best[2][k]]), np.ones(1))
              for i in wheels}
     mine = sorted({i for _, i in todo})
@@ -205,7 +206,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
              model: float = 0.02, prior: Prior | None = None, flag_length: float = 0.02,
              flag_probability: float = 0.9, line_speed: float | None = None,
              force_level: float = 350e3, user_rule=None, coupling_iterations: int = 1,
-             phase_modes: int = 4, table_options: dict | None = None,
+             phase_modes: int = 4, phase_mode_width: float = 0.1,
+             table_options: dict | None = None,
              wheel: Wheel | None = None, seed: int = 0, cache_dir=None,
              progress=None) -> Identification:
     """Every wheel's flat from detector ``passages`` (:func:`wfjax.identify.read_passages`).
@@ -223,6 +225,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         coupling_iterations: neighbour-correction sweeps (0: wheels independent).
         phase_modes: the most phase modes of a neighbour the correction is marginalised over
             (1: its most probable phase only, the correction before 2026-12-04).
+        phase_mode_width: the half width [m] of one phase mode (:func:`phase_modes`).
         table_options: keyword arguments of :func:`wfjax.identify.forward.build_table`.
         progress: ``progress(stage: str, done, total)`` or None.
 
@@ -251,7 +254,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
     corr = [[None] * len(passages) for _ in range(n)]
     posts = [posterior(ptables, bays, [p.readings[i] for p in passages], corrections=None, **kw)
              for i in range(n)]
-    settings = dict(contact=contact, seed=seed, cache_dir=cache_dir, phase_modes=phase_modes)
+    settings = dict(contact=contact, seed=seed, cache_dir=cache_dir, phase_modes=phase_modes,
+                    phase_mode_width=phase_mode_width)
     for it in range(coupling_iterations if n > 1 else 0):
         for k, p in enumerate(passages):
             c = _corrections(p, posts, settings | {"passage_index": k}, float(wheel.radius))
@@ -268,7 +272,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         contact=contact, noise=noise, model=model, prior=dataclasses.asdict(prior),
         flag_length_m=flag_length, flag_probability=flag_probability, line_speed_ms=line,
         force_level_N=force_level, coupling_iterations=coupling_iterations,
-        phase_modes=phase_modes,
+        phase_modes=phase_modes, phase_mode_width_m=phase_mode_width,
         misfit_p=MISFIT_P, seed=seed, site_factors=[f.tolist() for f in factors],
         table_options={k: v for k, v in opts.items() if k not in ("wheel", "cache_dir")},
         user_rule=None if user_rule is None else dataclasses.asdict(user_rule)),
