@@ -120,6 +120,15 @@ def test_refinement_converges_towards_hertz():
     assert e_p[2] < 2e-3 and e_a[2] < 0.02
 
 
+def test_complete_elliptic_integrals_equal_scipy():
+    """The AGM's K(m) and E(m) (no scipy.special import on a warm sweep's path) against
+    scipy's, from a circle to a needle-thin ellipse (m -> 1)."""
+    ms = np.concatenate([np.linspace(0.0, 0.999, 200), 1 - np.geomspace(1e-3, 1e-15, 25)])
+    got = np.array([geometry3d.complete_elliptic(float(m)) for m in ms])
+    np.testing.assert_allclose(got[:, 0], ellipk(ms), rtol=1e-14)
+    np.testing.assert_allclose(got[:, 1], ellipe(ms), rtol=1e-14)
+
+
 def test_elliptic_hertz_formulas():
     # circular limit and the ratio relation (independent of the implementation's root find)
     ax, ay, d, p0 = geometry3d.elliptic_hertz(F_STATIC, R, R * (1 + 1e-9), MAT)

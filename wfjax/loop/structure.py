@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._xla import to_device
 from ..model import supports as supports_mod
 from ..model import track as track_mod
 from ..model import vehicle as vehicle_mod
@@ -55,10 +56,11 @@ def structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
     offsets = vehicle.offsets()
     pairs = None  # one wheel: its own residual compliance is the model's residual table
     if vehicle.n_wheels > 1:
-        pairs = jnp.asarray(vehicle_mod.residual_pairs(
+        pairs = to_device(vehicle_mod.residual_pairs(
             track, model, offsets, vehicle_mod.placement(vehicle, float(track.sleeper_spacing))))
     return Structure(model, ws.poles, ws.residues, ws.preload, ws.axle_residues,
-                     jnp.asarray(offsets), jnp.asarray(vehicle.delays()), pairs,
+                     to_device(np.asarray(offsets, float)),
+                     to_device(np.asarray(vehicle.delays(), float)), pairs,
                      _one_sided(track, model, offsets))
 
 

@@ -33,7 +33,6 @@ import dataclasses
 import math
 from typing import Any, NamedTuple
 
-import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
 
@@ -249,7 +248,7 @@ def wheel_set(wheels: list[Wheel]) -> WheelSet:
         to_device(np.stack([pad(m.poles, -1.0) for m in models])),
         to_device(np.stack([pad(m.residues, 0.0) for m in models])),
         to_device(np.stack([pad(m.axle_residues, 0.0) for m in models])),
-        jnp.asarray([float(w.preload) for w in wheels]))
+        to_device(np.asarray([float(w.preload) for w in wheels])))
 
 
 def residual_pairs(track: Track, model: track_mod.ModalModel, offsets,
