@@ -183,8 +183,8 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
         rows = [t | {"wagon": k, "site": site, "flagged": False} for t in truths[0]]
         return rows, {"simulate_s": t1 - t0, "identify_s": 0.0}
     res = identify(passages, coupling_iterations=args.coupling,
-                   phase_modes=getattr(args, "phase_modes", 4),
-                   phase_mode_width=getattr(args, "mode_width_m", 0.1))
+                   phase_modes=getattr(args, "phase_modes", 8),
+                   phase_mode_width=getattr(args, "mode_width_m", 0.02))
     t2 = time.perf_counter()
     rows = [score_wheel(t, w) | {"wagon": k, "site": site} | passes(i, passages, truths)
             for i, (t, w) in enumerate(zip(truths[0], res.wheels, strict=True))]
@@ -317,9 +317,9 @@ def main(argv=None) -> int:
     ap.add_argument("--truth-contact", default="hertz-trajectory",
                     help="the truth's contact model (3d: each flat's exact 3D table; the "
                     "identification stays Hertz-trajectory)")
-    ap.add_argument("--phase-modes", type=int, default=4, help="a neighbour's phase modes "
+    ap.add_argument("--phase-modes", type=int, default=8, help="a neighbour's phase modes "
                     "its correction is marginalised over (1: its most probable phase)")
-    ap.add_argument("--mode-width-m", type=float, default=0.1,
+    ap.add_argument("--mode-width-m", type=float, default=0.02,
                     help="the half width of one phase mode [m]")
     ap.add_argument("--docs", action="store_true")
     ap.add_argument("--passages", metavar="DIR", help="keep every wagon's simulated "

@@ -206,7 +206,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
              model: float = 0.02, prior: Prior | None = None, flag_length: float = 0.02,
              flag_probability: float = 0.9, line_speed: float | None = None,
              force_level: float = 350e3, user_rule=None, coupling_iterations: int = 1,
-             phase_modes: int = 4, phase_mode_width: float = 0.1,
+             phase_modes: int = 8, phase_mode_width: float = 0.02,
              table_options: dict | None = None,
              wheel: Wheel | None = None, seed: int = 0, cache_dir=None,
              progress=None) -> Identification:
