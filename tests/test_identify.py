@@ -223,6 +223,26 @@ def test_command_writes_outputs(tmp_path, capsys, monkeypatch):
     assert (out / "identify.png").stat().st_size > 1000 and (out / "case.toml").exists()
 
 
+def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
+    """--phase-modes and --phase-mode-width-mm reach identify() (in its units: m)."""
+    import wfjax.identify as identify_pkg
+    from wfjax.cli import main
+
+    seen = {}
+
+    def fake(passages, **kw):
+        seen.update(kw)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(identify_pkg, "identify", fake)
+    y = np.full((2, 5), 120e3)
+    path = _csv(tmp_path, passages_csv([Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, y)]))
+    with pytest.raises(SystemExit):
+        main(["identify", "--readings", str(path), "--out", str(tmp_path / "out"),
+              "--phase-modes", "1", "--phase-mode-width-mm", "35"])
+    assert seen["phase_modes"] == 1 and seen["phase_mode_width"] == pytest.approx(0.035)
+
+
 def test_site_factors_pooled_over_passages_of_one_site():
     """Passages over the same bays share one site factor per bay: the median over every
     wheel of every passage of reading / the table's round reading; other bays: per passage."""

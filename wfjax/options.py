@@ -382,6 +382,13 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("identify", "coupling_iterations", "int", "", 0, 5,
            doc="neighbour-correction sweeps of the factorised inference (default 1)",
            commands=("identify",), flag="--coupling-iterations"),
+    Option("identify", "phase_modes", "int", "", 1, 8,
+           doc="a flat neighbour's most probable phase modes the correction integrates over "
+               "(default 8; 1: its most probable phase only)",
+           commands=("identify",), flag="--phase-modes"),
+    Option("identify", "phase_mode_width", "float", "m", 0.0, 0.3, low_open=True,
+           doc="half width of a neighbour's phase mode (default 20 mm)",
+           commands=("identify",), flag="--phase-mode-width-mm", factor=1e-3, flag_unit="mm"),
     Option("identify", "realisations", "int", "", 1, 64,
            doc="rail roughness realisations of the response table (default 3)",
            commands=("identify",), flag="--table-realisations"),

@@ -43,6 +43,8 @@ def _settings(case) -> dict:
                 user_rule=user_rule(case.get("identify.user_reading"),
                                     case.get("identify.user_length")),
                 coupling_iterations=get("coupling_iterations", 1),
+                phase_modes=get("phase_modes", 8),
+                phase_mode_width=get("phase_mode_width", 0.02),
                 table_options={"n_roughness": get("realisations", 3)}, seed=get("seed", 0))
 
 
