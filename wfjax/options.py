@@ -6,10 +6,9 @@ Two sources, one shape (:class:`Option`):
   (:func:`wfjax.fields.option`), read by :func:`model_options` (the ``[wheel]``, ``[track]``,
   ``[material]`` and ``[config]`` tables, and the flat's depth and length);
 * the run and output options (speeds, positions, flats, vehicle, roughness, joint,
-  supports, detector, fit and compare settings, ``--out``, ...): the table
-  :data:`RUN_OPTIONS` below.
-  They describe a run, not a model object, so they have no dataclass of their own; this
-  module is their one place (case.py reads and resolves cases, it does not describe them).
+  supports, detector, fit and compare settings, ``--out``, ...): the table :data:`RUN_OPTIONS`
+  below. They describe a run, not a model object, so they have no dataclass of their own;
+  this module is their one place (case.py reads and resolves cases, it does not describe them).
 
 From these descriptions come the case-file keys (:data:`KEYS`), the flags of every subcommand
 (:func:`flags_of`, turned into argparse options by :func:`wfjax.cli.add_options`), the checks
@@ -353,9 +352,8 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("identify", "layout", "str", choices=("file", "single", "bogie", "wagon"),
            doc="train layout the readings must match (default file: the CSV's positions)",
            commands=("identify",), flag="--layout"),
-    Option("identify", "noise", "float", "", 0.0, 0.5, low_open=True,
-           doc="relative standard deviation of a reading (default 0.03)",
-           commands=("identify",), flag="--noise"),
+    Option("identify", "noise", "float", "", 0.0, 0.5, low_open=True, commands=("identify",),
+           flag="--noise", doc="relative standard deviation of a reading (default 0.03)"),
     Option("identify", "model_error", "float", "", 0.0, 0.5,
            doc="relative error of the forward model, added in quadrature (default 0.02)",
            commands=("identify",), flag="--model-error"),
@@ -379,22 +377,17 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("identify", "user_length", "float", "m", 0.0, 0.13, low_open=True,
            doc="user rule: act when P(length > this) >= 0.5 (unset: no length level)",
            commands=("identify",), flag="--user-length-mm", factor=1e-3, flag_unit="mm"),
-    Option("identify", "coupling_iterations", "int", "", 0, 5,
-           doc="neighbour-correction sweeps of the factorised inference (default 1)",
-           commands=("identify",), flag="--coupling-iterations"),
-    Option("identify", "phase_modes", "int", "", 1, 8,
-           doc="a flat neighbour's most probable phase modes the correction integrates over "
-               "(default 8; 1: its most probable phase only)",
-           commands=("identify",), flag="--phase-modes"),
-    Option("identify", "phase_mode_width", "float", "m", 0.0, 0.3, low_open=True,
-           doc="half width of a neighbour's phase mode (default 20 mm)",
-           commands=("identify",), flag="--phase-mode-width-mm", factor=1e-3, flag_unit="mm"),
-    Option("identify", "realisations", "int", "", 1, 64,
-           doc="rail roughness realisations of the response table (default 3)",
-           commands=("identify",), flag="--table-realisations"),
-    Option("identify", "seed", "int", "", 0, 2**31 - 1,
-           doc="seed of the identification's nuisance realisations (default 0)",
-           commands=("identify",)),
+    Option("identify", "coupling_iterations", "int", "", 0, 5, commands=("identify",),
+           flag="--coupling-iterations", doc="neighbour-correction sweeps (default 1)"),
+    Option("identify", "phase_modes", "int", "", 1, 8, commands=("identify",), flag="--phase-modes",
+           doc="a flat neighbour's phase modes the correction integrates over (default 8)"),
+    Option("identify", "phase_mode_width", "float", "m", 0.0, 0.3, low_open=True, factor=1e-3,
+           doc="half width of a neighbour's phase mode (default 20 mm)", commands=("identify",),
+           flag="--phase-mode-width-mm", flag_unit="mm"),
+    Option("identify", "realisations", "int", "", 1, 64, commands=("identify",),
+           flag="--table-realisations", doc="rail roughness realisations of the table (default 3)"),
+    Option("identify", "seed", "int", "", 0, 2**31 - 1, commands=("identify",),
+           doc="seed of the identification's nuisance realisations (default 0)"),
     # wfjax detector --passage-csv: a passage of a train with chosen flats
     Option("passage", "csv", "path", doc="write a passage CSV of the train (passage.* keys) "
            "over the detector instead of the sweep", commands=("detector",),
