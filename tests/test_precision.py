@@ -97,12 +97,14 @@ def test_float32_newton_tolerance_is_its_rounding_floor():
 
 
 def test_auto_is_float32_forward_and_float64_for_gradients_and_direct_3d():
+    from wfjax.params import loop_precision
+
     assert wf.SimConfig().precision == "auto"
-    assert wf.SimConfig().loop_precision() == "float32"
-    assert wf.SimConfig().loop_precision(gradients=True) == "float64"
-    assert wf.SimConfig(contact_mode_3d="direct").loop_precision() == "float64"
+    assert loop_precision("auto") == "float32"
+    assert loop_precision("auto", gradients=True) == "float64"
+    assert loop_precision("auto", direct=True) == "float64"
     for p in ("float64", "float32"):  # an explicit choice is kept, gradients or not
-        assert wf.SimConfig(precision=p).loop_precision(gradients=True) == p
+        assert loop_precision(p, gradients=True) == p
 
 
 def test_default_sweep_runs_the_float32_loop_and_returns_float64_arrays():

@@ -571,11 +571,6 @@ class SimConfig:
                 f"SimConfig.newton_iterations must be >= 1, got {self.newton_iterations!r}"
             )
 
-    def loop_precision(self, gradients: bool = False) -> str:
-        """The time loop's precision for this config (:func:`loop_precision`)."""
-        return loop_precision(self.precision, gradients=gradients,
-                              direct=self.contact_mode_3d == "direct")
-
     def time_step_for(self, speed: float) -> float:
         """Time step [s] used at ``speed`` [m/s]."""
         if self.time_step is not None:

@@ -440,11 +440,6 @@ def _bwd(statics, res, cts):
     (laws, struct, speed, dt, x_start, impact_position, roughness, observers, x_all, s,
      approach, c_own, reads) = res
     _check_cotangents(cts)
-    # time_loop returns its outputs widened to float64: back to the loop's precision
-    x_all, s, approach, c_own, reads = cast_precision((x_all, s, approach, c_own, reads),
-                                                      precision)
-    cts = {k: v if isinstance(v, jax.custom_derivatives.SymbolicZero)
-           else cast_precision(v, precision) for k, v in cts.items()}
     runs = (speed, dt, x_start, impact_position)
 
     def setup(v, d, xs, xi):

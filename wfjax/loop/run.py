@@ -40,7 +40,6 @@ from .setup import (
     cast_precision,
     loop_setup,
     static_start,
-    widen,
 )
 from .structure import modal_loads, rail_compliance_fn, rail_reads, shapes_fn
 
@@ -211,8 +210,9 @@ def time_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
             float64 if a law solves its own steps, else float32): the loop's dtype
             (observers are cast with it). The propagation coefficients are computed in the
             inputs' precision (float64) and then cast: their series in
-            pole dt cancels to ~1e-3 relative in float32. The outputs are returned in the
-            inputs' precision (:func:`wfjax.loop.setup.widen`).
+            pole dt cancels to ~1e-3 relative in float32. The outputs are in the loop's
+            precision (``t`` from the uncast step); :func:`wfjax.program.core.run_one`
+            widens a program's results to float64 (:func:`wfjax.loop.setup.widen`).
         roughness: a :class:`wfjax.scenario.patch.LoopRoughness` (traced: ``vmap`` over its
             realisations), or None. Point-contact laws see the contact-filtered roughness
             added to the approach; laws with ``rough_nodes`` (2D bedding, direct 3D) see it
@@ -259,8 +259,7 @@ def time_loop(law, struct, speed, dt, x_start, impact_position, n_steps: int,
         result = {k: a[:, 0] for k, a in result.items()}
         summaries = {k: (a[0] if k == "detector_peak" else a) for k, a in summaries.items()}
     result |= {k: jnp.concatenate([first_saved[k][None], a]) for k, a in saved.items()}
-    out = result | summaries | {"t": dt * jnp.arange(n_steps)}  # t from the uncast step
-    return out if precision == "float64" else widen(out)
+    return result | summaries | {"t": dt * jnp.arange(n_steps)}  # t from the uncast step
 
 
 _LOOP_STATIC = ("n_steps", "max_iter", "checkpoint", "precision")

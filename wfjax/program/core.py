@@ -37,7 +37,9 @@ from ..contact.laws import prepare
 from ..contact.table_law import cached_tables_3d
 from ..loop.observers import DetectorReadings, Sensors
 from ..loop.run import StepOutput, run_scan
+from ..loop.setup import widen
 from ..loop.structure import structure
+from ..params import loop_precision
 from ..results import summarise_run
 from ..scenario.description import Scenario
 from ..scenario.sensors import detector_spec, sensor_spec
@@ -173,7 +175,7 @@ def run_one(data: ProgramData, law, run: Run, n_steps: int, max_iter: int, preci
                     run.impact_position, n_steps, max_iter,
                     observers=save.observers(data, run), precision=precision,
                     roughness=realisation(data.roughness, run.realisation), n_run=n_run)
-    return save.finalize(hist, run, data)
+    return widen(save.finalize(hist, run, data))  # float64 results from any loop precision
 
 
 def _picked(data: ProgramData, run: Run, *statics, n_run=None) -> dict:
@@ -271,7 +273,8 @@ class Program:
         """(n_steps, max_iter, precision) of :func:`run_one` in the batches :meth:`forward`
         runs for the fits (``"auto"`` precision: float64, as gradients are taken)."""
         config = self.scenario.config
-        return self.n_steps, config.newton_iterations, config.loop_precision(gradients=True)
+        return (self.n_steps, config.newton_iterations,
+                loop_precision(config.precision, gradients=True))
 
     def history(self, run: Run, save=Histories()) -> dict:
         """One run's outputs (default every step's histories) over its ``run.end`` steps with
