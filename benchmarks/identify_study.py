@@ -10,8 +10,9 @@ point of one circumference each time; each bogie coupled on its own track window
 stiffness, cv 0.1) and a rail roughness realisation (ISO 3095 limit), drawn independently
 of the identification's nuisance realisations; 3 % relative Gaussian noise; a 5-bay
 detector (3.25 m, more than a wheel circumference of 2.83 m) with modes to 20 kHz.
-Identification: :func:`wfjax.identify.identify` with its defaults (Hertz-trajectory), the
-wagon's passages together.
+Identification: :func:`wfjax.identify.identify` with its defaults (Hertz-trajectory;
+``--identify-contact 3d``: response tables with every flat's exact 3D table), the wagon's
+passages together.
 
     python benchmarks/identify_study.py --flats 100 --docs     # the docs/identify.md run
     python benchmarks/identify_study.py --flats 3              # a smoke test
@@ -133,8 +134,11 @@ def _truth_time(meta: dict) -> str:
 
 
 def _truth_option(meta: dict) -> str:
-    truth = meta.get("truth_contact", "hertz-trajectory")
-    return "" if truth == "hertz-trajectory" else f" --truth-contact {truth}"
+    out = ""
+    for key in ("truth_contact", "identify_contact"):
+        law = meta.get(key, "hertz-trajectory")
+        out += "" if law == "hertz-trajectory" else f" --{key.replace('_', '-')} {law}"
+    return out
 
 
 def markdown(summary: dict, metas: list[dict]) -> str:
@@ -183,6 +187,7 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
         rows = [t | {"wagon": k, "site": site, "flagged": False} for t in truths[0]]
         return rows, {"simulate_s": t1 - t0, "identify_s": 0.0}
     res = identify(passages, coupling_iterations=args.coupling,
+                   contact=getattr(args, "identify_contact", "hertz-trajectory"),
                    phase_modes=getattr(args, "phase_modes", 8),
                    phase_mode_width=getattr(args, "mode_width_m", 0.02))
     t2 = time.perf_counter()
@@ -295,10 +300,11 @@ def run(args, checkpoint=None) -> tuple[list, dict]:
     return rows, times
 
 
-def write_docs(text: str) -> None:
+def write_docs(text: str, section: str = "study") -> None:
+    """``text`` between ``<!-- section -->`` and ``<!-- /section -->`` of docs/identify.md."""
     path = ROOT / "docs" / "identify.md"
     page = path.read_text()
-    start, end = "<!-- study -->\n", "<!-- /study -->\n"
+    start, end = f"<!-- {section} -->\n", f"<!-- /{section} -->\n"
     i, j = page.index(start) + len(start), page.index(end)
     path.write_text(page[:i] + text + page[j:])
 
@@ -315,13 +321,17 @@ def main(argv=None) -> int:
     ap.add_argument("--site-seed", type=int, default=31, help="the sites' draws")
     ap.add_argument("--coupling", type=int, default=1)
     ap.add_argument("--truth-contact", default="hertz-trajectory",
-                    help="the truth's contact model (3d: each flat's exact 3D table; the "
-                    "identification stays Hertz-trajectory)")
+                    help="the truth's contact model (3d: each flat's exact 3D table)")
+    ap.add_argument("--identify-contact", default="hertz-trajectory",
+                    help="the identification's contact law (3d: response tables of every "
+                    "flat's exact 3D table; identify(contact=...))")
     ap.add_argument("--phase-modes", type=int, default=8, help="a neighbour's phase modes "
                     "its correction is marginalised over (1: its most probable phase)")
     ap.add_argument("--mode-width-m", type=float, default=0.02,
                     help="the half width of one phase mode [m]")
     ap.add_argument("--docs", action="store_true")
+    ap.add_argument("--docs-section", default="study", help="the docs/identify.md markers "
+                    "--docs writes between (study3d: the 3D-law study's)")
     ap.add_argument("--passages", metavar="DIR", help="keep every wagon's simulated "
                     "passages and truth here and reuse them (the truth is most of the time)")
     ap.add_argument("--simulate-only", action="store_true",
@@ -347,7 +357,7 @@ def main(argv=None) -> int:
         text = markdown(summary, [meta])
         print(text, flush=True)
         if args.docs:
-            write_docs(text)
+            write_docs(text, args.docs_section)
 
     if args.merge:
         return merge(args.merge, args.out, args.docs)

@@ -35,6 +35,8 @@ from ..program.core import Autodiff, Histories, Run, compile_scenario, run_one
 from ..scenario.description import Scenario
 from ..scenario.sensors import Detector
 from ..scenario.windows import batch_windows
+from .table3d import PROGRAMS as _PROGRAMS
+from .table3d import stacked_laws, table_batch_3d
 
 __all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "ResponseTable", "flat_of", "build_table",
            "predict", "coupled_readings", "coupled_batch", "identification_config",
@@ -181,9 +183,18 @@ def _table_batch(data, runs, lengths, factor, key):
     return jax.lax.map(one, lengths)
 
 
-# (contact, kind, radius, bound, statics, support scatter) -> (a program of them, its traced
-# law): the jitted batch's static part; every program of one key shares the compiled batch
-_PROGRAMS: dict = {}
+
+
+def _laws_3d(contact, shapes, lengths, radius, bound, track, material, config, cache_dir):
+    """None, or with ``contact="3d"`` per shape the stacked exact 3D tables of its flats of
+    ``lengths`` (:func:`wfjax.identify.table3d.stacked_laws`), widened to at least the
+    longest parametric flats' column count (as :func:`coupled_batch` widens them)."""
+    if contact != "3d":
+        return None
+    top = [flat_of(k, float(TABLE_LENGTHS[-1]), f, radius) for k, f in SHAPES]
+    return stacked_laws([[flat_of(k, float(x), f, radius, bound) for x in lengths]
+                         for k, f in shapes], radius, track, material, config, cache_dir,
+                        sizing=top)
 
 
 def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: float = 0.1,
@@ -198,7 +209,11 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
     Runs S shapes x L ``lengths`` [m] x ``n_offsets`` in-bay impact positions x
     (``n_roughness`` x ``n_supports``) nuisance realisations; ``progress(done, total)`` is
     called after every shape and support realisation. The cache key holds the speed rounded
-    to 1e-9 m/s (100 / 3.6 and 27.777777778 find the same table).
+    to 1e-9 m/s (100 / 3.6 and 27.777777778 find the same table) and ``contact``, the
+    contact law: ``"hertz-trajectory"`` (the default; traced in the length), ``"3d"`` (every
+    flat's exact 3D table, Kalker, widened to one column count: :mod:`.table3d`) or another
+    registered model (its traced law; untried). An unknown ``contact`` is a one-line
+    ``ValueError`` naming it.
     """
     from ..contact.registry import check
     from ..fit.models import TracedLaw
@@ -212,6 +227,9 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
                s=int(n_supports), cv=float(scatter_cv), seed=int(seed), wheel=repr(wheel),
                track=repr(track), material=repr(material), config=repr(config),
                v=2)  # 2: the rail's in-element deflection (2026-12-03)
+    if contact == "3d":  # the exact tables' builder (Hertz-trajectory keys unchanged)
+        from ..contact.table_law import TABLE_BUILDER_REVISION
+        key |= dict(law="exact-3d-tables", table3d=TABLE_BUILDER_REVISION)
     ls = float(track.sleeper_spacing)
     offsets = np.arange(n_offsets) * ls / n_offsets
     radius = float(wheel.radius)
@@ -227,15 +245,22 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
         first = flat_of(shapes[0][0], float(np.max(lengths)), shapes[0][1], radius, bound)
         programs = _nuisance_programs(first, contact, det, track, wheel, material, config,
                                       n_roughness, n_supports, scatter_cv, seed, cache_dir)
+        laws3d = _laws_3d(contact, shapes, lengths, radius, bound, track, material, config,
+                          cache_dir)
         for s, (kind, factor) in enumerate(shapes):
             ref = flat_of(kind, float(np.max(lengths)), factor, radius, bound)
             for k, (prog, data) in enumerate(programs):
                 runs = _runs(prog, prog.scenario.window_flat(ref), float(speed), offsets,
                              n_roughness)
-                pkey = (contact, kind, radius, bound, prog.statics, n_supports > 1)
+                pkey = (contact, "table" if laws3d else kind, radius, bound, prog.statics,
+                        n_supports > 1)
                 if pkey not in _PROGRAMS:
-                    _PROGRAMS[pkey] = (prog, TracedLaw.of(prog.scenario, ref, cache_dir))
-                r, p = _table_batch(data, runs, jnp.asarray(lengths), float(factor), pkey)
+                    _PROGRAMS[pkey] = (prog, None if laws3d else TracedLaw.of(
+                        prog.scenario, ref, cache_dir))
+                if laws3d:
+                    r, p = table_batch_3d(data, runs, laws3d[s], pkey)
+                else:
+                    r, p = _table_batch(data, runs, jnp.asarray(lengths), float(factor), pkey)
                 shape = (len(lengths), n_offsets, n_roughness)
                 reads[s, :, :, k] = np.asarray(r).reshape(shape + (-1,))
                 peaks[s, :, :, k] = np.asarray(p).reshape(shape)

@@ -214,7 +214,9 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
 
     Args:
         passages: [n_p] :class:`Passage` of one train (the same wheels in each).
-        contact: the identification's contact model (``"hertz-trajectory"``: fast).
+        contact: the contact law of the response tables and the neighbour corrections:
+            ``"hertz-trajectory"`` (the default, fast) or ``"3d"`` (every tabulated flat's
+            exact 3D table, Kalker: :mod:`wfjax.identify.table3d`; tables cached apart).
         noise: relative standard deviation of a reading (the detector's); model: the
             emulator's relative error; both enter the relative Gaussian noise model.
         prior: :class:`Prior` (kind probability, length grid [m]).
@@ -232,6 +234,9 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
     Returns:
         :class:`Identification`.
     """
+    from ..contact.registry import check
+
+    check(contact, "identify: contact")  # one line naming the value, before any work
     wheel, prior = wheel or Wheel(), prior or Prior()
     opts = dict(table_options or {}, contact=contact, wheel=wheel, seed=seed,
                 cache_dir=cache_dir)
