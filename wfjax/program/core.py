@@ -44,6 +44,7 @@ from ..results import summarise_run
 from ..scenario.description import Scenario
 from ..scenario.sensors import detector_spec, sensor_spec
 from . import grid as grid_mod
+from .exported import sharded_program
 from .laws import (
     batch_groups,
     loop_roughness,
@@ -189,25 +190,36 @@ _one_run = jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision",
                    compiler_options=LOOP_COMPILER_OPTIONS)
 
 
-@functools.cache
-def _sharded(mesh: Mesh, n_steps: int, max_iter: int, precision: str, save):
-    """Compiled (data, *run columns) -> per-run outputs, the runs sharded over ``mesh``.
+def _local(statics: tuple, data, *columns) -> dict:
+    """One device's runs: :func:`_picked` ``vmap``-ed over the run columns ([n] each),
+    ``statics`` = (n_steps, max_iter, precision, save).
 
     ``shard_map`` gives every device its own ``vmap``-ed loop over its runs: the batched
     Newton ``while_loop`` then stops on the device's own runs, with no cross-device reduction
     of its condition at every step. Every device's loop stops at its own runs' longest
     window (``time_loop(n_run=...)``).
     """
-    def local(data, *columns):
-        runs = Run(*columns)
-        n_run = jnp.max(runs.end)
-        return jax.vmap(lambda r: _picked(data, r, n_steps, max_iter, precision, save,
-                                          n_run=n_run))(runs)
+    runs = Run(*columns)
+    n_run = jnp.max(runs.end)
+    return jax.vmap(lambda r: _picked(data, r, *statics, n_run=n_run))(runs)
 
+
+@functools.cache
+def _sharded(mesh: Mesh, statics: tuple):
+    """Compiled (data, *run columns) -> per-run outputs, the runs sharded over ``mesh``
+    (traced in this process)."""
     by_run = PartitionSpec("runs")
-    return jax.jit(jax.shard_map(local, mesh=mesh, out_specs=by_run, check_vma=False,
+    return jax.jit(jax.shard_map(functools.partial(_local, statics), mesh=mesh,
+                                 out_specs=by_run, check_vma=False,
                                  in_specs=(PartitionSpec(),) + (by_run,) * len(Run._fields)),
                    compiler_options=LOOP_COMPILER_OPTIONS)
+
+
+def _sweep_program(mesh: Mesh, statics: tuple, data: ProgramData, columns, cache_dir):
+    """The sweep's sharded program for arguments shaped as ``data`` and ``columns``: loaded
+    from the wfjax cache (:mod:`wfjax.program.exported`), else traced."""
+    return sharded_program(functools.partial(_local, statics), mesh, statics, data, columns,
+                           _sharded(mesh, statics), cache_dir)
 
 
 # -- how to differentiate a batch of runs (the fits) -------------------------------------------
@@ -382,11 +394,12 @@ class _Sweep:
             sc.check_settings(w, self.v, self.pos)
         runs = grid_mod.plan_runs(windows, self.v, self.pos + sc.shift, program.data.struct,
                                   sc.config, self.mesh, self.chunk_size, sc.n_realisations)
-        fn = _sharded(self.mesh, runs.n_steps, sc.config.newton_iterations,
-                      sc.config.precision, self.save)
+        statics = (runs.n_steps, sc.config.newton_iterations, sc.config.precision, self.save)
         data = self.data._replace(laws=grid_mod.replicate(laws, self.mesh))
+        first = grid_mod.chunk(runs, 0, self.mesh)[1]
+        fn = _sweep_program(self.mesh, statics, data, first, program.cache_dir)
         if group.tables:
-            compiled = fn.lower(data, *grid_mod.chunk(runs, 0, self.mesh)[1]).compile()
+            compiled = fn.lower(data, *first).compile()
             like, laws = laws, table_laws(tables_ahead.result())
             data = self.data._replace(laws=grid_mod.replicate(laws, self.mesh))
             if jax.tree.map(np.shape, laws) != jax.tree.map(np.shape, like):

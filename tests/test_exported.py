@@ -1,0 +1,89 @@
+"""Sweep programs kept on disk (wfjax.program.exported): loaded without tracing, the same
+results to the bit, and traced as before where they cannot be kept."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import wfjax as wf
+from wfjax.program import exported
+
+CONFIG = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
+FLAT = wf.Flat.rounded(0.9e-3, 0.1)
+SPEEDS = np.array([60.0, 140.0]) / 3.6
+
+
+def _sweep(cache_dir):
+    sw = wf.sweep(FLAT, SPEEDS, impact_positions=2, contact="hertz-trajectory",
+                  track=wf.Track.comparison(), config=CONFIG, progress=False,
+                  cache_dir=cache_dir)
+    return np.stack([sw.max_force, sw.min_force, sw.loss_of_contact_duration])
+
+
+def _entries(cache_dir):
+    return sorted(p.name for p in cache_dir.glob("sweep-program-*"))
+
+
+def test_a_kept_program_loads_without_tracing_and_gives_the_same_bits(tmp_path, monkeypatch):
+    monkeypatch.setattr(exported, "_LOADED", {})
+    first = _sweep(tmp_path)
+    assert len(_entries(tmp_path)) == 1 and [p.traced for p in exported._LOADED.values()] == [
+        True]
+    monkeypatch.setattr(exported, "_LOADED", {})  # as a new process
+
+    def no_trace(*args):
+        raise AssertionError("traced although the program was kept")
+
+    monkeypatch.setattr(exported, "_flat_program", no_trace)
+    second = _sweep(tmp_path)
+    assert [p.traced for p in exported._LOADED.values()] == [False]
+    np.testing.assert_array_equal(second, first)
+    assert np.all(first[0] > 1e5)  # max forces of a 0.9 mm flat: 100-300 kN
+
+
+def test_a_program_without_serialization_is_traced(tmp_path, monkeypatch):
+    """Without the flatbuffers package jax.export cannot serialize: the sweep traces its
+    program as before and keeps nothing."""
+    monkeypatch.setattr(exported, "_LOADED", {})
+
+    def missing(self, *args, **kwargs):
+        raise ModuleNotFoundError("No module named 'flatbuffers'")
+
+    monkeypatch.setattr(exported.jax.export.Exported, "serialize", missing)
+    result = _sweep(tmp_path)
+    assert _entries(tmp_path) == [] and exported._LOADED == {}
+    assert np.all(np.isfinite(result))
+
+
+def test_a_structure_that_could_hide_a_value_is_not_keyed():
+    """A pytree whose static part prints an array truncated ('...') or an object's address
+    cannot key a kept program: two such structures could print alike."""
+    import jax
+
+    mesh = jax.sharding.Mesh(np.array(jax.devices()[:1]), ("runs",))
+    closure = jax.tree_util.tree_structure(jax.tree_util.Partial(lambda x: x, np.zeros(3)))
+    assert "0x" in str(closure)  # <function <lambda> at 0x...>
+    assert exported._key(closure, [np.zeros(3)], mesh, ()) is None
+    safe = jax.tree_util.tree_structure({"a": np.zeros(3)})
+    key = exported._key(safe, [np.zeros(3)], mesh, (5, "float64"))
+    assert key is not None and key["leaves"] == ["float64[3]"]
+
+
+@pytest.mark.parametrize("change", ["sources", "statics", "devices"])
+def test_the_key_changes_with_what_shapes_the_program(change, monkeypatch):
+    import jax
+
+    from wfjax._cache import key_hash
+
+    mesh = jax.sharding.Mesh(np.array(jax.devices()[:1]), ("runs",))
+    tree = jax.tree_util.tree_structure({"a": 0.0})
+    base = key_hash("p", exported._key(tree, [np.zeros(2)], mesh, (1,)))
+    if change == "sources":
+        monkeypatch.setattr(exported, "sources_hash", lambda: "an edited package")
+        other = exported._key(tree, [np.zeros(2)], mesh, (1,))
+    elif change == "statics":
+        other = exported._key(tree, [np.zeros(2)], mesh, (2,))
+    else:
+        other = exported._key(tree, [np.zeros(2)], mesh, (1,)) | {"devices": 2}
+    assert key_hash("p", other) != base
