@@ -47,11 +47,14 @@ REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6
 OLD = {"elements_per_bay": 8, "track_max_frequency": 10e3, "time_step": 25e-6,
        "travel_step": 1e-3, "n_bays": 70}  # the defaults before 2026-12-03
 NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
-       "precision": "auto"}  # today's: float32 forward runs since 2026-12-04
+       "precision": "auto", "time_step": 40e-6}  # today's: float32 forward runs and 40 us
+# since 2026-12-04
 ROWS = {  # label -> changes to REF
     "reference": {},
-    "default (26 el., 15 kHz, 25 us / 1 mm, 24 bays, float32)": NEW,
-    "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float64": {**NEW, "precision": "float64"},
+    "default (26 el., 15 kHz, 40 us / 1 mm, 24 bays, float32)": NEW,
+    "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float32": {**NEW, "time_step": 25e-6},
+    "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float64": {**NEW, "time_step": 25e-6,
+                                                       "precision": "float64"},
     "old default (8 el., 10 kHz, 25 us / 1 mm, 70 bays)": OLD,
     "step 50 us / 2 mm": {"time_step": 50e-6, "travel_step": 2e-3},
     "step 100 us / 4 mm": {"time_step": 100e-6, "travel_step": 4e-3},
@@ -80,6 +83,7 @@ ROWS = {  # label -> changes to REF
                                               "track_max_frequency": 15e3, "n_bays": 30},
     "16 el., 12.5 kHz, 25 us / 1 mm, 24 bays": {**OLD, "elements_per_bay": 16,
                                                 "track_max_frequency": 12.5e3, "n_bays": 24},
+    "26 el., 15 kHz, 35 us / 1 mm, 24 bays": {**NEW, "time_step": 35e-6},
     "26 el., 15 kHz, 50 us / 1 mm, 24 bays": {**NEW, "time_step": 50e-6},
     "26 el., 15 kHz, 65 us / 1 mm, 24 bays": {**NEW, "time_step": 65e-6},
     "26 el., 15 kHz, 50 us / 1.5 mm, 24 bays": {**NEW, "time_step": 50e-6,

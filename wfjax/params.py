@@ -470,10 +470,12 @@ class SimConfig:
 
     Attributes:
         time_step: time step [s]; ``None`` picks ``min(max_time_step, max_travel_step / v)``.
-        max_time_step: upper bound of the automatic time step [s] (25 us).
+        max_time_step: upper bound of the automatic time step [s] (40 us: the longest step
+            whose max forces stay within 0.5 % of the converged reference, 0.37 % on the
+            Fig. 7 set; docs/convergence.md, issue 33).
         max_travel_step: upper bound of the distance travelled per step [m] (1 mm). Measured
             (Hertz-trajectory, 0.9 mm flats, 60 and 250 km/h): max force changes by <= 0.3 %
-            from 1 mm to 0.25 mm, and by < 1 % on halving the 25 us step (tests).
+            from 1 mm to 0.25 mm, and by < 1 % on halving the step (tests).
         run_in: distance travelled before the flat reaches the contact [m] (from static
             equilibrium; long enough for the sleeper-passing transient to settle).
         run_out: distance travelled after the flat centre passed the contact [m].
@@ -513,7 +515,7 @@ class SimConfig:
     time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
                                      doc="time step; auto: min(max_time_step, "
                                          "max_travel_step / v)")
-    max_time_step: float = option(2.5e-5, unit="s", low=0.0, high=1e-3, low_open=True,
+    max_time_step: float = option(4e-5, unit="s", low=0.0, high=1e-3, low_open=True,
                                   positive=True, doc="upper bound of the automatic time step")
     max_travel_step: float = option(1e-3, unit="m", low=0.0, high=1e-2, low_open=True,
                                     positive=True,

@@ -118,7 +118,7 @@ def moving_greens(track: Track, speed: float, x0=None, duration: float | None = 
         x0: [n_x0] excitation positions [m]; default 27 points across the central bay
             [0, L_S] (2.5 cm apart).
         duration: truncation length [s] (default :func:`default_duration`, 0.1 s).
-        dt: sampling time step [s] (default 25 us, the simulation's largest step).
+        dt: sampling time step [s] (default 25 us).
         model: a precomputed :func:`modal_model` (default: built / loaded from the cache).
         max_frequency, cache_dir: passed to :func:`modal_model`.
 
