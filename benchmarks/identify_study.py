@@ -277,6 +277,10 @@ def run(args, checkpoint=None) -> tuple[list, dict]:
     rows, t0 = [], time.perf_counter()
     times = {"simulate_s": 0.0, "identify_s": 0.0, "identify_per_wagon_s": []}
     k = 0
+    while k < getattr(args, "skip_wagons", 0):  # drawn as before, neither simulated nor scored
+        draw_flats(rng)
+        rng.integers(args.sites)
+        k += 1
     while sum(r["kind"] != "none" for r in rows) < args.flats and k < args.max_wagons:
         wrows, t = run_wagon(k, rng, args)
         rows += wrows
@@ -313,6 +317,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flats", type=int, default=100, help="flats to score (default 100)")
     ap.add_argument("--max-wagons", type=int, default=1000)
+    ap.add_argument("--skip-wagons", type=int, default=0, help="draw the first N wagons "
+                    "but neither simulate nor score them (extend a run; --merge the two)")
     ap.add_argument("--speeds-kmh", default="60,100,140",
                     help="one passage per wagon at each of these speeds")
     ap.add_argument("--sites", type=int, default=4, help="detector sites (support scatter "
