@@ -138,14 +138,14 @@ def _truth_option(meta: dict) -> str:
     for key in ("truth_contact", "identify_contact"):
         law = meta.get(key, "hertz-trajectory")
         out += "" if law == "hertz-trajectory" else f" --{key.replace('_', '-')} {law}"
-    return out
+    return out + (f" --skip-wagons {meta['skip_wagons']}" if meta.get("skip_wagons") else "")
 
 
 def markdown(summary: dict, metas: list[dict]) -> str:
     """The study's section of docs/identify.md (``metas``: every run merged into it)."""
     s = summary
     by = s["by_kind"]
-    lines = [("Runs, in parallel: " if len(metas) > 1 else "Run: ") +
+    lines = [("Runs, merged: " if len(metas) > 1 else "Run: ") +
              "; ".join(run_line(m) for m in metas) +
              f". In all {s['n_flats']} flats, {s['n_round']} round wheels.", "",
              f"- flats >= 30 mm flagged: {s['flagged_30mm_or_longer'][0]} of "
@@ -366,7 +366,7 @@ def main(argv=None) -> int:
             write_docs(text, args.docs_section)
 
     if args.merge:
-        return merge(args.merge, args.out, args.docs)
+        return merge(args.merge, args.out, args.docs, args.docs_section)
     if args.simulate_only:
         rows, times = run(args)
         print(f"{len({r['wagon'] for r in rows})} wagons simulated in "
@@ -377,7 +377,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def merge(paths: list[str], out: str, docs: bool) -> int:
+def merge(paths: list[str], out: str, docs: bool, section: str = "study") -> int:
     """Merge the results of runs (``paths``, JSON) into ``out``; with ``docs`` into
     docs/identify.md too."""
     runs = [json.loads(Path(p).read_text()) for p in paths]
@@ -389,7 +389,7 @@ def merge(paths: list[str], out: str, docs: bool) -> int:
     text = markdown(summary, metas)
     print(text, flush=True)
     if docs:
-        write_docs(text)
+        write_docs(text, section)
     return 0
 
 
