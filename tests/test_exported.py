@@ -25,11 +25,15 @@ def _entries(cache_dir):
     return sorted(p.name for p in cache_dir.glob("sweep-program-*"))
 
 
+def _traced() -> list[bool]:
+    """Whether this process traced each sweep program it holds."""
+    return [p.traced for p in exported._LOADED.values() if isinstance(p, exported._Loaded)]
+
+
 def test_a_kept_program_loads_without_tracing_and_gives_the_same_bits(tmp_path, monkeypatch):
     monkeypatch.setattr(exported, "_LOADED", {})
     first = _sweep(tmp_path)
-    assert len(_entries(tmp_path)) == 1 and [p.traced for p in exported._LOADED.values()] == [
-        True]
+    assert len(_entries(tmp_path)) == 1 and _traced() == [True]
     monkeypatch.setattr(exported, "_LOADED", {})  # as a new process
 
     def no_trace(*args):
@@ -37,7 +41,7 @@ def test_a_kept_program_loads_without_tracing_and_gives_the_same_bits(tmp_path, 
 
     monkeypatch.setattr(exported, "_flat_program", no_trace)
     second = _sweep(tmp_path)
-    assert [p.traced for p in exported._LOADED.values()] == [False]
+    assert _traced() == [False]
     np.testing.assert_array_equal(second, first)
     assert np.all(first[0] > 1e5)  # max forces of a 0.9 mm flat: 100-300 kN
 
@@ -52,7 +56,7 @@ def test_a_program_without_serialization_is_traced(tmp_path, monkeypatch):
 
     monkeypatch.setattr(exported.jax.export.Exported, "serialize", missing)
     result = _sweep(tmp_path)
-    assert _entries(tmp_path) == [] and exported._LOADED == {}
+    assert _entries(tmp_path) == [] and _traced() == []
     assert np.all(np.isfinite(result))
 
 
@@ -87,3 +91,53 @@ def test_the_key_changes_with_what_shapes_the_program(change, monkeypatch):
     else:
         other = exported._key(tree, [np.zeros(2)], mesh, (1,)) | {"devices": 2}
     assert key_hash("p", other) != base
+
+
+def test_a_kept_laws_batch_loads_without_tracing(tmp_path, monkeypatch):
+    """prepare_batch's compiled batch of laws (kept_jit): the second process loads it, its
+    output pytree (wfjax law types) rebuilt, the same bits."""
+    import jax
+
+    from wfjax.program.laws import prepare_batch
+
+    flats = [wf.Flat.rounded(0.6e-3, 0.08), wf.Flat.rounded(0.9e-3, 0.1)]
+    args = ("hertz-trajectory", flats, wf.Wheel(), wf.Track(), wf.Material(), CONFIG,
+            tmp_path)
+    monkeypatch.setattr(exported, "_LOADED", {})
+    first, _ = prepare_batch(*args)
+    assert len(list(tmp_path.glob("program-*"))) == 1
+    monkeypatch.setattr(exported, "_LOADED", {})
+
+    def no_export(*a, **k):
+        raise AssertionError("traced although the program was kept")
+
+    monkeypatch.setattr(exported.jax.export, "export", no_export)
+    second, _ = prepare_batch(*args)
+    assert jax.tree.structure(second) == jax.tree.structure(first)
+    for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(second), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_the_tree_unpickler_admits_only_tree_types():
+    """A kept output structure is read back only if it names JAX's tree classes and wfjax's
+    types: anything else (here a class of this test module) is refused."""
+    import pickle
+
+    import jax
+
+    @jax.tree_util.register_static
+    class Foreign:
+        def __hash__(self):
+            return 0
+
+        def __eq__(self, other):
+            return isinstance(other, Foreign)
+
+    globals()["Foreign"] = Foreign  # picklable by name
+    Foreign.__qualname__ = "Foreign"
+    ok = jax.tree.structure({"a": (1.0, [2.0])})
+    assert exported._out_tree(np.frombuffer(pickle.dumps(ok), np.uint8)) == ok
+    law = jax.tree.structure(wf.Flat.rounded(0.9e-3, 0.1))
+    assert exported._out_tree(np.frombuffer(pickle.dumps(law), np.uint8)) == law
+    foreign = jax.tree.structure({"x": Foreign()})
+    assert exported._out_tree(np.frombuffer(pickle.dumps(foreign), np.uint8)) is None

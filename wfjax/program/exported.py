@@ -1,27 +1,33 @@
-"""Sweep programs kept on disk as serialized StableHLO (``jax.export``), so a warm process
-loads its program instead of tracing it.
+"""Programs kept on disk as serialized StableHLO (``jax.export``), so a warm process loads
+them instead of tracing them.
 
 Tracing and lowering the sweep's sharded batch of time loops took 1.2-1.4 s of a 3.9-4.9 s
 warm ``wfjax sweep`` on the 2-core CPU, every process, although XLA's own compilation came
-from JAX's persistent cache in 0.2 s. :func:`sharded_program` exports the program once
-(``jax.export``, flattened to its array leaves, as wfjax's pytrees have no serialization
-rules), stores the bytes in the wfjax cache (:mod:`wfjax._cache`), and later processes
-deserialize them in milliseconds and compile ``Exported.call`` under the same compiler
-options, which XLA's persistent cache then serves. The results are the same to the bit.
+from JAX's persistent cache in 0.2 s; preparing a batch of parametric 3D laws (the Fig. 8
+set's) took another 0.7 s. :func:`sharded_program` (the sweep's) and :func:`kept_jit` (any
+one-device program: the laws' batch) export a program once (``jax.export``, flattened to its
+array leaves, as wfjax's pytrees have no serialization rules; :func:`kept_jit` keeps its
+output's structure as a pickled ``PyTreeDef``, read back by an unpickler that admits JAX's
+tree classes and wfjax's types only), store the bytes in the wfjax cache
+(:mod:`wfjax._cache`), and later processes deserialize them in milliseconds and compile
+``Exported.call`` under the same compiler options, which XLA's persistent cache then
+serves. The results are the same to the bit.
 
 The entry's key holds everything the traced program depends on besides its array leaves:
-the leaves' shapes and dtypes, the pytree structure with its static fields, the statics,
-the device count and platform, the versions of jax, jaxlib and numpy, JAX's default matmul
-precision, and a hash of the wfjax sources (an edited loop never loads an older program).
-A structure whose printed form could hide a value (a truncated array, an object's address)
-is not cached; nor is a program when serialization is unavailable (the ``flatbuffers``
-package missing): those are traced as before.
+the function's name, the leaves' shapes and dtypes, the pytree structure with its static
+fields, the statics, the device count and platform, the versions of jax, jaxlib and numpy,
+JAX's default matmul precision, and a hash of the wfjax sources (an edited loop never loads
+an older program). A structure or statics whose printed form could hide a value (a truncated
+array, an object's address) is not kept; nor is a program when serialization is unavailable
+(the ``flatbuffers`` package missing): those are traced as before.
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
+import io
+import pickle
 import re
 from pathlib import Path
 
@@ -32,9 +38,9 @@ from jax.sharding import Mesh, PartitionSpec
 from .._cache import key_hash, load_or_build
 from .._xla import LOOP_COMPILER_OPTIONS
 
-__all__ = ["sharded_program", "sources_hash"]
+__all__ = ["sharded_program", "kept_jit", "sources_hash"]
 
-_LOADED: dict[str, _Loaded] = {}  # this process's programs by key hash
+_LOADED: dict = {}  # this process's programs by key hash
 _UNSAFE = re.compile(r"\.\.\.|0x[0-9a-f]{6,}|<[^<>]* object")
 
 
@@ -48,23 +54,53 @@ def sources_hash() -> str:
     return digest.hexdigest()
 
 
-def _key(treedef, leaves, mesh: Mesh, statics, local=None) -> dict | None:
+def _key(treedef, leaves, devices: int, statics, local=None) -> dict | None:
     """The cache key of the program ``local`` (a function or a ``functools.partial``) of
-    these arguments, or None when their structure cannot be keyed safely."""
+    these arguments on ``devices`` devices, or None when their structure cannot be keyed
+    safely."""
     structure = str(treedef)
-    if _UNSAFE.search(structure):
+    if _UNSAFE.search(structure + repr(statics)):
         return None
     import jaxlib
 
     fn = getattr(local, "func", local)
     return {"function": f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', '')}",
             "structure": structure, "statics": repr(statics),
-            "leaves": [str(jax.typeof(x)) for x in leaves],
-            "devices": int(mesh.devices.size), "axes": list(mesh.axis_names),
+            "leaves": [str(jax.typeof(x)) for x in leaves], "devices": devices,
             "platform": jax.default_backend(), "versions": [jax.__version__,
                                                            jaxlib.__version__, np.__version__],
             "matmul_precision": str(jax.config.jax_default_matmul_precision),
             "sources": sources_hash()}
+
+
+def _avals(leaves) -> list:
+    return [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type)
+            for a in map(jax.typeof, leaves)]
+
+
+def _as_bytes(data: bytes) -> np.ndarray:
+    return np.frombuffer(data, np.uint8)
+
+
+class _TreeUnpickler(pickle.Unpickler):
+    """Reads back a pickled ``PyTreeDef`` and nothing else: JAX's tree classes and wfjax's
+    own types only, so a cache entry cannot run other code."""
+
+    def find_class(self, module, name):
+        if (module, name) in (("jaxlib._jax.pytree", "PyTreeDef"),
+                              ("jax._src.tree_util", "default_registry")) or (
+                module.startswith("wfjax.") and isinstance(
+                    getattr(__import__(module, fromlist=[name]), name, None), type)):
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"{module}.{name} is not a pytree node type")
+
+
+def _out_tree(blob: np.ndarray):
+    """The output ``PyTreeDef`` stored with a kept program, or None if unreadable."""
+    try:
+        return _TreeUnpickler(io.BytesIO(blob.tobytes())).load()
+    except Exception:  # noqa: BLE001 - any unreadable structure means "trace instead"
+        return None
 
 
 def _flat_program(local, treedef, n_data: int, n_leaves: int, mesh: Mesh):
@@ -123,7 +159,7 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, fallback, cache_d
         a callable ``fn(data, *columns)`` with ``fn.lower(...).compile()`` as a jit's.
     """
     leaves, treedef = jax.tree.flatten((data, *columns))
-    key = _key(treedef, leaves, mesh, statics, local)
+    key = _key(treedef, leaves, int(mesh.devices.size), statics, local)
     if key is None:
         return fallback
     memo = key_hash("sweep-program", key)
@@ -135,10 +171,8 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, fallback, cache_d
     def build():
         traced.append(True)
         program = _flat_program(local, treedef, n_data, len(leaves), mesh)
-        avals = [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type)
-                 for a in map(jax.typeof, leaves)]
-        return {"stablehlo": np.frombuffer(jax.export.export(program)(*avals).serialize(),
-                                           np.uint8)}
+        return {"stablehlo": _as_bytes(jax.export.export(program)(*_avals(leaves))
+                                       .serialize())}
 
     try:
         blob = load_or_build("sweep-program", key, build, cache_dir)["stablehlo"]
@@ -147,3 +181,48 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, fallback, cache_d
     loaded = _Loaded(jax.export.deserialize(bytearray(blob.tobytes())), bool(traced))
     _LOADED[memo] = loaded
     return loaded
+
+
+def kept_jit(fn, args: tuple, statics, cache_dir=None):
+    """``jax.jit(fn)`` for arguments shaped as ``args`` (one device), loaded from the wfjax
+    cache when a process has exported it before; any pytrees in and out.
+
+    Args:
+        fn: a pure function of ``*args``.
+        args: example arguments (their leaves' shapes and dtypes are the program's).
+        statics: every Python value ``fn`` closes over that shapes the program (with a
+            faithful ``repr``).
+        cache_dir: the wfjax cache directory.
+
+    Returns:
+        a callable of arguments shaped as ``args`` (``jax.jit(fn)`` where the program cannot
+        be kept: see the module's docstring).
+    """
+    leaves, treedef = jax.tree.flatten(args)
+    key = _key(treedef, leaves, 1, statics, fn)
+    if key is None:
+        return jax.jit(fn)
+    memo = key_hash("program", key)
+    if memo not in _LOADED:
+        trees = []
+
+        def flat(*leaves):
+            out, tree = jax.tree.flatten(fn(*jax.tree.unflatten(treedef, leaves)))
+            trees.append(tree)
+            return out
+
+        def build():
+            exported = jax.export.export(jax.jit(flat))(*_avals(leaves))
+            return {"stablehlo": _as_bytes(exported.serialize()),
+                    "out_tree": _as_bytes(pickle.dumps(trees[0]))}
+
+        try:
+            entry = load_or_build("program", key, build, cache_dir)
+        except ImportError:
+            return jax.jit(fn)
+        out_tree = _out_tree(entry["out_tree"])
+        if out_tree is None:
+            return jax.jit(fn)
+        call = jax.jit(jax.export.deserialize(bytearray(entry["stablehlo"].tobytes())).call)
+        _LOADED[memo] = lambda *a: jax.tree.unflatten(out_tree, call(*jax.tree.leaves(a)))
+    return _LOADED[memo]

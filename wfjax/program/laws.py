@@ -25,6 +25,7 @@ from ..contact.laws import prepare, prepare_family, resolve_mode_3d
 from ..contact.table_law import TableLaw, table_specs_3d
 from ..params import Flat, Material, SimConfig, Track, Wheel
 from ..scenario import patch
+from .exported import kept_jit
 
 __all__ = ["BatchGroup", "batch_groups", "common_extent", "prepare_batch", "stack",
            "table_laws", "table_laws_like", "padded_models", "pick_model", "realisation",
@@ -110,11 +111,12 @@ def prepare_batch(contact: str, flats: Sequence[Flat], wheel: Wheel, track: Trac
         return prepare(contact, flat, wheel, track, material, config, cache_dir, family=family,
                        max_depth=max_depth)
 
-    # Compiled (and, from the command line, cached on disk) rather than run op by op: the
+    # Compiled (kept on disk: wfjax.program.exported) rather than run op by op: the
     # parametric law reads the family at a few hundred positions per flat (7.6 s eagerly for
     # the Fig. 8 set).
-    laws = jax.jit(jax.vmap(prepare_one, in_axes=(0, None)))(stacked, family)
-    return laws, [sized[0]] * len(flats)
+    program = kept_jit(jax.vmap(prepare_one, in_axes=(0, None)), (stacked, family),
+                       (contact, wheel, track, material, config, max_depth), cache_dir)
+    return program(stacked, family), [sized[0]] * len(flats)
 
 
 def stack(trees):
