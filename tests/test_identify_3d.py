@@ -84,7 +84,7 @@ def test_bad_contact_one_line_before_any_work():
 @pytest.mark.slow
 def test_study_3d_truth_identified_with_the_3d_law():
     """benchmarks/identify_study.py reduced with the 3D law in truth and identification
-    (seed 43, its first 3 wagons: 5 flats of 45-91 mm; minutes once the 3D tables at 60,
+    (seed 43, its first 3 wagons: 5 flats of 45-91 mm; 5 min once the 3D tables at 60,
     100 and 140 km/h are cached, about 15 min more from an empty cache): every flat flagged,
     no round wheel flagged, none a misfit, and the median length error at most 8 % (2026-12-04:
     5 %; the Hertz-trajectory identification of the same passages: 10 %, its lengths short
