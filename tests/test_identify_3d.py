@@ -69,6 +69,26 @@ def test_command_contact_reaches_identify(tmp_path, monkeypatch):
     assert seen == ["3d", "3d", "hertz-trajectory"]
 
 
+def test_passage_contact_reaches_the_simulated_passage(tmp_path, monkeypatch):
+    """``wfjax detector --passage-csv ... --passage-contact 3d`` simulates the passage with
+    the 3D law (no silent substitution); the default is Hertz-trajectory."""
+    import wfjax.identify.synthetic as synthetic
+    from wfjax.cli import main
+
+    seen = []
+
+    def fake(*args, contact, **kw):
+        seen.append(contact)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(synthetic, "simulate_passage", fake)
+    for extra in (["--passage-contact", "3d"], []):
+        with pytest.raises(SystemExit):
+            main(["detector", "--passage-csv", str(tmp_path / "p.csv"), "--train", "wagon",
+                  "--out", str(tmp_path / "o")] + extra)
+    assert seen == ["3d", "hertz-trajectory"]
+
+
 def test_bad_contact_one_line_before_any_work():
     """identify(contact="4d") and build_table(contact="4d") refuse with one line naming it."""
     from wfjax.identify import identify

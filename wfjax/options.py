@@ -401,12 +401,12 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("passage", "speed_kmh", "float", "km/h", 5.0, 300.0,
            doc="the passage's speed (default 100)", commands=("detector",),
            flag="--passage-speed-kmh"),
-    Option("passage", "noise", "float", "", 0.0, 0.5,
-           doc="relative Gaussian noise on every reading (default 0.03)",
-           commands=("detector",), flag="--passage-noise"),
-    Option("passage", "seed", "int", "", 0, 2**31 - 1,
-           doc="seed of the passage's impacts, roughness, support scatter and noise "
-               "(default 0)", commands=("detector",), flag="--passage-seed"),
+    Option("passage", "noise", "float", "", 0.0, 0.5, commands=("detector",), flag=(
+        "--passage-noise"), doc="relative Gaussian noise on every reading (default 0.03)"),
+    Option("passage", "seed", "int", "", 0, 2**31 - 1, flag="--passage-seed", doc="seed of "
+           "its impacts, roughness, supports, noise (default 0)", commands=("detector",)),
+    Option("passage", "contact", "str", choices=registry.names, commands=("detector",),
+           flag="--passage-contact", doc="its contact law (default hertz-trajectory)"),
 )
 
 _ALL = COMMANDS + ("config",)

@@ -66,12 +66,13 @@ def write_passage(case) -> int:
     speed = (case.get("passage.speed_kmh") or 100.0) / 3.6
     path = Path(case["passage.csv"])
     print(f"wfjax detector: a passage of {len(layout)} wheels at {speed * 3.6:.0f} km/h over "
-          f"{detector.n_bays} bays from bay {detector.first_bay}")
+          f"{detector.n_bays} bays from bay {detector.first_bay}, "
+          f"{case.get('passage.contact') or 'hertz-trajectory'} contact")
     noise = case.get("passage.noise")
     passage, truth = simulate_passage(
         layout, flats, speed, detector, noise=0.03 if noise is None else noise,
-        seed=case.get("passage.seed") or 0, contact=case["run.contact"]
-        if case["run.contact"] != "3d" else "hertz-trajectory", wheel=wheel)
+        seed=case.get("passage.seed") or 0, wheel=wheel,
+        contact=case.get("passage.contact") or "hertz-trajectory")
     if path.parent and not path.parent.exists():
         path.parent.mkdir(parents=True)
     write_atomic(path, passages_csv([passage]))
