@@ -141,3 +141,25 @@ def test_the_tree_unpickler_admits_only_tree_types():
     assert exported._out_tree(np.frombuffer(pickle.dumps(law), np.uint8)) == law
     foreign = jax.tree.structure({"x": Foreign()})
     assert exported._out_tree(np.frombuffer(pickle.dumps(foreign), np.uint8)) is None
+
+
+def test_a_kept_simulation_loads_without_tracing(tmp_path, monkeypatch):
+    """wf.simulate's run (Program.history) is kept too: loaded without export, the same
+    histories to the bit, with the loop's compiler options."""
+    def run():
+        r = wf.simulate(FLAT, float(SPEEDS[0]), contact="hertz-trajectory",
+                        impact_position=0.1, track=wf.Track.comparison(), config=CONFIG,
+                        cache_dir=tmp_path)
+        return np.stack([r.force, r.rail_disp])
+
+    monkeypatch.setattr(exported, "_LOADED", {})
+    first = run()
+    assert len(list(tmp_path.glob("program-*"))) == 1
+    monkeypatch.setattr(exported, "_LOADED", {})
+
+    def no_export(*a, **k):
+        raise AssertionError("traced although the program was kept")
+
+    monkeypatch.setattr(exported.jax.export, "export", no_export)
+    np.testing.assert_array_equal(run(), first)
+    assert np.max(first[0]) > 1e5  # the impact's force [N]

@@ -44,7 +44,7 @@ from ..results import summarise_run
 from ..scenario.description import Scenario
 from ..scenario.sensors import detector_spec, sensor_spec
 from . import grid as grid_mod
-from .exported import sharded_program
+from .exported import kept_jit, sharded_program
 from .laws import (
     batch_groups,
     loop_roughness,
@@ -185,11 +185,6 @@ def _picked(data: ProgramData, run: Run, *statics, n_run=None) -> dict:
     return run_one(data, law, run, *statics, n_run=n_run)
 
 
-# one run as its own top-level program (a top-level jit may carry compiler options)
-_one_run = jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision", "save"),
-                   compiler_options=LOOP_COMPILER_OPTIONS)
-
-
 def _local(statics: tuple, data, *columns) -> dict:
     """One device's runs: :func:`_picked` ``vmap``-ed over the run columns ([n] each),
     ``statics`` = (n_steps, max_iter, precision, save).
@@ -291,14 +286,17 @@ class Program:
     def history(self, run: Run, save=Histories()) -> dict:
         """One run's outputs (default every step's histories) over its ``run.end`` steps with
         the scenario's only flat, its law prepared eagerly (a batch's laws compile:
-        ``prepare_batch``), on the host's default device (``run.flat`` unused)."""
+        ``prepare_batch``), on the host's default device (``run.flat`` unused); the compiled
+        run kept on disk (:func:`wfjax.program.exported.kept_jit`)."""
         sc = self.scenario
         (flat,) = sc.flats
         law = prepare(sc.contact, flat, sc.reference_wheel, sc.track, sc.material, sc.config,
                       self.cache_dir)
-        return _one_run(self.data, law, run, n_steps=int(run.end),
-                        max_iter=sc.config.newton_iterations, precision=sc.config.precision,
-                        save=save)
+        statics = dict(n_steps=int(run.end), max_iter=sc.config.newton_iterations,
+                       precision=sc.config.precision, save=save)
+        program = kept_jit(functools.partial(run_one, **statics), (self.data, law, run),
+                           statics, self.cache_dir, LOOP_COMPILER_OPTIONS)
+        return program(self.data, law, run)
 
     def forward(self, law, runs: Run, save=Histories(), differentiation=Autodiff()) -> dict:
         """The outputs [B, ...] of a rectangular batch of ``runs`` ([B] leaves, every one

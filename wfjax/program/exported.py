@@ -183,7 +183,7 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, fallback, cache_d
     return loaded
 
 
-def kept_jit(fn, args: tuple, statics, cache_dir=None):
+def kept_jit(fn, args: tuple, statics, cache_dir=None, compiler_options=None):
     """``jax.jit(fn)`` for arguments shaped as ``args`` (one device), loaded from the wfjax
     cache when a process has exported it before; any pytrees in and out.
 
@@ -193,6 +193,7 @@ def kept_jit(fn, args: tuple, statics, cache_dir=None):
         statics: every Python value ``fn`` closes over that shapes the program (with a
             faithful ``repr``).
         cache_dir: the wfjax cache directory.
+        compiler_options: XLA options of the compiled program (``jax.jit``'s).
 
     Returns:
         a callable of arguments shaped as ``args`` (``jax.jit(fn)`` where the program cannot
@@ -200,8 +201,9 @@ def kept_jit(fn, args: tuple, statics, cache_dir=None):
     """
     leaves, treedef = jax.tree.flatten(args)
     key = _key(treedef, leaves, 1, statics, fn)
+    traced = jax.jit(fn, compiler_options=compiler_options)
     if key is None:
-        return jax.jit(fn)
+        return traced
     memo = key_hash("program", key)
     if memo not in _LOADED:
         trees = []
@@ -219,10 +221,11 @@ def kept_jit(fn, args: tuple, statics, cache_dir=None):
         try:
             entry = load_or_build("program", key, build, cache_dir)
         except ImportError:
-            return jax.jit(fn)
+            return traced
         out_tree = _out_tree(entry["out_tree"])
         if out_tree is None:
-            return jax.jit(fn)
-        call = jax.jit(jax.export.deserialize(bytearray(entry["stablehlo"].tobytes())).call)
+            return traced
+        call = jax.jit(jax.export.deserialize(bytearray(entry["stablehlo"].tobytes())).call,
+                       compiler_options=compiler_options)
         _LOADED[memo] = lambda *a: jax.tree.unflatten(out_tree, call(*jax.tree.leaves(a)))
     return _LOADED[memo]
