@@ -236,9 +236,9 @@ def test_support_realisations_share_one_compile_and_equal_a_loop():
     rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 5, 4.0, x_start=-2.0,
                                n_realisations=3)
     res = wf.sweep(ROUNDED, [V], impact_positions=[0.1], contact="hertz-trajectory",
-                   tracks=tracks, roughness=rough, progress=False)
+                   tracks=tracks, roughness=rough, progress=False, config=F64)
     loop = [float(wf.simulate(ROUNDED, V, contact="hertz-trajectory", impact_position=0.1,
-                              track=tr,
+                              track=tr, config=F64,
                               roughness=dataclasses.replace(rough, values=rough.values[r])
                               ).max_force) for r, tr in enumerate(tracks)]
     assert np.asarray(res.realisation_max_force)[0, 0, 0] == pytest.approx(loop, rel=1e-9)
