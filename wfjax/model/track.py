@@ -39,6 +39,7 @@ import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
 from .. import _cache
+from .._parallel import dense_threads
 from .._xla import to_device
 from ..params import Track
 from .fe import (
@@ -373,12 +374,13 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     for basis in _mirror_bases(fe, nb) if symmetric else identity:
         k = (basis.T @ fe.stiffness @ basis).toarray()
         m = (basis.T @ fe.mass @ basis).toarray()
-        w2, vec = scipy.linalg.eigh(k, m, driver="gvd", check_finite=False)
-        keep = w2 <= w_max**2
-        vec = basis @ vec[:, keep]
-        c_modal = vec.T @ (fe.damping @ vec)
-        lam, wts, a = complex_modes(w2[keep], c_modal)
-        parts.append((lam, wts, real_times_complex(vec, a)))
+        with dense_threads(k.shape[0]):
+            w2, vec = scipy.linalg.eigh(k, m, driver="gvd", check_finite=False)
+            keep = w2 <= w_max**2
+            vec = basis @ vec[:, keep]
+            c_modal = vec.T @ (fe.damping @ vec)
+            lam, wts, a = complex_modes(w2[keep], c_modal)
+            parts.append((lam, wts, real_times_complex(vec, a)))
     poles = np.concatenate([p[0] for p in parts])
     order = np.argsort(np.abs(poles))
     poles = poles[order]
