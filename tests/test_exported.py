@@ -60,6 +60,20 @@ def test_a_program_without_serialization_is_traced(tmp_path, monkeypatch):
     assert np.all(np.isfinite(result))
 
 
+def test_without_flatbuffers_nothing_is_exported(tmp_path, monkeypatch):
+    """Where flatbuffers is not installed the programs are traced once, as jits: no export
+    is traced first only to fail at serialization."""
+    monkeypatch.setattr(exported, "_LOADED", {})
+    monkeypatch.setattr(exported, "_serializable", lambda: False)
+
+    def no_export(*a, **k):
+        raise AssertionError("exported although it cannot be serialized")
+
+    monkeypatch.setattr(exported.jax.export, "export", no_export)
+    assert np.all(np.isfinite(_sweep(tmp_path)))
+    assert _entries(tmp_path) == [] and _traced() == []
+
+
 def test_a_structure_that_could_hide_a_value_is_not_keyed():
     """A pytree whose static part prints an array truncated ('...') or an object's address
     cannot key a kept program: two such structures could print alike."""

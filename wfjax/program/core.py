@@ -185,6 +185,12 @@ def _picked(data: ProgramData, run: Run, *statics, n_run=None) -> dict:
     return run_one(data, law, run, *statics, n_run=n_run)
 
 
+# one run as its own top-level program (a top-level jit may carry compiler options): the
+# traced fallback of a kept run (Program.history)
+_one_run = jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision", "save"),
+                   compiler_options=LOOP_COMPILER_OPTIONS)
+
+
 def _local(statics: tuple, data, *columns) -> dict:
     """One device's runs: :func:`_picked` ``vmap``-ed over the run columns ([n] each),
     ``statics`` = (n_steps, max_iter, precision, save).
@@ -295,7 +301,8 @@ class Program:
         statics = dict(n_steps=int(run.end), max_iter=sc.config.newton_iterations,
                        precision=sc.config.precision, save=save)
         program = kept_jit(functools.partial(run_one, **statics), (self.data, law, run),
-                           statics, self.cache_dir, LOOP_COMPILER_OPTIONS)
+                           statics, self.cache_dir, LOOP_COMPILER_OPTIONS,
+                           fallback=functools.partial(_one_run, **statics))
         return program(self.data, law, run)
 
     def forward(self, law, runs: Run, save=Histories(), differentiation=Autodiff()) -> dict:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.util
 import io
 import pickle
 import re
@@ -71,6 +72,23 @@ def _key(treedef, leaves, devices: int, statics, local=None) -> dict | None:
                                                            jaxlib.__version__, np.__version__],
             "matmul_precision": str(jax.config.jax_default_matmul_precision),
             "sources": sources_hash()}
+
+
+@functools.cache
+def _serializable() -> bool:
+    """Whether ``jax.export`` can serialize here (it needs the flatbuffers package)."""
+    return importlib.util.find_spec("flatbuffers") is not None
+
+
+def _entry(name: str, key: dict, build, cache_dir) -> dict | None:
+    """The cache entry ``name``/``key`` (``build()`` on a miss), or None when programs cannot
+    be serialized: checked before tracing, so a process without flatbuffers traces once."""
+    if not _serializable():
+        return None
+    try:
+        return load_or_build(name, key, build, cache_dir)
+    except ImportError:  # jax.export's serialization needs the flatbuffers package
+        return None
 
 
 def _avals(leaves) -> list:
@@ -174,16 +192,17 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, fallback, cache_d
         return {"stablehlo": _as_bytes(jax.export.export(program)(*_avals(leaves))
                                        .serialize())}
 
-    try:
-        blob = load_or_build("sweep-program", key, build, cache_dir)["stablehlo"]
-    except ImportError:  # jax.export's serialization needs the flatbuffers package
+    entry = _entry("sweep-program", key, build, cache_dir)
+    if entry is None:
         return fallback
-    loaded = _Loaded(jax.export.deserialize(bytearray(blob.tobytes())), bool(traced))
+    loaded = _Loaded(jax.export.deserialize(bytearray(entry["stablehlo"].tobytes())),
+                     bool(traced))
     _LOADED[memo] = loaded
     return loaded
 
 
-def kept_jit(fn, args: tuple, statics, cache_dir=None, compiler_options=None):
+def kept_jit(fn, args: tuple, statics, cache_dir=None, compiler_options=None,
+             fallback=None):
     """``jax.jit(fn)`` for arguments shaped as ``args`` (one device), loaded from the wfjax
     cache when a process has exported it before; any pytrees in and out.
 
@@ -194,16 +213,17 @@ def kept_jit(fn, args: tuple, statics, cache_dir=None, compiler_options=None):
             faithful ``repr``).
         cache_dir: the wfjax cache directory.
         compiler_options: XLA options of the compiled program (``jax.jit``'s).
+        fallback: the traced program where this one cannot be kept (see the module's
+            docstring); default ``jax.jit(fn, compiler_options=compiler_options)``.
 
     Returns:
-        a callable of arguments shaped as ``args`` (``jax.jit(fn)`` where the program cannot
-        be kept: see the module's docstring).
+        a callable of arguments shaped as ``args``.
     """
     leaves, treedef = jax.tree.flatten(args)
     key = _key(treedef, leaves, 1, statics, fn)
-    traced = jax.jit(fn, compiler_options=compiler_options)
+    fallback = fallback or jax.jit(fn, compiler_options=compiler_options)
     if key is None:
-        return traced
+        return fallback
     memo = key_hash("program", key)
     if memo not in _LOADED:
         trees = []
@@ -218,13 +238,11 @@ def kept_jit(fn, args: tuple, statics, cache_dir=None, compiler_options=None):
             return {"stablehlo": _as_bytes(exported.serialize()),
                     "out_tree": _as_bytes(pickle.dumps(trees[0]))}
 
-        try:
-            entry = load_or_build("program", key, build, cache_dir)
-        except ImportError:
-            return traced
-        out_tree = _out_tree(entry["out_tree"])
-        if out_tree is None:
-            return traced
+        entry = _entry("program", key, build, cache_dir)
+        out_tree = None if entry is None else _out_tree(entry["out_tree"])
+        if out_tree is None:  # kept for the process, so its jit cache serves later calls
+            _LOADED[memo] = fallback
+            return fallback
         call = jax.jit(jax.export.deserialize(bytearray(entry["stablehlo"].tobytes())).call,
                        compiler_options=compiler_options)
         _LOADED[memo] = lambda *a: jax.tree.unflatten(out_tree, call(*jax.tree.leaves(a)))
