@@ -56,7 +56,7 @@ def test_a_program_without_serialization_is_traced(tmp_path, monkeypatch):
 
     monkeypatch.setattr(exported.jax.export.Exported, "serialize", missing)
     result = _sweep(tmp_path)
-    assert _entries(tmp_path) == [] and _traced() == []
+    assert _entries(tmp_path) == [] and _traced() == [True]
     assert np.all(np.isfinite(result))
 
 
@@ -71,7 +71,9 @@ def test_without_flatbuffers_nothing_is_exported(tmp_path, monkeypatch):
 
     monkeypatch.setattr(exported.jax.export, "export", no_export)
     assert np.all(np.isfinite(_sweep(tmp_path)))
-    assert _entries(tmp_path) == [] and _traced() == []
+    assert _entries(tmp_path) == [] and _traced() == [True]
+    assert np.all(np.isfinite(_sweep(tmp_path)))  # the same process finds its program again
+    assert _traced() == [True]
 
 
 def test_a_structure_that_could_hide_a_value_is_not_keyed():

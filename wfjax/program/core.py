@@ -29,7 +29,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import Mesh
 
 from .._parallel import in_background
 from .._xla import LOOP_COMPILER_OPTIONS
@@ -193,34 +193,24 @@ _one_run = jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision",
 
 def _local(statics: tuple, data, *columns) -> dict:
     """One device's runs: :func:`_picked` ``vmap``-ed over the run columns ([n] each),
-    ``statics`` = (n_steps, max_iter, precision, save).
-
-    ``shard_map`` gives every device its own ``vmap``-ed loop over its runs: the batched
-    Newton ``while_loop`` then stops on the device's own runs, with no cross-device reduction
-    of its condition at every step. Every device's loop stops at its own runs' longest
-    window (``time_loop(n_run=...)``).
-    """
+    ``statics`` = (n_steps, max_iter, precision, save). Every device's loop stops at its own
+    runs' longest window (``time_loop(n_run=...)``)."""
     runs = Run(*columns)
     n_run = jnp.max(runs.end)
     return jax.vmap(lambda r: _picked(data, r, *statics, n_run=n_run))(runs)
 
 
 @functools.cache
-def _sharded(mesh: Mesh, statics: tuple):
-    """Compiled (data, *run columns) -> per-run outputs, the runs sharded over ``mesh``
-    (traced in this process)."""
-    by_run = PartitionSpec("runs")
-    return jax.jit(jax.shard_map(functools.partial(_local, statics), mesh=mesh,
-                                 out_specs=by_run, check_vma=False,
-                                 in_specs=(PartitionSpec(),) + (by_run,) * len(Run._fields)),
-                   compiler_options=LOOP_COMPILER_OPTIONS)
+def _local_of(statics: tuple):
+    """:func:`_local` with ``statics`` bound: one function object per statics, so a
+    program traced in this process is found again by it."""
+    return functools.partial(_local, statics)
 
 
 def _sweep_program(mesh: Mesh, statics: tuple, data: ProgramData, columns, cache_dir):
     """The sweep's sharded program for arguments shaped as ``data`` and ``columns``: loaded
     from the wfjax cache (:mod:`wfjax.program.exported`), else traced."""
-    return sharded_program(functools.partial(_local, statics), mesh, statics, data, columns,
-                           _sharded(mesh, statics), cache_dir)
+    return sharded_program(_local_of(statics), mesh, statics, data, columns, cache_dir)
 
 
 # -- how to differentiate a batch of runs (the fits) -------------------------------------------

@@ -121,24 +121,31 @@ def _out_tree(blob: np.ndarray):
         return None
 
 
-def _flat_program(local, treedef, n_data: int, n_leaves: int, mesh: Mesh):
+def _flat_program(local, treedef, n_data: int, n_leaves: int, mesh: Mesh,
+                  compiler_options=None):
     """``local`` over flattened leaves: ``shard_map`` with the first ``n_data`` leaves
-    replicated and the rest (the run columns) split over the mesh's ``runs`` axis."""
+    replicated and the rest (the run columns) split over the mesh's ``runs`` axis.
+
+    ``shard_map`` gives every device its own batch of runs: the batched Newton
+    ``while_loop`` then stops on the device's own runs, with no cross-device reduction of its
+    condition at every step."""
     def flat(*leaves):
         data, *columns = jax.tree.unflatten(treedef, leaves)
         return local(data, *columns)
 
     specs = (PartitionSpec(),) * n_data + (PartitionSpec("runs"),) * (n_leaves - n_data)
     return jax.jit(jax.shard_map(flat, mesh=mesh, in_specs=specs,
-                                 out_specs=PartitionSpec("runs"), check_vma=False))
+                                 out_specs=PartitionSpec("runs"), check_vma=False),
+                   compiler_options=compiler_options)
 
 
 class _Loaded:
-    """A program called like ``fn(data, *columns)``: its deserialized export, jitted."""
+    """A program called like ``fn(data, *columns)``: ``call`` (a jit of the flattened
+    leaves: a deserialized export's, or the traced program where it cannot be kept)."""
 
-    def __init__(self, exported, traced):
-        self.call = jax.jit(exported.call, compiler_options=LOOP_COMPILER_OPTIONS)
-        self.traced = traced  # True when this process traced it (the cache's first use)
+    def __init__(self, call, traced: bool):
+        self.call = call
+        self.traced = traced  # True when this process traced it
 
     def __call__(self, data, *columns):
         return self.call(*jax.tree.leaves((data, *columns)))
@@ -158,9 +165,10 @@ class _Lowered:
         return lambda data, *columns: compiled(*jax.tree.leaves((data, *columns)))
 
 
-def sharded_program(local, mesh: Mesh, statics, data, columns, fallback, cache_dir=None):
+def sharded_program(local, mesh: Mesh, statics, data, columns, cache_dir=None):
     """The program ``local(data, *columns)`` sharded over ``mesh`` (the columns split over
-    its ``runs`` axis), loaded from the wfjax cache when a process has exported it before.
+    its ``runs`` axis), loaded from the wfjax cache when a process has exported it before,
+    else traced (and kept, where it can be: see the module's docstring).
 
     Args:
         local: the per-device function (pure), ``(data, *columns) -> dict`` of [n] outputs.
@@ -169,21 +177,18 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, fallback, cache_d
             with a faithful ``repr``).
         data, columns: example arguments (device arrays): their leaves' shapes and dtypes
             are the program's.
-        fallback: the traced program ``fallback(data, *columns)`` used when this program
-            cannot be cached (see the module's docstring).
         cache_dir: the wfjax cache directory (:func:`wfjax._cache.cache_directory`).
 
     Returns:
         a callable ``fn(data, *columns)`` with ``fn.lower(...).compile()`` as a jit's.
     """
     leaves, treedef = jax.tree.flatten((data, *columns))
+    n_data = len(jax.tree.leaves(data))
     key = _key(treedef, leaves, int(mesh.devices.size), statics, local)
-    if key is None:
-        return fallback
-    memo = key_hash("sweep-program", key)
+    memo = (key_hash("sweep-program", key) if key is not None
+            else (local, treedef, n_data, len(leaves), mesh))
     if memo in _LOADED:
         return _LOADED[memo]
-    n_data = len(jax.tree.leaves(data))
     traced = []
 
     def build():
@@ -192,11 +197,14 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, fallback, cache_d
         return {"stablehlo": _as_bytes(jax.export.export(program)(*_avals(leaves))
                                        .serialize())}
 
-    entry = _entry("sweep-program", key, build, cache_dir)
-    if entry is None:
-        return fallback
-    loaded = _Loaded(jax.export.deserialize(bytearray(entry["stablehlo"].tobytes())),
-                     bool(traced))
+    entry = None if key is None else _entry("sweep-program", key, build, cache_dir)
+    if entry is None:  # not kept: traced in this process
+        call = _flat_program(local, treedef, n_data, len(leaves), mesh, LOOP_COMPILER_OPTIONS)
+        loaded = _Loaded(call, True)
+    else:
+        exported = jax.export.deserialize(bytearray(entry["stablehlo"].tobytes()))
+        loaded = _Loaded(jax.jit(exported.call, compiler_options=LOOP_COMPILER_OPTIONS),
+                         bool(traced))
     _LOADED[memo] = loaded
     return loaded
 
