@@ -8,7 +8,8 @@ table of ``docs/convergence.md``.
 Reference: 26 rail elements per bay, track modes to 20 kHz, time step 6.25 us and travel step
 0.25 mm, 70 bays (45.5 m), contact element 1 mm. Each row changes the settings named in its
 label and keeps the rest of the reference, except the two rows labelled "default", which are
-whole configurations: today's and the one before 2026-12-03 ("old default").
+whole configurations: today's and the one before 2026-12-03 ("old default"), and the row
+"wfjax detector", the ``wfjax detector`` command's defaults (``wfjax.case``).
 
 Sets (R_R = 0.45 m, ``Track.comparison()``):
 
@@ -88,6 +89,21 @@ ROWS = {  # label -> changes to REF
     "26 el., 15 kHz, 65 us / 1 mm, 24 bays": {**NEW, "time_step": 65e-6},
     "26 el., 15 kHz, 50 us / 1.5 mm, 24 bays": {**NEW, "time_step": 50e-6,
                                                 "travel_step": 1.5e-3},
+    # runs with a detector: the reading needs a longer track, higher modes, a finer step
+    "wfjax detector (26 el., 20 kHz, 25 us / 1 mm, 60 bays, float64)": {
+        **NEW, "track_max_frequency": 20e3, "time_step": 25e-6, "n_bays": 60,
+        "precision": "float64"},
+    "26 el., 20 kHz, 40 us / 1 mm, 50 bays, float32": {**NEW, "track_max_frequency": 20e3,
+                                                       "n_bays": 50},
+    "26 el., 20 kHz, 40 us / 1 mm, 60 bays, float32": {**NEW, "track_max_frequency": 20e3,
+                                                       "n_bays": 60},
+    "26 el., 15 kHz, 40 us / 1 mm, 60 bays, float32": {**NEW, "n_bays": 60},
+    "26 el., 20 kHz, 40 us / 1 mm, 70 bays, float32": {**NEW, "track_max_frequency": 20e3,
+                                                       "n_bays": 70},
+    "26 el., 20 kHz, 40 us / 1 mm, 70 bays, float64": {**NEW, "track_max_frequency": 20e3,
+                                                       "n_bays": 70, "precision": "float64"},
+    "26 el., 20 kHz, 25 us / 1 mm, 70 bays, float32": {**NEW, "track_max_frequency": 20e3,
+                                                       "n_bays": 70, "time_step": 25e-6},
 }
 FREQS = np.geomspace(20.0, 2000.0, 40)
 RECEPTANCES = {  # name -> (quantity, force position [m], response position [m])

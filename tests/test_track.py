@@ -342,6 +342,21 @@ def test_track_modal_model_cached(tmp_path):
     assert len(list(tmp_path.iterdir())) == 2
 
 
+@pytest.mark.slow
+def test_receptance_track_length_is_converged_outside_the_pinned_pinned_band():
+    """The point receptances on guards.RECEPTANCE_BAYS bays are within 0.5 % of a track twice
+    as long over 20 Hz - 2 kHz outside the pinned-pinned band (900-990 Hz), where no finite
+    clamped track converges pointwise (benchmarks/receptance_length.py)."""
+    from wfjax.scenario import guards
+
+    f = np.geomspace(20.0, 2000.0, 200)
+    f = f[(f < 900.0) | (f > 990.0)]
+    for x in (0.0, LS / 2):
+        h = T.receptance(wfjax.Track(n_bays=guards.RECEPTANCE_BAYS), f, x)
+        long = T.receptance(wfjax.Track(n_bays=2 * guards.RECEPTANCE_BAYS), f, x)
+        assert np.max(np.abs(h - long) / np.abs(long)) < 5e-3
+
+
 def test_receptance_command_uses_a_long_track(tmp_path):
     """``wfjax receptance`` lengthens a scalar track to guards.RECEPTANCE_BAYS (the pinned-pinned
     peak needs it: 70 bays are 12 % off a 300-bay track there), and its pinned-pinned

@@ -39,8 +39,9 @@ MESH_FACTOR = 3.0  # rail elements per bending wavelength at the highest kept mo
 ELEMENT_FACTOR = 0.15  # contact element / 2a
 END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
 SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
-RECEPTANCE_BAYS = 140  # a direct track receptance within 1 % of a 300-bay track's at the
-# pinned-pinned peak (70 bays: 12 %; benchmarks/track_length.py)
+RECEPTANCE_BAYS = 140  # direct point receptances within 0.5 % of an 800-bay track's, 20 Hz -
+# 2 kHz outside the pinned-pinned band 900-990 Hz, where no finite track converges pointwise
+# (benchmarks/receptance_length.py)
 
 
 class InaccurateSettings(ValueError):

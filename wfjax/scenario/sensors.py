@@ -288,7 +288,9 @@ class Detector:
     bridges the shear difference shear(a_k) - shear(b_k) equals the wheel load in statics
     (the rail's inertia between the bridges is the dynamic error). The bay's estimate is
     ``calibration`` x that difference, read while a_k <= X(t) <= b_k; its peak over the
-    passage is the bay's reading (``docs/detector.md``).
+    passage is the bay's reading (``docs/detector.md``). The reading is within 0.5 % of the
+    converged reference with track modes to 20 kHz, a 25 us step cap, a float64 loop and
+    60 bays (``wfjax detector``'s defaults); with the package's defaults within 3.9 %.
 
     Attributes:
         n_bays: number of instrumented consecutive bays N (>= 1).
