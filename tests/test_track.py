@@ -357,20 +357,34 @@ def test_receptance_track_length_is_converged_outside_the_pinned_pinned_band():
         assert np.max(np.abs(h - long) / np.abs(long)) < 5e-3
 
 
-def test_receptance_command_uses_a_long_track(tmp_path):
-    """``wfjax receptance`` lengthens a scalar track to guards.RECEPTANCE_BAYS (the pinned-pinned
-    peak needs it: 70 bays are 12 % off a 300-bay track there), and its pinned-pinned
-    frequency is the long track's."""
+def test_receptance_command_uses_the_infinite_periodic_track(tmp_path):
+    """``wfjax receptance`` writes the infinite periodic track's receptances (no clamped ends
+    to shape the pinned-pinned peak), and its pinned-pinned frequency is that track's."""
     import json
 
     from wfjax.cli import main
-    from wfjax.scenario import guards
 
     assert main(["receptance", "--points", "120", "--out", str(tmp_path)]) == 0
     summary = json.loads((tmp_path / "receptance.json").read_text())
-    assert summary["n_bays"] == guards.RECEPTANCE_BAYS
-    f = np.geomspace(700.0, 1200.0, 400)
-    long = np.abs(T.receptance(wfjax.Track(n_bays=guards.RECEPTANCE_BAYS), f, LS / 2))
+    assert summary["track_model"] == "infinite periodic"
+    rows = np.genfromtxt(tmp_path / "receptance.csv", delimiter=",", names=True)
     grid = np.geomspace(20.0, 5000.0, 120)  # the command's frequencies (20 Hz - 5 kHz)
-    near = grid[np.argmin(np.abs(grid - f[np.argmax(long)]))]
-    assert summary["pinned_pinned_hz"] == pytest.approx(near, rel=0.05)
+    mid = T.periodic_receptance(wfjax.Track(), grid, LS / 2)
+    np.testing.assert_allclose(rows["track_midspan_re_m_per_N"], mid.real, rtol=1e-6,
+                               atol=1e-8 * np.abs(mid).max())
+    f = np.geomspace(700.0, 1200.0, 400)
+    peak = f[np.argmax(np.abs(T.periodic_receptance(wfjax.Track(), f, LS / 2)))]
+    near = grid[np.argmin(np.abs(grid - peak))]
+    assert summary["pinned_pinned_hz"] == pytest.approx(near, rel=1e-9)
+
+
+def test_receptance_of_a_hanging_track_falls_back_to_a_long_finite_track():
+    """Every sleeper hanging has no static support on an infinite track: the command uses the
+    finite track lengthened to guards.RECEPTANCE_BAYS instead."""
+    from wfjax.commands.receptance import _track_receptances
+    from wfjax.scenario import guards
+
+    _, static, model = _track_receptances(wfjax.Track(ballast_gap=1e-3), np.array([100.0]),
+                                          118e3)
+    assert model == f"finite, {guards.RECEPTANCE_BAYS} bays"
+    assert np.all(np.isfinite(static))

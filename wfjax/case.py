@@ -189,9 +189,8 @@ def default_layer(command: str) -> dict:
         layer.update({"run.speeds_kmh": "20:200:20", "run.impact_positions": 5,
                       "run.sensors": [0.0, 0.325], "detector.n_bays": 3, "detector.first_bay": -1,
                       "detector.gauge_offset": 0.1, "detector.calibration": 1.0,
-                      # the reading within 0.5 % of the reference needs modes to 20 kHz, a
-                      # 25 us step, float64 and 60 bays (the package's defaults: 3.9 %;
-                      # docs/convergence.md, "The detector's reading")
+                      # the reading within 0.5 % needs 20 kHz, 25 us, float64 and 60 bays
+                      # (package defaults: 3.9 %; docs/convergence.md, "The detector reading")
                       "config.track_max_frequency": 20e3, "config.max_time_step": 25e-6,
                       "config.precision": "float64", "track.n_bays": 60})
     if command == "fit":  # fit_flat's defaults: the comparison track (R_R = 0.45 m)

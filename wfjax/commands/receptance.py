@@ -25,9 +25,33 @@ def _long(track):
     return guards.at_least(track, 0.5 * guards.RECEPTANCE_BAYS * float(track.sleeper_spacing))
 
 
+def _periodic(track) -> bool:
+    """Whether ``track`` is periodic (the same support at every sleeper, none hanging), so
+    its receptance is the infinite track's (:func:`wfjax.track.periodic_receptance`)."""
+    from wfjax.model.sleepers import is_uniform
+
+    return is_uniform(track) and not np.any(np.asarray(track.ballast_gap, dtype=float) > 0)
+
+
+def _track_receptances(track, f, preload: float):
+    """(receptances [m/N] above a sleeper and at midspan at ``f`` [Hz], static deflections
+    [m] there under ``preload`` [N], the track model's label): the infinite periodic track
+    where ``track`` is periodic, else the finite track lengthened to RECEPTANCE_BAYS."""
+    from wfjax import track as T
+
+    ls = float(track.sleeper_spacing)
+    if _periodic(track):
+        h = T.periodic_receptance(track, np.concatenate([[0.0], f]), 0.0)
+        m = T.periodic_receptance(track, np.concatenate([[0.0], f]), ls / 2)
+        return (h[1:], m[1:]), (h[0].real * preload, m[0].real * preload), "infinite periodic"
+    track = _long(track)
+    return ((T.receptance(track, f, 0.0), T.receptance(track, f, ls / 2)),
+            (T.static_deflection(track, preload, 0.0), T.static_deflection(track, preload, ls / 2)),
+            f"finite, {track.n_bays} bays")
+
+
 def run(args: argparse.Namespace) -> int:
     """Compute, write receptance.csv / receptance.json / receptance.png, print a summary."""
-    from wfjax import track as T
     from wfjax import wheel as W
 
     case = _common.resolve_case(args, "receptance")  # checks --fmin-hz, --fmax-hz, --points
@@ -35,16 +59,12 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--fmax-hz {args.fmax_hz:g}: must be > --fmin-hz ({args.fmin_hz:g} "
                          "Hz)")
     wheel, track, _, _ = case.model()
-    track = _long(track)
     preload = float(wheel.preload)
     out = _common.prepare_out(args.out)
     f = np.geomspace(args.fmin_hz, args.fmax_hz, args.points)
-    ls = float(track.sleeper_spacing)
-    curves = {
-        "wheel": W.receptance(wheel, f),
-        "track_sleeper": T.receptance(track, f, 0.0),
-        "track_midspan": T.receptance(track, f, ls / 2),
-    }
+    (sleeper, midspan), static, model = _track_receptances(track, f, preload)
+    curves = {"wheel": W.receptance(wheel, f), "track_sleeper": sleeper,
+              "track_midspan": midspan}
     cols = ["frequency_hz"]
     data = [f]
     for name, h in curves.items():
@@ -63,11 +83,9 @@ def run(args: argparse.Namespace) -> int:
 
     summary = {
         "elements_per_bay": int(track.elements_per_bay),
-        "n_bays": int(track.n_bays),
+        "track_model": model,
         "preload_kN": preload / 1e3,
-        "static_deflection_mm": {
-            "sleeper": T.static_deflection(track, preload, 0.0) * 1e3,
-            "midspan": T.static_deflection(track, preload, ls / 2) * 1e3},
+        "static_deflection_mm": {"sleeper": static[0] * 1e3, "midspan": static[1] * 1e3},
         "track_resonance_hz": peak(curves["track_sleeper"], 50, 200),
         "rail_on_pad_resonance_hz": peak(curves["track_sleeper"], 200, 500),
         "pinned_pinned_hz": peak(curves["track_midspan"], 700, 1200),
@@ -92,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     ax1.grid(True, which="both", alpha=0.3)
     ax2.grid(True, which="both", alpha=0.3)
     ax1.legend()
-    ax1.set_title(f"Receptances (track: {track.n_bays} bays, {track.elements_per_bay} el./bay)")
+    ax1.set_title(f"Receptances (track: {model}, {track.elements_per_bay} el./bay)")
     _common.save_figure(fig, out / "receptance.png")
 
     s = summary

@@ -51,11 +51,13 @@ from .fe import (
     track_numbers,
 )
 from .modal import complex_modes, discrete_step_coefficients, real_times_complex
+from .periodic import periodic_receptance
 from .sleepers import is_mirror_symmetric, is_uniform
 
 __all__ = [
     "ModalModel",
     "receptance",
+    "periodic_receptance",
     "static_deflection",
     "modal_model",
     "mode_shapes_at",
@@ -87,7 +89,8 @@ def check_positive_scalar(name: str, value, unit: str) -> float:
 
 
 def receptance(track: Track, freqs, x: float = 0.0, x_response=None) -> np.ndarray:
-    """Rail receptance [m/N] by a direct sparse frequency-domain solve of the FE model.
+    """Rail receptance [m/N] by a direct sparse frequency-domain solve of the FE model (the
+    finite track with clamped ends; :func:`periodic_receptance` for the infinite track).
 
     Args:
         track: the track parameters.
