@@ -35,7 +35,7 @@ def test_floquet_waves_of_the_free_rail_are_the_timoshenko_waves(freq):
     dispersion error ((k L_e)^4 scale: 1e-6 at 100 Hz, 6e-5 at 500 Hz)."""
     track = wfjax.Track()
     p = dict(track_numbers(track), pad_stiffness=0.0, pad_damping=0.0, ballast_gap=0.0)
-    k, m, c = P._cell_matrices(p, int(track.elements_per_bay))
+    k, m, c, _ = P._cell_matrices(p, int(track.elements_per_bay))
     w = 2 * math.pi * freq
     lam = P._waves(P._condensed(k - w**2 * m + 1j * w * c))[0]
     half = np.sort(((lam + 1 / lam) / 2).real)
@@ -66,6 +66,11 @@ def test_periodic_receptance_equals_a_long_finite_track_away_from_pinned_pinned(
         h = T.periodic_receptance(wfjax.Track(), f, x, xr)
         ref = T.receptance(long, f, x, xr)
         np.testing.assert_allclose(h, ref, rtol=1e-5)
+
+
+def test_periodic_receptance_refuses_a_non_finite_position():
+    with pytest.raises(ValueError, match="x_response=.*nan"):
+        T.periodic_receptance(wfjax.Track(), [100.0], 0.0, np.array([0.3, np.nan]))
 
 
 def test_periodic_receptance_refuses_varying_supports():

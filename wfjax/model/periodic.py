@@ -38,11 +38,12 @@ from .fe import element_interior_compliance, element_matrices, shape_functions, 
 __all__ = ["periodic_receptance", "floquet_multipliers"]
 
 
-def _cell_matrices(p: dict, ne: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cell_matrices(p: dict, ne: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """(K, M, C) of one cell [n, n], n = 2 (ne + 1) + 1: the rail dofs of nodes 0..ne, then
-    the sleeper (pad from rail node 0, ballast to the ground)."""
+    the sleeper (pad from rail node 0, ballast to the ground); and the elements' shear
+    parameter phi."""
     le = float(p["sleeper_spacing"]) / ne
-    ke, me, _ = element_matrices(p["bending_stiffness"], p["shear_stiffness"], p["rail_mass"],
+    ke, me, phi = element_matrices(p["bending_stiffness"], p["shear_stiffness"], p["rail_mass"],
                                  p["rail_rotary_inertia"], le)
     n = 2 * (ne + 1) + 1
     k, m, c = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
@@ -50,8 +51,8 @@ def _cell_matrices(p: dict, ne: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
         s = slice(2 * e, 2 * e + 4)
         k[s, s] += ke
         m[s, s] += me
-    kb = 0.0 if float(p.get("ballast_gap", 0.0)) > 0 else float(p["ballast_stiffness"])
-    cb = 0.0 if float(p.get("ballast_gap", 0.0)) > 0 else float(p["ballast_damping"])
+    bonded = float(p["ballast_gap"]) == 0  # a hanging sleeper: no linear ballast, as in fe
+    kb, cb = (float(p["ballast_stiffness"]), float(p["ballast_damping"])) if bonded else (0, 0)
     kp, cp, sl = float(p["pad_stiffness"]), float(p["pad_damping"]), n - 1
     for mat, pad, ground in ((k, kp, kb), (c, cp, cb)):
         mat[0, 0] += pad
@@ -59,7 +60,7 @@ def _cell_matrices(p: dict, ne: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
         mat[0, sl] -= pad
         mat[sl, 0] -= pad
     m[sl, sl] += float(p["sleeper_mass"])
-    return k, m, c
+    return k, m, c, phi
 
 
 def _condensed(cell: np.ndarray) -> np.ndarray:
@@ -101,7 +102,7 @@ def floquet_multipliers(track: Track, freqs) -> np.ndarray:
     sleeper) at ``freqs`` [Hz], sorted by modulus: two decaying to the right (|lambda| < 1),
     their reciprocals to the left. -ln|lambda| is a wave's decay per bay [Np]."""
     p, ne = _numbers(track), int(track.elements_per_bay)
-    k, m, c = _cell_matrices(p, ne)
+    k, m, c, _ = _cell_matrices(p, ne)
     out = []
     for f in np.atleast_1d(np.asarray(freqs, dtype=float)):
         w = 2 * math.pi * f
@@ -118,7 +119,7 @@ def _numbers(track: Track) -> dict:
                 raise ValueError(f"track.{name} varies from sleeper to sleeper: the periodic "
                                  "receptance needs the same support at every sleeper")
             p[name] = float(np.ravel(v)[0])
-    p["ballast_gap"] = float(np.ravel(np.asarray(track.ballast_gap, dtype=float))[0])
+    p.setdefault("ballast_gap", 0.0)  # track_numbers leaves out a gap that is 0 everywhere
     return p
 
 
@@ -144,12 +145,14 @@ def periodic_receptance(track: Track, freqs, x: float = 0.0, x_response=None) ->
     if not np.all(np.isfinite(f)) or np.any(f < 0):
         raise ValueError(f"freqs must be finite and >= 0 Hz, got {freqs!r}")
     xr = np.atleast_1d(np.asarray(x if x_response is None else x_response, dtype=float))
+    if not (math.isfinite(float(x)) and np.all(np.isfinite(xr))):
+        raise ValueError(f"x and x_response must be finite positions [m], got x={x!r}, "
+                         f"x_response={x_response!r}")
     reach = max(abs(float(x)), float(np.max(np.abs(xr))))
     half = int(math.ceil(reach / ls)) + 1  # cells either side of the sleeper at x = 0
     x0 = -half * ls
-    phi = 12 * float(p["bending_stiffness"]) / (float(p["shear_stiffness"]) * le**2)
+    k, m, c, phi = _cell_matrices(p, ne)
     loads = _nodal_loads(np.concatenate([[float(x)], xr]) - x0, le, ne, 2 * half, phi)
-    k, m, c = _cell_matrices(p, ne)
     out = np.empty((f.size, xr.size), dtype=complex)
     for i, fi in enumerate(f):
         w = 2 * math.pi * fi
