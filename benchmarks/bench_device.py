@@ -13,24 +13,32 @@ Sections (``--sections``, all by default):
 * ``table``: one exact 3D table build (rounded 0.9 mm/100 mm, R_R = 0.30 m, 1 mm elements),
   with the backend's column batch (``table_law.table_batch_size``);
 * ``gradient``: one forward-mode gradient (``jacfwd``, depth and length: what ``fit_flat``
-  uses) of a 10-speed max-force misfit, Hertz-trajectory, 1 impact position.
+  uses) of a 10-speed max-force misfit, Hertz-trajectory, 1 impact position;
+* ``train`` (only when named in ``--sections``): the identification issue's train,
+  ``benchmarks/identify_train.py`` (20 wagons, 80 wheels; ``--quick`` 2, ``--tiny`` 1 with a
+  smoke-size response table) in its own processes: the truth, ``identify`` from an empty
+  cache (cold) and again on the cache that left (warm), and the flags against the truth.
 
-For each: the first call's compile time (``jax.monitoring`` compile events) and the rest of
-its setup (modal model, tables or family from the disk cache or built), the run time of a
-second, compiled call, runs per second, the peak memory so far (GPU/TPU:
-``peak_bytes_in_use`` of device 0; CPU: the process's peak RSS; both only grow, so sections
-run from small to large), and float32 against float64 (``SimConfig.precision``): run-time
-ratio and the largest relative difference of the max force over all runs, and the
-loss-of-contact speeds per flat (lowest speed with loss of contact at any position) where
-they differ. The table build runs in float64 only (setup is float64 by design); the
-gradient's difference is the largest over its components, relative to the largest.
+For each sweep, table or gradient section: the first call's compile time
+(``jax.monitoring`` compile events) and the rest of its setup (modal model, tables or family
+from the disk cache or built), the run time of a second, compiled call, runs per second, the
+peak memory so far (GPU/TPU: ``peak_bytes_in_use`` of device 0; CPU: the process's peak RSS;
+both only grow, so the default order runs from small to large), and float32 against float64
+(``SimConfig.precision``): run-time ratio and the largest relative difference of the max
+force over all runs, and the loss-of-contact speeds per flat (lowest speed with loss of
+contact at any position) where they differ. The table build runs in float64 only (setup is
+float64 by design); the gradient's difference is the largest over its components, relative
+to the largest. A section that fails is reported as failed and the others still run (exit
+code 1).
 
 Run: ``python benchmarks/bench_device.py [--quick | --tiny] [--json out.json]
 [--host-devices N]`` (CPU: one JAX device per core by default, as the ``wfjax`` command; GPUs
 are used as they are). ``--quick``
 shrinks every section (fewer speeds, positions and depths, 2 mm contact elements; under
 5 minutes on a 2-core CPU with a cold cache); ``--tiny`` is the
-CI smoke test's size (``tests/test_device.py``). Prints one Markdown table and writes JSON.
+CI smoke test's size (``tests/test_device.py``). Sections run in the order named; the JSON
+(``--json``) is rewritten after every section, so a run cut short keeps what it finished.
+Prints one Markdown table (and the train's line) and writes JSON.
 """
 
 from __future__ import annotations
@@ -41,8 +49,11 @@ import math
 import os
 import platform
 import resource
+import subprocess
 import sys
+import tempfile
 import time
+import traceback
 from pathlib import Path
 
 import jax
@@ -58,6 +69,9 @@ from wfjax.contact import table_law, table_spec, tables
 from wfjax.program import grid
 
 SECTIONS = ("table", "gradient", "default", "fig7", "fig8", "large-hertz", "large-3d")
+OPTIONAL_SECTIONS = ("train",)  # run only when named
+TRAIN = {"full": (20, "{}"), "quick": (2, "{}"),  # wagons, response-table options (JSON)
+         "tiny": (1, '{"n_offsets": 2, "n_roughness": 1}')}
 # per size: speeds [km/h], positions, Fig. 8 depths [mm], 3D element [m], table element [m],
 # gradient speeds, large-batch speeds and positions
 SIZES = {
@@ -182,11 +196,48 @@ def _brief(row: dict) -> dict:
         "run_s": round(row["float64"]["run_s"], 3)}
 
 
+def train_section(size_name: str) -> dict:
+    """``benchmarks/identify_train.py`` at this size, in its own processes: a row of times
+    [s] (truth, cold and warm ``identify``) and flags against the truth."""
+    wagons, options = TRAIN[size_name]
+    work = Path(tempfile.mkdtemp(prefix="bench_train_"))
+    out = work / "train.json"
+    cmd = [sys.executable, str(Path(__file__).with_name("identify_train.py")), "--wagons",
+           str(wagons), "--table-options", options, "--work-dir", str(work), "--out", str(out)]
+    if wagons < 20:
+        cmd += ["--flats", "1:new:60"]
+    subprocess.run(cmd, check=True)
+    res = json.loads(out.read_text())
+    t, s = res["times"], res["score"]
+    row = {"section": "train", "runs": res["meta"]["n_wheels"], "note": f"{wagons} wagons",
+           "truth_s": t["truth_s"], "identify_cold_s": t["identify_cold_s"],
+           "identify_warm_s": t["identify_warm_s"], "score": s,
+           "cold_and_warm_answers_equal": res["meta"]["cold_and_warm_answers_equal"]}
+    row["peak_mib"], row["peak_of"] = peak_memory_mib()  # this process only
+    times = {k: row[k] for k in ("truth_s", "identify_cold_s", "identify_warm_s")}
+    print(f"  train: done ({json.dumps(times)})", file=sys.stderr, flush=True)
+    return row
+
+
+def train_markdown(row: dict) -> str:
+    """One line: the train's times [s] and flags."""
+    s = row["score"]
+    return (f"train ({row['note']}, {row['runs']} wheels): truth {row['truth_s']:.1f} s, "
+            f"identify cold {row['identify_cold_s']:.1f} s, warm {row['identify_warm_s']:.1f} s;"
+            f" flats flagged {s['flats_flagged']} of {s['n_flats']}, round wheels flagged "
+            f"{len(s['round_flagged'])} of {s['n_round']}")
+
+
 def table_markdown(rows: list[dict]) -> str:
     lines = ["| section | runs | setup [s] | compile [s] | run [s] | runs/s | peak [MiB] | "
              "f32/f64 time | f32 max rel. diff | loss speeds |",
              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
     for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['section']} | failed: {r['error'][:80]} |")
+            continue
+        if r["section"] == "train":
+            continue
         d = r["float64"]
         if "f32_time_ratio" in r:
             f32 = (f"{r['f32_time_ratio']:.2f}", f"{r['f32_max_rel_diff']:.1e}",
@@ -205,7 +256,8 @@ def main(argv=None) -> int:
     size_group.add_argument("--quick", action="store_true", help="every section smaller")
     size_group.add_argument("--tiny", action="store_true", help="smoke-test size (CI)")
     p.add_argument("--sections", default=",".join(SECTIONS),
-                   help=f"comma-separated subset of {','.join(SECTIONS)}")
+                   help=f"comma-separated, run in this order: {','.join(SECTIONS)} and "
+                   f"{','.join(OPTIONAL_SECTIONS)} (only when named)")
     p.add_argument("--large-runs", type=int, help="runs of the large batch (default 100000; "
                    "--quick 600)")
     p.add_argument("--json", default="bench_device.json", help="where to write the JSON")
@@ -216,9 +268,10 @@ def main(argv=None) -> int:
     size_name = "tiny" if args.tiny else "quick" if args.quick else "full"
     size = SIZES[size_name]
     wanted = [s.strip() for s in args.sections.split(",") if s.strip()]
-    bad = sorted(set(wanted) - set(SECTIONS))
-    if bad or not wanted:
-        p.error(f"--sections: unknown {bad}; choose from {','.join(SECTIONS)}")
+    bad = sorted(set(wanted) - set(SECTIONS + OPTIONAL_SECTIONS))
+    if bad or not wanted or len(set(wanted)) < len(wanted):
+        p.error(f"--sections: unknown or repeated in {args.sections!r}; choose from "
+                f"{','.join(SECTIONS + OPTIONAL_SECTIONS)}")
     n_large = args.large_runs or LARGE_RUNS[size_name]
     if n_large < 1:
         p.error(f"--large-runs must be >= 1, got {n_large}")
@@ -252,18 +305,29 @@ def main(argv=None) -> int:
     print(f"bench_device: {header['backend']} ({header['device']}) x "
           f"{header['device_count']}, size {size_name}, load {os.getloadavg()[0]:.1f}",
           file=sys.stderr)
-    rows = []
-    for name in [s for s in SECTIONS if s in wanted]:
-        run, n_runs, note = makers[name]()
-        rows.append(measure(name, run, n_runs, note, float32=name != "table"))
-    header["load_average_end"] = os.getloadavg()
     header["chunk_width_per_device"] = grid.chunk_width(3000, 599)
+    rows = []
+    for name in wanted:
+        try:
+            if name == "train":
+                rows.append(train_section(size_name))
+            else:
+                run, n_runs, note = makers[name]()
+                rows.append(measure(name, run, n_runs, note, float32=name != "table"))
+        except Exception as exc:  # one section's failure must not cost the others
+            traceback.print_exc()
+            rows.append({"section": name, "error": f"{type(exc).__name__}: {exc}"})
+        header["load_average_end"] = os.getloadavg()
+        Path(args.json).write_text(json.dumps({"header": header, "rows": rows}, indent=1))
     print(f"\n{header['backend']} ({header['device']}) x {header['device_count']}, "
           f"size {size_name}, load average {header['load_average'][0]:.1f} -> "
-          f"{header['load_average_end'][0]:.1f}; peak memory = {rows[-1]['peak_of']}\n")
+          f"{header['load_average_end'][0]:.1f}; peak memory = "
+          f"{next((r['peak_of'] for r in rows if 'peak_of' in r), '-')}\n")
     print(table_markdown(rows))
-    Path(args.json).write_text(json.dumps({"header": header, "rows": rows}, indent=1))
-    return 0
+    for row in rows:
+        if row["section"] == "train" and "error" not in row:
+            print("\n" + train_markdown(row))
+    return 1 if any("error" in r for r in rows) else 0
 
 
 if __name__ == "__main__":

@@ -127,6 +127,16 @@ def run_identify(csv_path: Path, cache_dir: Path, args, label: str) -> dict:
     return res
 
 
+def machine() -> str:
+    """The CPU, and the JAX accelerator where there is one."""
+    import jax
+
+    cpu = f"{os.cpu_count()}-core CPU ({platform.processor() or platform.machine()})"
+    if jax.default_backend() == "cpu":
+        return cpu + ", shared"
+    return f"{jax.devices()[0].device_kind} ({jax.default_backend()}), {cpu}"
+
+
 def score(truth: list, rows: list) -> dict:
     """Flagged / missed / false against the truth."""
     flats = [t for t in truth if t["kind"] != "none"]
@@ -237,7 +247,7 @@ def main(argv=None) -> int:
     meta = {"command": "python benchmarks/identify_train.py " + " ".join(
                 a for a in (argv if argv is not None else sys.argv[1:])),
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-            "machine": f"{os.cpu_count()}-core CPU, shared ({platform.processor() or 'cpu'})",
+            "machine": machine(),
             "load_average_start": load0, "load_average_end": os.getloadavg(),
             "commit": commit, "wfjax_uncommitted": dirty, "wagons": args.wagons,
             "n_wheels": len(truth), "pitch_m": args.pitch_m, "speed_kmh": args.speed_kmh,
