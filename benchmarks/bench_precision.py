@@ -9,7 +9,7 @@ Jobs (``--jobs``):
 
 * ``loop``: the batched time loop alone, ``jax.vmap`` of :func:`wfjax.loop.run.time_loop`
   over ``--batch`` runs (speeds spread over 20-80 m/s, the rounded 0.9 mm/100 mm flat,
-  ``--contact``, dt = 10 us, ``--steps`` steps), compiled with ``LOOP_COMPILER_OPTIONS`` on
+  ``--contact``, dt = 10 us, ``--steps`` steps), compiled with ``loop_compiler_options()`` on
   one CPU device: the per-run-step cost in us;
 * ``sweep``: ``wfjax.sweep`` of the default ``wfjax sweep`` case (rounded 0.9 mm/100 mm and
   new 0.9 mm flats, 29 speeds 20-300 km/h, 10 positions, 3D tables, the default track), one
@@ -71,7 +71,7 @@ def _loop_job(precision: str, args):
     import numpy as np
 
     import wfjax as wf
-    from wfjax._xla import LOOP_COMPILER_OPTIONS
+    from wfjax._xla import loop_compiler_options
     from wfjax.contact.laws import prepare
     from wfjax.loop.run import time_loop
     from wfjax.loop.structure import structure
@@ -87,7 +87,7 @@ def _loop_job(precision: str, args):
         return jax.vmap(lambda vi: time_loop(law, struct, vi, 1e-5, -0.3, 0.1, args.steps,
                                              precision=precision)["force"].max())(v)
 
-    compiled = jax.jit(batch, compiler_options=LOOP_COMPILER_OPTIONS).lower(
+    compiled = jax.jit(batch, compiler_options=loop_compiler_options()).lower(
         law, struct, speeds).compile()
     return lambda: np.asarray(compiled(law, struct, speeds))
 

@@ -116,7 +116,8 @@ def identify_child(csv_path: str, table_options: str, result_path: str) -> int:
 def run_identify(csv_path: Path, cache_dir: Path, args, label: str) -> dict:
     """``identify`` of the passage in a fresh process with ``WFJAX_CACHE_DIR=cache_dir``."""
     out = csv_path.with_name(f"identify_{label}.json")
-    env = dict(os.environ, WFJAX_CACHE_DIR=str(cache_dir))
+    # on a GPU the parent (the truth) holds its memory: the child takes what it needs, not 75 %
+    env = dict(os.environ, WFJAX_CACHE_DIR=str(cache_dir), XLA_PYTHON_CLIENT_PREALLOCATE="false")
     t0 = time.perf_counter()
     subprocess.run([sys.executable, __file__, "--child", str(csv_path), "--table-options",
                     args.table_options, "--child-out", str(out)], env=env, check=True)

@@ -41,3 +41,13 @@ def test_loop_options_compile_the_same_numbers():
     plain = jax.jit(loop)(a, b)
     classic = jax.jit(loop, compiler_options=LOOP_COMPILER_OPTIONS)(a, b)
     np.testing.assert_allclose(classic, plain, rtol=1e-12, atol=1e-12)
+
+
+def test_loop_options_go_to_the_cpu_alone(monkeypatch):
+    """A GPU refuses the CPU emitter option ("No such compile option"): other backends get
+    XLA's own options."""
+    from wfjax import _xla
+
+    assert _xla.loop_compiler_options() == LOOP_COMPILER_OPTIONS  # the suite runs on a CPU
+    monkeypatch.setattr(_xla.jax, "default_backend", lambda: "gpu")
+    assert _xla.loop_compiler_options() is None

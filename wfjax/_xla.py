@@ -1,13 +1,14 @@
 """XLA compiler options of wfjax's time loops and 3D window solvers; host arrays to the device.
 
-``LOOP_COMPILER_OPTIONS`` goes to the top-level ``jax.jit`` of every program wfjax compiles
+``loop_compiler_options()`` goes to the top-level ``jax.jit`` of every program wfjax compiles
 around a time loop: :func:`wfjax.simulate`'s, the sweep's, the fits' objectives (JAX refuses
 compiler options on a nested jit, so ``run_scan`` and ``run_adjoint``, which users and these
 programs call inside their own jits, carry none). On the CPU, XLA's MLIR fusion
 emitters spend about twice the CPU time of its classic LLVM IR emitters on the loops' ~170
 fusions, for the same run time and results to the last bits of float64 rounding
 (``benchmarks/README.md``, issue 20: the default sweep's program 3.9 -> 2.0 CPU-s, the cold
-main job ~1.5 s shorter). The option names a CPU code generator only; other backends ignore it.
+main job ~1.5 s shorter). The option names a CPU code generator, and other backends refuse it
+("No such compile option" on a GPU, JAX 0.11.2, 2026-12-04), so it goes to the CPU alone.
 
 ``SOLVER_COMPILER_OPTIONS`` goes to the 3D window solvers of the table builds on the CPU
 (:func:`wfjax.contact.windows.window_solver`): LLVM's optimisation level 1 instead of 2 and the
@@ -25,6 +26,11 @@ import numpy as np
 LOOP_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 SOLVER_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False,
                            "xla_backend_optimization_level": 1}
+
+
+def loop_compiler_options() -> dict | None:
+    """The time loops' compiler options for JAX's default backend (None: XLA's own)."""
+    return cpu_only(LOOP_COMPILER_OPTIONS)
 
 
 def cpu_only(options: dict) -> dict | None:

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .._xla import LOOP_COMPILER_OPTIONS
+from .._xla import loop_compiler_options
 from ..contact import registry
 from ..params import Flat, Material, SimConfig, Track, Wheel, new_flat_length
 from .data import DetectorData, MaxForceData, validate_data
@@ -272,7 +272,7 @@ def _objective(model: ForceModel, par, y_j, scale: float, mode: str):
         r = residuals(theta)
         return jnp.mean(r**2) + par.penalty(theta)
 
-    jit = functools.partial(jax.jit, compiler_options=LOOP_COMPILER_OPTIONS)
+    jit = functools.partial(jax.jit, compiler_options=loop_compiler_options())
     if mode == "forward":
         @jit
         def evaluate(theta):

@@ -28,7 +28,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._xla import LOOP_COMPILER_OPTIONS
+from .._xla import loop_compiler_options
 from ..model import track as track_mod
 from ..params import loop_precision
 from .contacts import law_groups, pointwise, roughness_inputs, solve_contacts, support_force
@@ -44,7 +44,7 @@ from .setup import (
 from .structure import modal_loads, rail_compliance_fn, rail_reads, shapes_fn
 
 __all__ = ["LoopState", "StepOutput", "time_loop", "run_scan", "LOOP_BLOCK",
-           "LOOP_COMPILER_OPTIONS"]
+           "loop_compiler_options"]
 
 LOOP_BLOCK = 128  # steps per block of a loop that stops early (``time_loop(n_run=...)``)
 
@@ -269,5 +269,5 @@ fields and grid shapes).
 
 ``vmap`` it over runs, and over laws prepared for a batch of flats; ``grad`` reaches every
 traced leaf of the law (the flat's geometry) and of the structure. Under your own top-level
-``jax.jit`` on a CPU, ``compiler_options=LOOP_COMPILER_OPTIONS`` compiles it in about half the
-CPU time (:mod:`wfjax._xla`)."""
+``jax.jit``, ``compiler_options=loop_compiler_options()`` compiles it in about half the CPU time
+on a CPU (and is None elsewhere; :mod:`wfjax._xla`)."""

@@ -32,7 +32,7 @@ import numpy as np
 from jax.sharding import Mesh
 
 from .._parallel import in_background
-from .._xla import LOOP_COMPILER_OPTIONS
+from .._xla import loop_compiler_options
 from ..contact.laws import prepare
 from ..contact.table_law import cached_tables_3d
 from ..loop.observers import DetectorReadings, Sensors
@@ -187,8 +187,11 @@ def _picked(data: ProgramData, run: Run, *statics, n_run=None) -> dict:
 
 # one run as its own top-level program (a top-level jit may carry compiler options): the
 # traced fallback of a kept run (Program.history)
-_one_run = jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision", "save"),
-                   compiler_options=LOOP_COMPILER_OPTIONS)
+@functools.cache
+def _one_run():
+    """:func:`run_one` jitted with the backend's loop options (chosen once the backend is)."""
+    return jax.jit(run_one, static_argnames=("n_steps", "max_iter", "precision", "save"),
+                   compiler_options=loop_compiler_options())
 
 
 def _local(statics: tuple, data, *columns) -> dict:
@@ -291,8 +294,8 @@ class Program:
         statics = dict(n_steps=int(run.end), max_iter=sc.config.newton_iterations,
                        precision=sc.config.precision, save=save)
         program = kept_jit(functools.partial(run_one, **statics), (self.data, law, run),
-                           statics, self.cache_dir, LOOP_COMPILER_OPTIONS,
-                           fallback=functools.partial(_one_run, **statics))
+                           statics, self.cache_dir, loop_compiler_options(),
+                           fallback=functools.partial(_one_run(), **statics))
         return program(self.data, law, run)
 
     def forward(self, law, runs: Run, save=Histories(), differentiation=Autodiff()) -> dict:

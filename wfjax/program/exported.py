@@ -37,7 +37,7 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
 from .._cache import key_hash, load_or_build
-from .._xla import LOOP_COMPILER_OPTIONS
+from .._xla import loop_compiler_options
 
 __all__ = ["sharded_program", "kept_jit", "sources_hash"]
 
@@ -199,11 +199,11 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, cache_dir=None):
 
     entry = None if key is None else _entry("sweep-program", key, build, cache_dir)
     if entry is None:  # not kept: traced in this process
-        call = _flat_program(local, treedef, n_data, len(leaves), mesh, LOOP_COMPILER_OPTIONS)
+        call = _flat_program(local, treedef, n_data, len(leaves), mesh, loop_compiler_options())
         loaded = _Loaded(call, True)
     else:
         exported = jax.export.deserialize(bytearray(entry["stablehlo"].tobytes()))
-        loaded = _Loaded(jax.jit(exported.call, compiler_options=LOOP_COMPILER_OPTIONS),
+        loaded = _Loaded(jax.jit(exported.call, compiler_options=loop_compiler_options()),
                          bool(traced))
     _LOADED[memo] = loaded
     return loaded
