@@ -171,17 +171,35 @@ def assemble(track: Track) -> FEModel:
     return FEModel(k, m, c, node_x, le, phi, n_rail)
 
 
+NODE_SNAP = 1e-9  # a coordinate within this fraction of an element of a node lies on it
+
+
+def fraction_in_element(s, element_length: float) -> np.ndarray:
+    """Position of coordinates ``s`` [m] (measured from a node) within their elements, in
+    [0, 1); 0 on a node (to :data:`NODE_SNAP`)."""
+    xi = np.mod(np.asarray(s, dtype=float) / element_length, 1.0)
+    return np.where(np.minimum(xi, 1 - xi) < NODE_SNAP, 0.0, xi)
+
+
+def element_shapes(s, element_length: float, n_elements: int, phi: float):
+    """(element index [n], shape functions [4, n]) of unit forces at coordinates ``s`` [m],
+    [n], measured from the first node of ``n_elements`` elements; the element's dofs are
+    2 e .. 2 e + 3 counting the first node's from 0. A coordinate on a node goes to the
+    element it starts (the last node to the last element)."""
+    s = np.asarray(s, dtype=float)
+    e = np.clip(np.floor(s / element_length + NODE_SNAP).astype(int), 0, n_elements - 1)
+    xi = (s - e * element_length) / element_length
+    return e, np.stack(shape_functions(xi, phi, element_length), axis=0)
+
+
 def load_vector(fe: FEModel, x) -> scipy.sparse.csc_matrix:
     """[n_dof, n_x] sparse matrix whose columns are the nodal loads of unit forces at ``x``."""
     x = np.atleast_1d(np.asarray(x, dtype=float))
     lo, hi = fe.node_x[0], fe.node_x[-1]
     if not np.all(np.isfinite(x)) or np.any(x < lo) or np.any(x > hi):
         raise ValueError(f"x must be finite and within the rail [{lo:g}, {hi:g}] m, got {x!r}")
-    n_el = fe.node_x.size - 1
-    e = np.clip(np.floor((x - lo) / fe.element_length).astype(int), 0, n_el - 1)
-    xi = (x - fe.node_x[e]) / fe.element_length
-    n = np.stack(shape_functions(xi, fe.phi, fe.element_length), axis=0)  # [4, n_x]
-    g = np.stack([2 * e, 2 * e + 1, 2 * e + 2, 2 * e + 3], axis=0) - 2
+    e, n = element_shapes(x - lo, fe.element_length, fe.node_x.size - 1, fe.phi)
+    g = np.stack([2 * e, 2 * e + 1, 2 * e + 2, 2 * e + 3], axis=0) - 2  # clamped first node
     ok = (g >= 0) & (g < fe.n_rail_dof)
     cols = np.broadcast_to(np.arange(x.size), g.shape)
     return scipy.sparse.csc_matrix((n[ok], (g[ok], cols[ok])),

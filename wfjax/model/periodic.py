@@ -33,7 +33,13 @@ import numpy as np
 import scipy.linalg
 
 from ..params import Track
-from .fe import element_interior_compliance, element_matrices, shape_functions, track_numbers
+from .fe import (
+    element_interior_compliance,
+    element_matrices,
+    element_shapes,
+    fraction_in_element,
+    track_numbers,
+)
 
 __all__ = ["periodic_receptance", "floquet_multipliers"]
 
@@ -161,9 +167,7 @@ def periodic_receptance(track: Track, freqs, x: float = 0.0, x_response=None) ->
                             loads[:, 0].astype(complex))
         out[i] = loads[:, 1:].T @ u
     if x_response is None:
-        xi = np.mod((float(x) - x0) / le, 1.0)
-        xi = 0.0 if min(xi, 1 - xi) < 1e-9 else xi
-        out += element_interior_compliance(track, np.array([xi]))
+        out += element_interior_compliance(track, fraction_in_element([float(x) - x0], le))
     return out[:, 0] if x_response is None or np.ndim(x_response) == 0 else out
 
 
@@ -189,8 +193,7 @@ def _nodal_loads(s: np.ndarray, le: float, ne: int, n_cells: int, phi: float) ->
     sleepers' rows, zero)."""
     n_el = ne * n_cells
     out = np.zeros((2 * (n_el + 1) + n_cells, s.size))
-    e = np.clip(np.floor(s / le + 1e-9).astype(int), 0, n_el - 1)
-    shapes = np.stack(shape_functions((s - e * le) / le, phi, le), axis=0)  # [4, n_s]
+    e, shapes = element_shapes(s, le, n_el, phi)
     for col in range(s.size):
         out[2 * e[col]:2 * e[col] + 4, col] = shapes[:, col]
     return out

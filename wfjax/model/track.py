@@ -46,6 +46,7 @@ from .fe import (
     FEModel,
     assemble,
     element_interior_compliance,
+    fraction_in_element,
     load_vector,
     shape_functions,
     track_numbers,
@@ -124,8 +125,7 @@ def receptance(track: Track, freqs, x: float = 0.0, x_response=None) -> np.ndarr
 
 def element_fraction(fe: FEModel, x) -> np.ndarray:
     """Position of rail coordinates ``x`` [m] within their elements, in [0, 1) (0 on nodes)."""
-    xi = np.mod((np.asarray(x, dtype=float) - fe.node_x[0]) / fe.element_length, 1.0)
-    return np.where(np.minimum(xi, 1 - xi) < 1e-9, 0.0, xi)
+    return fraction_in_element(np.asarray(x, dtype=float) - fe.node_x[0], fe.element_length)
 
 
 def static_deflection(track: Track, force: float = 118e3, x: float = 0.0) -> float:
