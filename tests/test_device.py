@@ -61,15 +61,20 @@ def test_sweep_rejects_a_bad_chunk_size():
                  chunk_size=0, progress=False)
 
 
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_device",
+                                                  ROOT / "benchmarks" / "bench_device.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
 @pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_bench_device_smoke(tmp_path, monkeypatch, capsys):
     """benchmarks/bench_device.py at its tiny size (the sections without 3D sweeps, which
     build tables or a family: tests/test_interaction.py and test_family.py cover those)."""
     monkeypatch.setenv("WFJAX_CACHE_DIR", str(tmp_path / "cache"))
-    spec = importlib.util.spec_from_file_location("bench_device",
-                                                  ROOT / "benchmarks" / "bench_device.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = _bench()
     out = tmp_path / "bench.json"
     sections = ["table", "gradient", "large-hertz"]
     assert bench.main(["--tiny", "--sections", ",".join(sections), "--json", str(out)]) == 0
@@ -87,3 +92,29 @@ def test_bench_device_smoke(tmp_path, monkeypatch, capsys):
             assert 0 < row["f32_max_rel_diff"] < 1e-3, name  # measured 3e-6 (gradient 3e-5)
             assert not row["loss_speed_changed"], name
     assert "f32 max rel. diff" in capsys.readouterr().out
+
+
+@pytest.mark.slow  # a 1-wagon train identified twice in fresh processes: ~70 s
+def test_bench_device_train_and_a_failing_section(tmp_path, monkeypatch, capsys):
+    """A section that fails is reported and the next still runs (exit code 1); the train
+    section (identify_train.py, 1 wagon, smoke-size table) flags its one flat, no round
+    wheel, and its cold and warm runs agree; the JSON holds both rows."""
+    monkeypatch.setenv("WFJAX_CACHE_DIR", str(tmp_path / "cache"))
+    bench = _bench()
+
+    def broken(n_speeds):
+        raise RuntimeError("no such compile option")
+
+    monkeypatch.setattr(bench, "gradient_section", broken)
+    out = tmp_path / "bench.json"
+    assert bench.main(["--tiny", "--sections", "gradient,train", "--json", str(out)]) == 1
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["section"] for r in rows] == ["gradient", "train"]
+    assert rows[0]["error"] == "RuntimeError: no such compile option"
+    train = rows[1]
+    assert train["runs"] == 4 and train["cold_and_warm_answers_equal"]
+    assert train["score"]["flats_flagged"] == train["score"]["n_flats"] == 1
+    assert train["score"]["round_flagged"] == []
+    assert train["identify_warm_s"] > 0 and train["identify_cold_s"] > 0
+    text = capsys.readouterr().out
+    assert "| gradient | failed: RuntimeError" in text and "train (1 wagons, 4 wheels)" in text
