@@ -129,6 +129,54 @@ def test_corrections_run_every_neighbour_mode(monkeypatch):
     assert out == [None, None] and len(calls) == n_calls
 
 
+def _two_kinds(p_new: float, phases, phase_w):
+    """A WheelPosterior split between a new 60 mm flat (``p_new``) and a rounded 90 mm one."""
+    lengths = Prior().lengths()
+    w = np.zeros((2, lengths.size))
+    w[0, int(np.argmin(np.abs(lengths - 0.06)))] = p_new
+    w[1, int(np.argmin(np.abs(lengths - 0.09)))] = 1 - p_new
+    s_best = 0 if p_new >= 0.5 else 1
+    best = ((("new", 0.0), ("rounded", 1.76))[s_best], (0.06, 0.09)[s_best],
+            [float(phases[int(np.argmax(phase_w))])])
+    return WheelPosterior((("new", 0.0), ("rounded", 1.76)), lengths, 0.45, w, [phases],
+                          [phase_w], 0.5, [], best)
+
+
+def test_corrections_cover_a_neighbours_kinds(monkeypatch):
+    """A neighbour split between a new 60 mm flat (P 0.3) and a rounded 90 mm one (0.7), at
+    one phase: the correction runs both flats, weighted 0.7 / 0.3 (the stand-in's wheel
+    reads 1 kN per mm of its neighbour's flat); with P(new) under KIND_MIN_P, or with
+    ``phase_modes`` 1, only the posterior mode's flat runs."""
+    def fake(groups, positions, speed, det, **kw):
+        out = np.zeros((len(groups), len(positions), det.n_bays))
+        for g, (flats, _) in enumerate(groups):
+            for j in range(len(positions)):
+                out[g, j] = 120e3 + 1e6 * sum(f.length for m, f in enumerate(flats) if m != j)
+        return out, np.zeros((len(groups), len(positions)))
+
+    monkeypatch.setattr(fwd, "coupled_batch", fake)
+    passage = Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, np.full((2, 5), 120e3))
+    x = np.arange(280) * 0.01
+    one = np.zeros(280)
+    one[50] = 1.0
+    settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0,
+                    phase_modes=8)
+    round_post = _post(x, one, 0.0)
+    out = pipeline._corrections(passage, [round_post, _two_kinds(0.3, x, one)], settings,
+                                0.45)
+    np.testing.assert_allclose(out[0].weights, [0.7, 0.3])
+    np.testing.assert_allclose(out[0].values[:, 0], [90e3, 60e3], rtol=1e-6)
+    assert pipeline.KIND_MIN_P > 0.1
+    for post, cfg in ((_two_kinds(0.1, x, one), settings),
+                      (_two_kinds(0.3, x, one), settings | {"phase_modes": 1})):
+        out = pipeline._corrections(passage, [round_post, post], cfg, 0.45)
+        np.testing.assert_allclose(out[0].weights, [1.0])
+        np.testing.assert_allclose(out[0].values[:, 0], [90e3], rtol=1e-6)
+    flats = pipeline.kind_modes(_two_kinds(0.3, x, one), 0.45)
+    assert [(f.kind, round(f.length, 3), round(p, 6)) for f, p in flats] == [
+        ("rounded", 0.09, 0.7), ("new", 0.06, 0.3)]
+
+
 @pytest.mark.slow
 def test_exact_3d_tables_widened_to_one_column_count():
     """The 3D truth's laws (exact tables of a new 40 mm and a rounded 80 mm flat): widened by

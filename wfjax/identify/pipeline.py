@@ -7,9 +7,10 @@ every wheel with a probable flat among its bogie's other wheels (wheels closer t
 estimates, and round alone, batched over the bogies
 (:func:`wfjax.identify.forward.coupled_batch`: a train is a batch of bogies, each on its own
 track window); their difference, the neighbours' effect on the wheel's readings, is added
-to that wheel's prediction and its grid posterior recomputed. A neighbour's phase is not
+to that wheel's prediction and its grid posterior recomputed. A neighbour's flat is not
 one estimate: the coupled runs cover its few most probable phase modes
-(:func:`phase_modes`), and each wheel's likelihood is marginalised over them with the
+(:func:`phase_modes`) and, where its kind is uncertain, the most probable flat of each kind
+(:func:`kind_modes`), and each wheel's likelihood is marginalised over them with the
 modes' probabilities (:class:`wfjax.identify.inference.CorrectionMixture`). No joint grid
 over the wheels is ever formed.
 """
@@ -33,6 +34,7 @@ __all__ = ["identify", "Identification", "WheelResult", "GROUP_GAP", "MISFIT_P"]
 GROUP_GAP = 4.0  # m: wheels closer than this are coupled (a bogie)
 MISFIT_P = 1e-3  # posterior-predictive p-value below which a passage is not explained
 ROUND_LENGTH = 0.015  # m: a bogie none of whose wheels has P(l >= this) >= 0.5 is not corrected
+KIND_MIN_P = 0.2  # a neighbour's kind (new, rounded) below this probability is not run
 
 
 @dataclasses.dataclass
@@ -101,6 +103,45 @@ def _layouts(positions: np.ndarray, groups: list[list[int]]) -> dict:
 def _estimate_flat(post: WheelPosterior, radius: float):
     (kind, factor), length, _ = post.best
     return fwd.flat_of(kind, max(length, 0.005), factor or 1.0, radius)
+
+
+def kind_modes(post: WheelPosterior, radius: float, min_p: float = KIND_MIN_P) -> list:
+    """[(flat, probability)], most probable first, sum 1: for each kind (new, rounded) with
+    P(kind) >= ``min_p``, its most probable grid flat (shape and length). A wheel whose
+    posterior is split between a short new and a long rounded flat has two, as its phase
+    posterior may have several modes (:func:`phase_modes`)."""
+    out = []
+    for kind in ("new", "rounded"):
+        p = post.p_kind(kind)
+        rows = [s for s, (k, _) in enumerate(post.shapes) if k == kind]
+        if not rows or p < min_p:
+            continue
+        s, n = np.unravel_index(int(np.argmax(post.weights[rows])), (len(rows),
+                                                                     post.lengths.size))
+        k, factor = post.shapes[rows[s]]
+        out.append((fwd.flat_of(k, max(float(post.lengths[n]), 0.005), factor or 1.0,
+                                radius), p))
+    if not out:  # no kind reaches min_p (more kinds than two): the posterior mode
+        return [(_estimate_flat(post, radius), 1.0)]
+    total = sum(p for _, p in out)
+    return sorted(((f, p / total) for f, p in out), key=lambda fp: -fp[1])
+
+
+def neighbour_modes(post: WheelPosterior, passage: int, radius: float, n_max: int,
+                    width: float) -> tuple[np.ndarray, np.ndarray, list]:
+    """A probably flat neighbour's modes for the correction: (impact coordinates [M] m,
+    probabilities [M], flats [M]), the product of its phase modes (:func:`phase_modes`) and
+    its kind modes (:func:`kind_modes`), most probable first, the first ``n_max`` kept
+    (``n_max`` 1: its posterior mode, the correction before 2026-12-04)."""
+    if n_max <= 1:
+        return (np.array([post.best[2][passage]]), np.ones(1),
+                [_estimate_flat(post, radius)])
+    xs, ps = phase_modes(post.phases[passage], post.phase_weights[passage], n_max, width)
+    joint = sorted(((x, p * q, f) for x, p in zip(xs, ps, strict=True)
+                    for f, q in kind_modes(post, radius)), key=lambda m: -m[1])[:n_max]
+    total = sum(m[1] for m in joint)
+    return (np.array([m[0] for m in joint]), np.array([m[1] / total for m in joint]),
+            [m[2] for m in joint])
 
 
 def phase_modes(phases, weights, n_max: int = 4, half_width: float = 0.1,
@@ -176,11 +217,9 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     if not todo:  # no wheel has a neighbour with a flat: no correction
         return out
     wheels = sorted({j for g, _ in todo for j in g})
-    flats = {i: _estimate_flat(posts[i], radius) for i in wheels}
     smooth = fwd.flat_of("new", 0.004, 1.0, radius)
     width = float(settings.get("phase_mode_width", 0.1))
-    modes = {i: phase_modes(posts[i].phases[k], posts[i].phase_weights[k], n_max, width)
-             if flat[i] and n_max > 1 else (np.array([posts[i].best[2][k]]), np.ones(1))
+    modes = {i: neighbour_modes(posts[i], k, radius, n_max if flat[i] else 1, width)
              for i in wheels}
     mine = sorted({i for _, i in todo})
     alone, _ = fwd.coupled_batch([([smooth], [modes[i][0][0]]) for i in mine], [0.0],
@@ -191,7 +230,8 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
                  if g in members}
         runs = sorted({(key, idx) for key, c in confs.items() for idx, _ in c})
         both, _ = fwd.coupled_batch(
-            [([smooth if j == key[1] else flats[j] for j in key[0]],
+            [([smooth if j == key[1] else modes[j][2][m] for j, m in zip(key[0], idx,
+                                                                      strict=True)],
               [modes[j][0][m] for j, m in zip(key[0], idx, strict=True)])
              for key, idx in runs], layout, passage.speed, det, **kw)
         got = dict(zip(runs, both, strict=True))
@@ -225,8 +265,9 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
             first passage's speed).
         user_rule: a :class:`wfjax.identify.rules.RuleSet` or None.
         coupling_iterations: neighbour-correction sweeps (0: wheels independent).
-        phase_modes: the most phase modes of a neighbour the correction is marginalised over
-            (1: its most probable phase only, the correction before 2026-12-04).
+        phase_modes: the most modes of a neighbour (its phase modes times its kind modes,
+            :func:`neighbour_modes`) the correction is marginalised over (1: its posterior
+            mode only, the correction before 2026-12-04).
         phase_mode_width: the half width [m] of one phase mode (:func:`phase_modes`).
         table_options: keyword arguments of :func:`wfjax.identify.forward.build_table`.
         progress: ``progress(stage: str, done, total)`` or None.
