@@ -380,8 +380,7 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("identify", "coupling_iterations", "int", "", 0, 5, commands=("identify",),
            flag="--coupling-iterations", doc="neighbour-correction sweeps (default 1)"),
     Option("identify", "phase_modes", "int", "", 1, 8, commands=("identify",), flag="--phase-modes",
-           doc="a flat neighbour's modes (phase x kind) the correction integrates over; 1: "
-               "its posterior mode alone (default 8)"),
+           doc="a flat neighbour's modes (phase x kind) the correction averages (default 8)"),
     Option("identify", "phase_mode_width", "float", "m", 0.0, 0.3, low_open=True, factor=1e-3,
            doc="half width of a neighbour's phase mode (default 20 mm)", commands=("identify",),
            flag="--phase-mode-width-mm", flag_unit="mm"),

@@ -265,9 +265,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
             first passage's speed).
         user_rule: a :class:`wfjax.identify.rules.RuleSet` or None.
         coupling_iterations: neighbour-correction sweeps (0: wheels independent).
-        phase_modes: the most modes of a neighbour (its phase modes times its kind modes,
-            :func:`neighbour_modes`) the correction is marginalised over (1: its posterior
-            mode only, the correction before 2026-12-04).
+        phase_modes: the most modes of a neighbour (:func:`neighbour_modes`: phase x kind)
+            the correction is marginalised over (1: its posterior mode only).
         phase_mode_width: the half width [m] of one phase mode (:func:`phase_modes`).
         table_options: keyword arguments of :func:`wfjax.identify.forward.build_table`.
         progress: ``progress(stage: str, done, total)`` or None.
