@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
+import bench_scripts
 import numpy as np
 import pytest
 
 import wfjax as wf
 from wfjax.contact import table_law, tables
 from wfjax.program import grid
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 class _Device:
@@ -61,20 +58,12 @@ def test_sweep_rejects_a_bad_chunk_size():
                  chunk_size=0, progress=False)
 
 
-def _bench():
-    spec = importlib.util.spec_from_file_location("bench_device",
-                                                  ROOT / "benchmarks" / "bench_device.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    return bench
-
-
 @pytest.mark.slow  # the default run must stay under 10 min (2 cores)
 def test_bench_device_smoke(tmp_path, monkeypatch, capsys):
     """benchmarks/bench_device.py at its tiny size (the sections without 3D sweeps, which
     build tables or a family: tests/test_interaction.py and test_family.py cover those)."""
     monkeypatch.setenv("WFJAX_CACHE_DIR", str(tmp_path / "cache"))
-    bench = _bench()
+    bench = bench_scripts.load("bench_device")
     out = tmp_path / "bench.json"
     sections = ["table", "gradient", "large-hertz"]
     assert bench.main(["--tiny", "--sections", ",".join(sections), "--json", str(out)]) == 0
@@ -100,7 +89,7 @@ def test_bench_device_train_and_a_failing_section(tmp_path, monkeypatch, capsys)
     section (identify_train.py, 1 wagon, smoke-size table) flags its one flat, no round
     wheel, and its cold and warm runs agree; the JSON holds both rows."""
     monkeypatch.setenv("WFJAX_CACHE_DIR", str(tmp_path / "cache"))
-    bench = _bench()
+    bench = bench_scripts.load("bench_device")
 
     def broken(n_speeds):
         raise RuntimeError("no such compile option")

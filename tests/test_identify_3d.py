@@ -4,6 +4,7 @@ tables, the cache key, the option's way to identify(), and a bad contact's one-l
 
 from __future__ import annotations
 
+import bench_scripts
 import numpy as np
 import pytest
 
@@ -110,13 +111,8 @@ def test_study_3d_truth_identified_with_the_3d_law():
     5 %; the Hertz-trajectory identification of the same passages: 10 %, its lengths short
     by 5-18 %)."""
     import argparse
-    import importlib.util
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "identify_study.py"
-    spec = importlib.util.spec_from_file_location("identify_study", path)
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = bench_scripts.load("identify_study")
     args = argparse.Namespace(flats=5, max_wagons=3, speeds_kmh="60,100,140", sites=4,
                               seed=43, site_seed=31, coupling=1, truth_contact="3d",
                               identify_contact="3d")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import bench_scripts
 import numpy as np
 import pytest
 
@@ -56,17 +57,6 @@ def test_round_wheel_beside_a_long_flat_not_flagged():
     assert identify(passages, phase_modes=1).wheels[0].flagged
 
 
-def _study():
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "identify_study.py"
-    spec = importlib.util.spec_from_file_location("identify_study", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.mark.xfail(strict=True, reason="issue 31 open: the reduced study misses a flag "
                    "(a rounded 38 mm flat read as 23 mm) and its median length error is 19 % "
                    "(6 flats, 4 rounded; rerun 2026-12-03 after the phase-mode neighbour "
@@ -76,7 +66,7 @@ def test_study_reduced_meets_criteria():
     and 140 km/h over the study's sites): every flat >= 30 mm flagged, no round wheel flagged,
     median length error <= 10 %, and the 90 % intervals' coverage of length and depth with
     a 95 % Clopper-Pearson band containing 0.9."""
-    study = _study()
+    study = bench_scripts.load("identify_study")
     args = study.main.__globals__["argparse"].Namespace(
         flats=6, max_wagons=8, speeds_kmh="60,100,140", sites=4, seed=7, site_seed=31,
         coupling=1)

@@ -9,13 +9,13 @@ single-device sweep to 1e-12.
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import socket
 import subprocess
 import sys
 from pathlib import Path
 
+import bench_scripts
 import numpy as np
 import pytest
 
@@ -23,10 +23,7 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "benchmarks" / "multihost_exampl
 
 
 def _example():
-    spec = importlib.util.spec_from_file_location("multihost_example", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return bench_scripts.load("multihost_example")
 
 
 @pytest.mark.slow

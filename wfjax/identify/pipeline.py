@@ -121,7 +121,7 @@ def kind_modes(post: WheelPosterior, radius: float, min_p: float = KIND_MIN_P) -
         k, factor = post.shapes[rows[s]]
         out.append((fwd.flat_of(k, max(float(post.lengths[n]), 0.005), factor or 1.0,
                                 radius), p))
-    if not out:  # no kind reaches min_p (more kinds than two): the posterior mode
+    if not out:  # min_p above every kind's probability: the posterior mode alone
         return [(_estimate_flat(post, radius), 1.0)]
     total = sum(p for _, p in out)
     return sorted(((f, p / total) for f, p in out), key=lambda fp: -fp[1])
