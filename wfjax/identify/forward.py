@@ -226,7 +226,8 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
                lengths=np.asarray(lengths), j=int(n_offsets), r=int(n_roughness),
                s=int(n_supports), cv=float(scatter_cv), seed=int(seed), wheel=repr(wheel),
                track=repr(track), material=repr(material), config=repr(config),
-               v=2)  # 2: the rail's in-element deflection (2026-12-03)
+               v=3)  # 2: the rail's in-element deflection (2026-12-03); 3: a step on
+    # the flat's centre (2026-12-04, scenario.windows.aligned_time_step)
     if contact == "3d":  # the exact tables' builder (Hertz-trajectory keys unchanged)
         from ..contact.table_law import TABLE_BUILDER_REVISION
         key |= dict(law="exact-3d-tables", table3d=TABLE_BUILDER_REVISION)
