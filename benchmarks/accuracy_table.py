@@ -6,10 +6,12 @@ Run: ``python benchmarks/accuracy_table.py [--quick] [--only LABEL ...]``. Write
 table of ``docs/convergence.md``.
 
 Reference: 26 rail elements per bay, track modes to 20 kHz, time step 6.25 us and travel step
-0.25 mm, 70 bays (45.5 m), contact element 1 mm. Each row changes the settings named in its
-label and keeps the rest of the reference, except the two rows labelled "default", which are
-whole configurations: today's and the one before 2026-12-03 ("old default"), and the row
-"wfjax detector", the ``wfjax detector`` command's defaults (``wfjax.case``).
+0.25 mm, 70 bays (45.5 m) with three absorbing sleepers at each end
+(``Track.absorbing_sleepers``; row "reference, clamped ends" without), contact element 1 mm.
+Each row changes the settings named in its label and keeps the rest of the reference, except
+the rows labelled "default", which are whole configurations: today's (and today's with
+clamped ends) and the one before 2026-12-03 ("old default"), and the row "wfjax detector",
+the ``wfjax detector`` command's defaults (``wfjax.case``).
 
 Sets (R_R = 0.45 m, ``Track.comparison()``):
 
@@ -44,15 +46,18 @@ from wfjax.model import track as track_mod
 from wfjax.scenario import sensors as sensor_mod
 
 REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
-       "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3, "precision": "float64"}
+       "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3, "precision": "float64",
+       "absorbing_sleepers": 3}
 OLD = {"elements_per_bay": 8, "track_max_frequency": 10e3, "time_step": 25e-6,
-       "travel_step": 1e-3, "n_bays": 70}  # the defaults before 2026-12-03
+       "travel_step": 1e-3, "n_bays": 70, "absorbing_sleepers": 0}  # before 2026-12-03
 NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
-       "precision": "auto", "time_step": 40e-6}  # today's: float32 forward runs and 40 us
-# since 2026-12-04
+       "precision": "auto", "time_step": 40e-6, "absorbing_sleepers": 3}  # today's: float32
+# forward runs and 40 us since 2026-12-04, absorbing ends since the evening
 ROWS = {  # label -> changes to REF
     "reference": {},
+    "reference, clamped ends": {"absorbing_sleepers": 0},
     "default (26 el., 15 kHz, 40 us / 1 mm, 24 bays, float32)": NEW,
+    "default, clamped ends": {**NEW, "absorbing_sleepers": 0},
     "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float32": {**NEW, "time_step": 25e-6},
     "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float64": {**NEW, "time_step": 25e-6,
                                                        "precision": "float64"},
@@ -104,6 +109,11 @@ ROWS = {  # label -> changes to REF
                                                        "n_bays": 70, "precision": "float64"},
     "26 el., 20 kHz, 25 us / 1 mm, 70 bays, float32": {**NEW, "track_max_frequency": 20e3,
                                                        "n_bays": 70, "time_step": 25e-6},
+    "26 el., 20 kHz, 25 us / 1 mm, 36 bays, float64": {
+        **NEW, "track_max_frequency": 20e3, "time_step": 25e-6, "n_bays": 36,
+        "precision": "float64"},
+    "26 el., 20 kHz, 25 us / 1 mm, 24 bays, float64": {
+        **NEW, "track_max_frequency": 20e3, "time_step": 25e-6, "precision": "float64"},
 }
 FREQS = np.geomspace(20.0, 2000.0, 40)
 RECEPTANCES = {  # name -> (quantity, force position [m], response position [m])
@@ -122,7 +132,8 @@ def settings(label: str) -> dict:
 
 def model_inputs(s: dict):
     """(Track, SimConfig) of the settings ``s``."""
-    track = wf.Track.comparison(elements_per_bay=s["elements_per_bay"], n_bays=s["n_bays"])
+    track = wf.Track.comparison(elements_per_bay=s["elements_per_bay"], n_bays=s["n_bays"],
+                                absorbing_sleepers=s["absorbing_sleepers"])
     config = wf.SimConfig(max_time_step=s["time_step"], max_travel_step=s["travel_step"],
                           track_max_frequency=s["track_max_frequency"],
                           contact_element=s.get("contact_element", 1e-3),

@@ -67,7 +67,10 @@ def test_max_force_gradient_matches_finite_differences(contact):
                                 config=COARSE)
     f = jax.jit(lambda th: model(_rounded(th)))
     jac = jax.jit(jax.jacfwd(f))(jnp.asarray(TH0))
-    _assert_matches_fd(f, jac, TH0, [1e-7, 1e-4])
+    # steps well inside the max force's smooth piece: a 0.1 mm length step moved the peak
+    # from one sample to the next for hertz-profile at 100 km/h (FD 6 % off, AD exact; the
+    # 30 and 10 um steps agree with AD to 2e-6)
+    _assert_matches_fd(f, jac, TH0, [1e-7, 1e-5])
     if contact == "hertz-profile":
         assert _min_force(model, 2, ref) == 0.0  # loss of contact at 140 km/h
         assert _min_force(model, 0, ref) > 0.0

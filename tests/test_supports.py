@@ -52,8 +52,9 @@ def _modal_static(model, x):
 
 # ---------------------------------------------------------------- the uniform track unchanged
 def test_uniform_track_unchanged():
-    """Numbers of the modal model before per-sleeper supports existed (wfjax 0.1.0, ee207f4)."""
-    tr = wfjax.Track(n_bays=8, elements_per_bay=4)
+    """Numbers of the modal model before per-sleeper supports existed (wfjax 0.1.0, ee207f4),
+    with the plain clamped ends of then (``absorbing_sleepers=0``)."""
+    tr = wfjax.Track(n_bays=8, elements_per_bay=4, absorbing_sleepers=0)
     m = T.modal_model(tr, 10e3, use_cache=False, n_residual=9)
     assert m.poles.shape == (52,)
     poles = [(-473.8981948312188 + 819.978233008736j), (-438.99247888071375 + 1921.043293367774j),

@@ -60,3 +60,17 @@ def test_the_new_flats_min_force_does_not_depend_on_the_step():
         mins.append(float(r.min_force))
     static = float(wf.Wheel().preload)
     assert abs(mins[0] - mins[1]) < 1e-3 * static
+
+
+def test_the_coupled_runs_step_lands_on_the_leading_flat_and_covers_the_window():
+    from wfjax.identify import forward as fwd
+
+    v, det = 100 / 3.6, wf.Detector(5, -fwd.REACH)
+    positions = np.array([0.0, 2.5])
+    w = fwd._window(det, fwd.TRACK, wf.Wheel(), fwd.identification_config(None), positions, v)
+    for impact in (w.x0 + 0.5 * w.lead_in, 0.0, 1.3, 3.0):
+        dt = w.step(impact, v)
+        k = (impact - w.x0) / (v * dt)
+        assert abs(k - round(k)) < 1e-6 and dt <= w.max_step * (1 + 1e-12)
+        assert w.x0 + (w.n_steps - 1) * v * dt >= w.x1  # the window is covered
+    assert w.step(w.x0 + 0.1 * w.lead_in, v) == w.max_step  # too close to align

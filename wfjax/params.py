@@ -158,7 +158,7 @@ def _check_per_sleeper(name: str, value: Any, unit: str, n_sleepers: int) -> Non
         )
 
 
-@pytree(static=("n_bays", "elements_per_bay"))
+@pytree(static=("n_bays", "elements_per_bay", "absorbing_sleepers"))
 class Track(Validated):
     """Discretely supported track of Table 2 (Nielsen & Igeland 1995).
 
@@ -182,6 +182,13 @@ class Track(Validated):
             and detector need, with the physics guards' margins from the clamped ends
             (:meth:`wfjax.Scenario.lengthened`); per-sleeper supports fix the length.
         elements_per_bay (static): rail beam elements per sleeper bay.
+        absorbing_sleepers (static): the last n sleepers at each end, whose pad and ballast
+            damping grow geometrically to 8 times the track's at the outermost
+            (:func:`wfjax.model.fe.end_grading`): they absorb the waves the clamped ends would
+            reflect back to the wheels (3 by default: the track's other values hold
+            everywhere else, and the wheels and sensors keep their margins from the
+            absorbing zone, :func:`wfjax.scenario.guards.end_margin`); 0: the plain clamped
+            ends of the paper's finite track.
 
     Supports that vary from sleeper to sleeper: each of the five support fields
     (:data:`SUPPORT_FIELDS`) is a scalar (every sleeper alike, Table 2) or a float array
@@ -225,15 +232,22 @@ class Track(Validated):
                              "(lengthened to what the case's wheels and sensors need)")
     elements_per_bay: int = option(26, low=1, high=64, doc="rail beam elements per sleeper bay",
                                    flag="--elements-per-bay", flag_commands=("receptance",))
+    absorbing_sleepers: int = option(3, low=0, high=40,
+                                     doc="sleepers at each end with damping graded up to 8x "
+                                         "(absorbs the ends' reflections; 0: plain clamped)")
 
     def __post_init__(self):
         lows = {f.name: f.metadata["low"] for f in dataclasses.fields(self)}
-        for name in ("n_bays", "elements_per_bay"):
+        for name in ("n_bays", "elements_per_bay", "absorbing_sleepers"):
             value, low = getattr(self, name), lows[name]
             if not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(
                     f"Track.{name} must be an integer >= {low}, got {value!r}"
                 )
+        if 2 * self.absorbing_sleepers > self.n_bays - 1:
+            raise ValueError(f"Track.absorbing_sleepers = {self.absorbing_sleepers} leaves no "
+                             f"sleeper of the track's own on {self.n_bays} bays: at most "
+                             f"{(self.n_bays - 1) // 2}")
         for name, unit in positive_fields(self).items():
             value = getattr(self, name)
             if not is_concrete(value):

@@ -15,7 +15,8 @@ Each bound is a scale of the case at hand times a constant read off the accuracy
 - contact element (3D and 2D contact): no longer than ``ELEMENT_FACTOR`` 2a;
 - track length: every wheel's path at least ``END_FACTOR / beta`` from the clamped rail ends,
   every sensor ``SENSOR_END_FACTOR / beta`` (:func:`wfjax.scenario.sensors.check_positions`),
-  1/beta the decay length of the rail on its supports (:func:`decay_length`).
+  1/beta the decay length of the rail on its supports (:func:`decay_length`), and both off
+  the absorbing sleepers (``Track.absorbing_sleepers``, :func:`absorbing_length`).
 """
 
 from __future__ import annotations
@@ -137,15 +138,24 @@ def scales(wheel: Wheel, track: Track, material: Material) -> Scales:
                   decay_length(track))
 
 
+def absorbing_length(track: Track) -> float:
+    """[m] of rail at each end over the absorbing sleepers (``Track.absorbing_sleepers``)
+    and the clamped end's bay: a track whose damping is not the user's."""
+    n = int(track.absorbing_sleepers)
+    return (n + 1) * float(track.sleeper_spacing) if n else 0.0
+
+
 def end_margin(track: Track) -> float:
-    """The distance [m] every wheel's path keeps from the clamped ends."""
-    return END_FACTOR * decay_length(track)
+    """The distance [m] every wheel's path keeps from the clamped ends: END_FACTOR decay
+    lengths, and off the absorbing sleepers (:func:`absorbing_length`)."""
+    return max(END_FACTOR * decay_length(track), absorbing_length(track))
 
 
 def sensor_margin(track: Track) -> float:
     """The distance [m] every sensor keeps from the clamped ends (longer than the wheels':
-    a seat force or a shear feels the ends' reflections more than the contact force)."""
-    return SENSOR_END_FACTOR * decay_length(track)
+    a seat force or a shear feels the ends' reflections more than the contact force), and
+    off the absorbing sleepers."""
+    return max(SENSOR_END_FACTOR * decay_length(track), absorbing_length(track))
 
 
 def step_findings(config: SimConfig, speeds, sc: Scales) -> list[str]:
@@ -215,8 +225,9 @@ def end_findings(track: Track, lo: float, hi: float) -> list[str]:
     need = bays_reaching(track, max(hi, -lo) + margin)
     return [f"track.n_bays = {int(track.n_bays)}: the wheels' path [{lo:.2f}, {hi:.2f}] m "
             "comes within "
-            f"{margin:.2f} m = {END_FACTOR:g} / beta of the clamped rail ends at +-{half:.2f} m, "
-            f"where reflections reach the contact: use n_bays >= {need}"]
+            f"{margin:.2f} m (the larger of {END_FACTOR:g} / beta and the absorbing sleepers) "
+            f"of the clamped rail ends at +-{half:.2f} m, where reflections reach the contact: "
+            f"use n_bays >= {need}"]
 
 
 _SHOWN: dict = {}  # the warnings registry of the guards' findings

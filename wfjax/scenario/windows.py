@@ -23,8 +23,9 @@ trajectory has its kink: the force falls linearly to its minimum there and turns
 impact. A grid that straddles the kink misses the minimum by up to the force's slope times
 one step's travel (1.5-2 kN, 1.7 % of the static load, for the new 0.9 mm flat at 40 km/h
 with 40 us steps); on the aligned grid the minimum is the same at 6.25 and 40 us
-(``docs/convergence.md``, "Min force"). :func:`aligned_time_step` gives the step;
-:func:`n_steps_for` and :func:`batch_windows` use it.
+(``docs/convergence.md``, "Min force"). :func:`aligned_steps` gives a run's step count and
+step, :func:`aligned_time_step` the step of a given count (:func:`n_steps_for`,
+:func:`batch_windows`, the identification's coupled runs).
 """
 
 from __future__ import annotations
@@ -41,9 +42,9 @@ from ..params import MAX_SPEED, Flat, SimConfig, Track
 
 __all__ = ["RUN_IN_TIME", "RUN_OUT_TIME", "impact_position_from_angle", "simulation_window",
            "check_speed", "check_speeds", "check_impact_position", "check_impact_positions",
-           "impact_positions_grid", "aligned_time_step", "n_steps_for", "run_windows",
-           "batch_windows", "check_rail_span", "wheel_positions", "vehicle_window_flat",
-           "detector_config"]
+           "impact_positions_grid", "aligned_steps", "aligned_time_step", "n_steps_for",
+           "run_windows", "batch_windows", "check_rail_span", "wheel_positions",
+           "vehicle_window_flat", "detector_config"]
 
 RUN_IN_TIME = 0.02  # s of travel before the flat's window, from static equilibrium
 
@@ -150,14 +151,21 @@ def aligned_time_step(s_start: float, s_end: float, speed: float, n_steps: int) 
     return -s_start / (speed * k)
 
 
+def aligned_steps(s_start: float, s_end: float, speed: float, max_step: float
+                  ) -> tuple[int, float]:
+    """(number of steps, time step [s]): the fewest steps of at most ``max_step`` [s], one at
+    s = 0, that cover ``s_start`` < 0 to ``s_end`` [m] at ``speed`` [m/s]."""
+    n_in = math.ceil(-s_start / (speed * max_step) - _ALIGN_TOL)
+    dt = -s_start / (speed * n_in)
+    return math.ceil((s_end - s_start) / (speed * dt) - _ALIGN_TOL) + 1, dt
+
+
 def n_steps_for(flat: Flat, speed: float, config: SimConfig) -> tuple[int, float]:
     """(number of steps, time step [s]) of a simulation at ``speed`` [m/s]: the fewest steps
     of at most ``config.time_step_for(speed)`` that cover :func:`simulation_window` with one
-    at s = 0 (:func:`aligned_time_step`)."""
+    at s = 0 (:func:`aligned_steps`)."""
     s0, s1 = simulation_window(flat, speed, config)
-    n_in = math.ceil(-s0 / (speed * config.time_step_for(speed)) - _ALIGN_TOL)
-    n = n_in + math.ceil(s1 * n_in / -s0 - _ALIGN_TOL) + 1
-    return n, aligned_time_step(s0, s1, speed, n)
+    return aligned_steps(s0, s1, speed, config.time_step_for(speed))
 
 
 def run_windows(flat: Flat, speeds, config: SimConfig):
