@@ -20,7 +20,6 @@ from .scenario import sensors as sensor_mod
 from .scenario.description import Scenario
 from .scenario.windows import (
     RUN_IN_TIME,
-    aligned_time_step,
     check_impact_position,
     check_speed,
     impact_position_from_angle,
@@ -52,10 +51,8 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
             the contact at the start of the run; overrides ``impact_position`` (see module doc).
         cache_dir: where the track's modal model is cached (default: ``WFJAX_CACHE_DIR`` or
             ``~/.cache/wfjax``).
-        n_steps: number of time steps (default: from ``config``); the time step becomes
-            the longest that covers the window with a step at the flat's centre
-            (:func:`wfjax.scenario.windows.aligned_time_step`; about the window's duration /
-            (n_steps - 1)).
+        n_steps: number of time steps (default: from ``config``); the time step becomes the
+            window's duration / (n_steps - 1), as in :func:`wfjax.sweep`.
         sensors: [n_s] fixed rail positions [m] (x = 0 at the middle sleeper; within
             :func:`wfjax.scenario.sensors.allowed_range`): every quantity of
             :data:`wfjax.scenario.sensors.QUANTITIES` at each, as time histories.
@@ -118,7 +115,7 @@ def _run_of(scenario: Scenario, v: float, impact_position, angle0, n_steps) -> t
     elif int(n_steps) < 2:
         raise ValueError(f"n_steps must be >= 2, got {n_steps!r}")
     else:
-        dt = aligned_time_step(s_start, s_end, v, int(n_steps))
+        dt = (s_end - s_start) / v / (int(n_steps) - 1)
     scenario = scenario.lengthened([window], [v], [x_imp])
     scenario.check_settings(window, [v], [x_imp])
     x_abs = x_imp + scenario.shift

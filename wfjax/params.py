@@ -484,8 +484,6 @@ class SimConfig:
 
     Attributes:
         time_step: time step [s]; ``None`` picks ``min(max_time_step, max_travel_step / v)``.
-            Either is an upper bound: a run shortens it slightly so that a step lands on the
-            flat's centre (:mod:`wfjax.scenario.windows`, "Time grid").
         max_time_step: upper bound of the automatic time step [s] (40 us: the longest step
             whose max forces stay within 0.5 % of the converged reference, 0.37 % on the
             Fig. 7 set; docs/convergence.md, issue 33).
@@ -530,8 +528,7 @@ class SimConfig:
     """
 
     time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
-                                     doc="time step (at most: a step lands on the flat's "
-                                         "centre); auto: min(max_time_step, "
+                                     doc="time step; auto: min(max_time_step, "
                                          "max_travel_step / v)")
     max_time_step: float = option(4e-5, unit="s", low=0.0, high=1e-3, low_open=True,
                                   positive=True, doc="upper bound of the automatic time step")

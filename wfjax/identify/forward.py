@@ -24,7 +24,6 @@ import functools
 import logging
 import math
 import time
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -227,8 +226,7 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
                lengths=np.asarray(lengths), j=int(n_offsets), r=int(n_roughness),
                s=int(n_supports), cv=float(scatter_cv), seed=int(seed), wheel=repr(wheel),
                track=repr(track), material=repr(material), config=repr(config),
-               v=3)  # 2: the rail's in-element deflection (2026-12-03); 3: a step on
-    # the flat's centre (2026-12-04, scenario.windows.aligned_time_step)
+               v=2)  # 2: the rail's in-element deflection (2026-12-03)
     if contact == "3d":  # the exact tables' builder (Hertz-trajectory keys unchanged)
         from ..contact.table_law import TABLE_BUILDER_REVISION
         key |= dict(law="exact-3d-tables", table3d=TABLE_BUILDER_REVISION)
@@ -346,44 +344,20 @@ def _interp_weights(grid: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
     return (x - grid[i0]) / (grid[i0 + 1] - grid[i0]), i0
 
 
-class _Window(NamedTuple):
-    """A coupled run's window (:func:`_window`): ``x0`` and ``x1`` [m] where the leading
-    wheel starts and the window ends, ``max_step`` [s], ``n_steps`` (one compiled count for
-    every phase), ``run_in`` steps before the summaries, ``lead_in`` [m] the least run-in."""
-
-    x0: float
-    x1: float
-    max_step: float
-    n_steps: int
-    run_in: int
-    lead_in: float
-
-    def step(self, impact: float, speed: float) -> float:
-        """The time step [s] of a run whose leading wheel's flat strikes at ``impact`` [m]:
-        the longest of at most ``max_step`` with a step on the flat's centre
-        (:mod:`wfjax.scenario.windows`, "Time grid"); ``max_step`` when the impact lies
-        within half the lead-in of the start (or before it)."""
-        d = impact - self.x0
-        if d < 0.5 * self.lead_in:
-            return self.max_step
-        return d / (speed * math.ceil(d / (speed * self.max_step) - 1e-9))
-
-
 def _window(detector: Detector, track: Track, wheel: Wheel, config: SimConfig, positions,
-            speed: float) -> _Window:
-    """The :class:`_Window` of a coupled run, fixed by the detector and the layout: every
-    wheel starts a bay and a run-in before the first gauge and ends past the last. The step
-    count covers the window at any aligned step (:meth:`_Window.step`): the alignment
-    shortens the step by at most a factor d / (d + v dt), d >= lead_in / 2 the impact's
-    distance from the start, which costs at most 2 (x1 - x0) / lead_in steps more."""
+            speed: float) -> tuple[float, float, int, int]:
+    """(x_start [m], dt [s], n_steps, run_in steps) of a coupled run: a window fixed by the
+    detector and the layout (one compiled step count for every phase): every wheel starts a
+    bay and a run-in before the first gauge and ends past the last."""
     a, b = detector.gauges(float(track.sleeper_spacing))
     ls = float(track.sleeper_spacing)
     lead_in = max(config.run_in, 0.3)
     x0 = min(float(a[0]) - ls - 2 * math.pi * float(wheel.radius), float(a[0])) - lead_in
     x1 = float(b[-1]) + 0.3 + float(positions[-1] - positions[0])
     dt = config.time_step_for(float(speed))
-    n_steps = int(math.ceil((x1 - x0) / (speed * dt) + 2 * (x1 - x0) / lead_in)) + 1
-    return _Window(x0, x1, dt, n_steps, int(np.floor(0.5 * 0.02 / dt)), lead_in)
+    n_steps = int(math.ceil((x1 - x0) / (speed * dt))) + 1
+    run_in = int(np.floor(0.5 * 0.02 / dt))
+    return x0, dt, n_steps, run_in
 
 
 @functools.partial(jax.jit, static_argnames=("statics",))
@@ -435,10 +409,9 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
     data = jax.tree.map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a, prog.data)
-    w = _window(detector, track, wheel, config, positions, speed)
-    n_steps = w.n_steps
-    run = Run(*(jnp.asarray([c]) for c in (0, float(speed), w.step(float(impacts[0]), speed),
-                                           w.x0, float(impacts[0]), w.run_in, n_steps, 0)))
+    x0, dt, n_steps, run_in = _window(detector, track, wheel, config, positions, speed)
+    run = Run(*(jnp.asarray([c]) for c in (0, float(speed), dt, x0, float(impacts[0]), run_in,
+                                           n_steps, 0)))
     law = prepare(contact, ref, sc.reference_wheel, sc.track, material, sc.config, cache_dir)
     statics = (n_steps, sc.config.newton_iterations, sc.config.precision)
     t0 = time.perf_counter()
@@ -559,8 +532,8 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
     data = jax.tree.map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a, prog.data)
-    w = _window(detector, track, wheel, config, positions, speed)
-    statics = (w.n_steps, sc.config.newton_iterations, sc.config.precision)
+    x0, dt, n_steps, run_in = _window(detector, track, wheel, config, positions, speed)
+    statics = (n_steps, sc.config.newton_iterations, sc.config.precision)
     by_tree: dict = {}
     laws = _common_columns([_group_laws(f, sc, contact, cache_dir) for f, _, _ in cases], sc)
     for b, ((_, impacts, delays), (law, others)) in enumerate(zip(cases, laws,
@@ -578,11 +551,10 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
         mapped = tuple(not all(_same(c[0], x) for x in c[1:]) for c in cols)
         leaves = [jnp.stack([jnp.asarray(x) for x in c]) if m else c[0]
                   for c, m in zip(cols, mapped, strict=True)]
-        impacts = np.array([m[2] for m in pad])
         runs = Run(*(jnp.asarray(c) for c in (
-            np.zeros(size, int), np.full(size, float(speed)),
-            np.array([w.step(x, speed) for x in impacts]), np.full(size, w.x0), impacts,
-            np.full(size, w.run_in), np.full(size, w.n_steps), np.zeros(size, int))))
+            np.zeros(size, int), np.full(size, float(speed)), np.full(size, dt),
+            np.full(size, x0), np.array([m[2] for m in pad]), np.full(size, run_in),
+            np.full(size, n_steps), np.zeros(size, int))))
         p, f = _bogie_batch(data, leaves, runs, treedef, mapped, statics)
         peaks[idx], force[idx] = np.asarray(p)[:len(idx)], np.asarray(f)[:len(idx)]
     _log.debug("coupled batch of %d groups: %.1f s", len(cases), time.perf_counter() - t0)

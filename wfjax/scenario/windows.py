@@ -14,18 +14,6 @@ impact_position = (X_0 + R * angle0) mod L_S. :func:`impact_position_from_angle`
 On a track whose supports vary (:func:`wfjax.model.sleepers.is_uniform` false) every bay differs and
 ``impact_position`` is an absolute rail coordinate (x = 0 above the middle sleeper;
 ``docs/real_track.md``).
-
-Time grid
----------
-A run's steps are at most ``SimConfig.time_step_for(v)`` long, and one of them lands exactly
-where the flat's centre meets the nominal contact point (s = 0), where a new flat's
-trajectory has its kink: the force falls linearly to its minimum there and turns into the
-impact. A grid that straddles the kink misses the minimum by up to the force's slope times
-one step's travel (1.5-2 kN, 1.7 % of the static load, for the new 0.9 mm flat at 40 km/h
-with 40 us steps); on the aligned grid the minimum is the same at 6.25 and 40 us
-(``docs/convergence.md``, "Min force"). :func:`aligned_steps` gives a run's step count and
-step, :func:`aligned_time_step` the step of a given count (:func:`n_steps_for`,
-:func:`batch_windows`, the identification's coupled runs).
 """
 
 from __future__ import annotations
@@ -42,9 +30,8 @@ from ..params import MAX_SPEED, Flat, SimConfig, Track
 
 __all__ = ["RUN_IN_TIME", "RUN_OUT_TIME", "impact_position_from_angle", "simulation_window",
            "check_speed", "check_speeds", "check_impact_position", "check_impact_positions",
-           "impact_positions_grid", "aligned_steps", "aligned_time_step", "n_steps_for",
-           "run_windows", "batch_windows", "check_rail_span", "wheel_positions",
-           "vehicle_window_flat", "detector_config"]
+           "impact_positions_grid", "n_steps_for", "run_windows", "batch_windows",
+           "check_rail_span", "wheel_positions", "vehicle_window_flat", "detector_config"]
 
 RUN_IN_TIME = 0.02  # s of travel before the flat's window, from static equilibrium
 
@@ -136,36 +123,13 @@ def check_impact_position(position, track: Track) -> float:
     return float(check_impact_positions(position, track, "impact_position")[0])
 
 
-_ALIGN_TOL = 1e-9  # steps: rounding slack of the grid's integer step counts
-
-
-def aligned_time_step(s_start: float, s_end: float, speed: float, n_steps: int) -> float:
-    """Time step [s] of ``n_steps`` steps (the start included) from ``s_start`` < 0 to at
-    least ``s_end`` > 0 [m] at ``speed`` [m/s] with a step at s = 0 (module doc, "Time
-    grid"): -s_start / (v k) with k the most steps before s = 0 for which the run still
-    reaches ``s_end``. Too few steps to put one at s = 0 (k < 1): the plain
-    (s_end - s_start) / v / (n_steps - 1)."""
-    k = math.floor(-s_start * (n_steps - 1) / (s_end - s_start) + _ALIGN_TOL)
-    if k < 1:
-        return (s_end - s_start) / speed / (n_steps - 1)
-    return -s_start / (speed * k)
-
-
-def aligned_steps(s_start: float, s_end: float, speed: float, max_step: float
-                  ) -> tuple[int, float]:
-    """(number of steps, time step [s]): the fewest steps of at most ``max_step`` [s], one at
-    s = 0, that cover ``s_start`` < 0 to ``s_end`` [m] at ``speed`` [m/s]."""
-    n_in = math.ceil(-s_start / (speed * max_step) - _ALIGN_TOL)
-    dt = -s_start / (speed * n_in)
-    return math.ceil((s_end - s_start) / (speed * dt) - _ALIGN_TOL) + 1, dt
-
-
 def n_steps_for(flat: Flat, speed: float, config: SimConfig) -> tuple[int, float]:
-    """(number of steps, time step [s]) of a simulation at ``speed`` [m/s]: the fewest steps
-    of at most ``config.time_step_for(speed)`` that cover :func:`simulation_window` with one
-    at s = 0 (:func:`aligned_steps`)."""
+    """(number of steps, time step [s]) of a simulation at ``speed`` [m/s]."""
     s0, s1 = simulation_window(flat, speed, config)
-    return aligned_steps(s0, s1, speed, config.time_step_for(speed))
+    duration = (s1 - s0) / speed
+    dt = config.time_step_for(speed)
+    n = int(math.ceil(duration / dt)) + 1
+    return n, duration / (n - 1)
 
 
 def run_windows(flat: Flat, speeds, config: SimConfig):
@@ -185,9 +149,7 @@ def run_windows(flat: Flat, speeds, config: SimConfig):
 def batch_windows(flat: Flat, speeds, config: SimConfig):
     """Windows of a batch of runs at ``speeds`` [m/s] that share one compiled step count.
 
-    Every speed gets the step count of the one that needs the most and its own time step,
-    the longest that puts a step at s = 0 (:func:`aligned_time_step`): at most its own
-    :func:`n_steps_for` step, its run reaching at least the window's end.
+    Every speed gets the step count of the one that needs the most and its own time step.
 
     Returns:
         (n_steps, dt [n_speeds] s, s_start [n_speeds] m, run_in [n_speeds] steps before the
@@ -196,8 +158,7 @@ def batch_windows(flat: Flat, speeds, config: SimConfig):
     speeds = np.asarray(speeds, dtype=float)
     n_steps = max(n_steps_for(flat, float(v), config)[0] for v in speeds)
     s0, s1 = np.array([simulation_window(flat, float(v), config) for v in speeds]).T
-    dt = np.array([aligned_time_step(a, b, float(v), n_steps)
-                   for a, b, v in zip(s0, s1, speeds, strict=True)])
+    dt = (s1 - s0) / speeds / (n_steps - 1)
     return n_steps, dt, s0, np.floor(0.5 * RUN_IN_TIME / dt).astype(int)
 
 
