@@ -290,7 +290,7 @@ class Detector:
     ``calibration`` x that difference, read while a_k <= X(t) <= b_k; its peak over the
     passage is the bay's reading (``docs/detector.md``). The reading is within 0.5 % of the
     converged reference with track modes to 20 kHz, a 25 us step cap, a float64 loop and
-    60 bays (``wfjax detector``'s defaults); with the package's defaults within 3.9 %.
+    36 bays (``wfjax detector``'s defaults); with the package's defaults within 1.2 %.
 
     Attributes:
         n_bays: number of instrumented consecutive bays N (>= 1).
