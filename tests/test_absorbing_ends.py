@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import wfjax as wf
+from wfjax.model import fe as fe_mod
 from wfjax.model import track as track_mod
 from wfjax.model.fe import END_GRADING, end_grading
 from wfjax.model.periodic import periodic_receptance
@@ -20,8 +21,11 @@ def test_grading_is_geometric_to_the_outermost_sleeper():
 
 
 def test_too_many_absorbing_sleepers_are_refused_by_name():
-    with pytest.raises(ValueError, match="absorbing_sleepers = 12"):
-        wf.Track(n_bays=24, absorbing_sleepers=12)
+    # checked on the assembled (lengthened) track: a short Track is a least length
+    wf.Track(n_bays=4)
+    with pytest.raises(ValueError, match="absorbing_sleepers = 12 needs at least 24"):
+        fe_mod.assemble(wf.Track(n_bays=24, absorbing_sleepers=12))
+    fe_mod.assemble(wf.Track(n_bays=25, absorbing_sleepers=12))
     with pytest.raises(ValueError, match="absorbing_sleepers must be an integer"):
         wf.Track(absorbing_sleepers=-1)
 

@@ -244,10 +244,6 @@ class Track(Validated):
                 raise ValueError(
                     f"Track.{name} must be an integer >= {low}, got {value!r}"
                 )
-        if 2 * self.absorbing_sleepers > self.n_bays - 1:
-            raise ValueError(f"Track.absorbing_sleepers = {self.absorbing_sleepers} leaves no "
-                             f"sleeper of the track's own on {self.n_bays} bays: at most "
-                             f"{(self.n_bays - 1) // 2}")
         for name, unit in positive_fields(self).items():
             value = getattr(self, name)
             if not is_concrete(value):

@@ -125,6 +125,10 @@ def end_grading(n_sleepers: int, n_absorbing: int) -> np.ndarray:
     outwards (3 sleepers: 2, 4, 8). A gentle grading absorbs the waves the clamped ends
     would reflect; an abrupt one reflects them itself (x3, 10, 30 kept a 20 km/h min force
     0.65 kN off a 50-bay track's, x2, 4, 8 within 0.01 kN; docs/convergence.md)."""
+    if 2 * n_absorbing > n_sleepers:  # checked here, on the track as lengthened
+        raise ValueError(f"Track.absorbing_sleepers = {n_absorbing} needs at least "
+                         f"{2 * n_absorbing} sleepers ({2 * n_absorbing + 1} bays), the track "
+                         f"has {n_sleepers}: give more bays or fewer absorbing sleepers")
     g = np.ones(n_sleepers)
     if n_absorbing:
         ramp = END_GRADING ** (np.arange(1, n_absorbing + 1) / n_absorbing)
