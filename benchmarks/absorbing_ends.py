@@ -1,0 +1,128 @@
+"""The absorbing track ends (``Track.absorbing_sleepers``) measured: the numbers of
+docs/convergence.md, "Absorbing ends" (issue 33).
+
+Sections (``--sections``, all by default):
+
+* ``grading``: new 0.9 mm flat, 20, 40 and 120 km/h, 5 impact positions, Hertz-trajectory,
+  R_R = 0.45 m, modes to 15 kHz, 40 us / 1 mm, float64: the largest min-force difference
+  [kN] of a 24-bay track from a 50-bay clamped one, with clamped ends and with the end
+  sleepers' pad and ballast damping multiplied by a few gradings (per-sleeper arrays,
+  ``absorbing_sleepers=0``, so any grading can be tried; x2, 4, 8 is what
+  ``absorbing_sleepers=3`` builds);
+* ``receptance``: the transfer receptance 0.3 -> 1.0 m and the point receptance at 0.3 m of
+  the accuracy table's reference (70 bays, 26 el., 20 kHz) and of the default (24 bays,
+  15 kHz), with and without the absorbing ends, against the infinite periodic track
+  (``wfjax.track.periodic_receptance``) on the accuracy table's 40 frequencies: largest
+  relative difference [%], and outside 850-1050 Hz;
+* ``timing``: whole-process warm wall times [s] of ``wfjax detector`` on 36 and 60 bays and
+  of ``wfjax figures --only 8`` with and without the absorbing ends, ``--rounds`` alternated
+  rounds after one unrecorded warm-up of each.
+
+Run: ``python benchmarks/absorbing_ends.py [--sections grading,receptance,timing]
+[--rounds 3]``; writes ``benchmarks/results/absorbing_ends.json`` and prints the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+import wfjax as wf
+from wfjax.model import track as track_mod
+from wfjax.model.periodic import periodic_receptance
+from wfjax.scenario import sensors as sensor_mod
+
+GRADINGS = {"clamped": None, "x2, 4, 8": [2, 4, 8], "x1.5, 2, 3, 5, 8": [1.5, 2, 3, 5, 8],
+            "x3, 10, 30": [3, 10, 30]}
+FREQS = np.geomspace(20.0, 2000.0, 40)  # the accuracy table's
+TIMED = {"detector, 36 bays": ["detector", "--set", "track.n_bays=36"],
+         "detector, 60 bays": ["detector", "--set", "track.n_bays=60"],
+         "figures 8, absorbing ends": ["figures", "--only", "8"],
+         "figures 8, clamped ends": ["figures", "--only", "8", "--set",
+                                     "track.absorbing_sleepers=0"]}
+
+
+def _graded(n_bays: int, ramp) -> wf.Track:
+    """The comparison track, clamped ends, end sleepers' damping x ``ramp`` (outwards)."""
+    track = wf.Track.comparison(n_bays=n_bays, absorbing_sleepers=0)
+    if ramp is None:
+        return track
+    fac = np.ones(n_bays - 1)
+    fac[:len(ramp)], fac[-len(ramp):] = ramp[::-1], ramp
+    return wf.Track.comparison(n_bays=n_bays, absorbing_sleepers=0,
+                               pad_damping=float(track.pad_damping) * fac,
+                               ballast_damping=float(track.ballast_damping) * fac)
+
+
+def grading() -> dict:
+    """Largest min-force difference [kN] per speed from the 50-bay clamped track."""
+    cfg = wf.SimConfig(track_max_frequency=15e3, precision="float64")
+    speeds = np.array([20.0, 40.0, 120.0])
+
+    def min_force(track):
+        r = wf.sweep(wf.Flat.new(0.9e-3), speeds / 3.6, 5, contact="hertz-trajectory",
+                     track=track, config=cfg, progress=False)
+        return np.asarray(r.min_force)[0] / 1e3
+
+    ref = min_force(_graded(50, None))
+    return {"speeds_kmh": speeds.tolist(), **{
+        name: np.abs(min_force(_graded(24, ramp)) - ref).max(axis=1).round(3).tolist()
+        for name, ramp in GRADINGS.items()}}
+
+
+def receptance() -> dict:
+    """Largest / outside-850-1050-Hz relative difference [%] from the infinite track."""
+    out, band = {}, (FREQS < 850) | (FREQS > 1050)
+    for label, n_bays, f_max in (("reference", 70, 20e3), ("default", 24, 15e3)):
+        for ends in (3, 0):
+            track = wf.Track.comparison(n_bays=n_bays, absorbing_sleepers=ends)
+            model = track_mod.modal_model(track, max_frequency=f_max)
+            for name, xr in (("point 0.3", 0.3), ("transfer 0.3->1.0", 1.0)):
+                h = sensor_mod.transfer_receptance(track, model, FREQS, 0.3, xr)
+                e = 100 * np.abs(h / periodic_receptance(track, FREQS, 0.3, xr) - 1)
+                out[f"{label}, absorbing {ends}, {name}"] = [round(float(e.max()), 2),
+                                                            round(float(e[band].max()), 2)]
+    return out
+
+
+def timing(rounds: int) -> dict:
+    """Whole-process warm wall times [s], alternated rounds."""
+    times: dict = {k: [] for k in TIMED}
+    with tempfile.TemporaryDirectory() as work:
+        def once(args):
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "wfjax", *args, "--out", work], check=True,
+                           capture_output=True)
+            return time.perf_counter() - t0
+
+        for args in TIMED.values():
+            once(args)  # fills the caches
+        for _ in range(rounds):
+            for name, args in TIMED.items():
+                times[name].append(round(once(args), 2))
+    return times
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sections", default="grading,receptance,timing")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results"
+                                         / "absorbing_ends.json"))
+    a = ap.parse_args()
+    makers = {"grading": grading, "receptance": receptance,
+              "timing": lambda: timing(a.rounds)}
+    result = {name: makers[name]() for name in a.sections.split(",")}
+    print(json.dumps(result, indent=1))
+    pathlib.Path(a.out).write_text(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
