@@ -23,7 +23,7 @@ import numpy as np
 
 from . import labelled
 from .params import Flat, Material, SimConfig, Track, Wheel
-from .program.core import compile_scenario
+from .program.core import compile_scenario, tables_ahead
 from .program.grid import over_realisations
 from .results import flat_label
 from .scenario.description import Scenario
@@ -324,8 +324,9 @@ def sweep(flats: Flat | Sequence[Flat], speeds, impact_positions=10, contact: st
     scenario = scenario.lengthened(windows, v, pos)
     for w in windows:  # before any work; each group checks its own window again
         scenario.check_settings(w, v, pos)
+    ahead = tables_ahead(scenario, cache_dir)  # alongside the modal model and the program
     program = compile_scenario(scenario, cache_dir)
-    out = program.sweep(v, pos, chunk_size, progress)
+    out = program.sweep(v, pos, chunk_size, progress, ahead=ahead)
     return _result(scenario, program, v, pos, out)
 
 

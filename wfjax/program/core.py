@@ -305,11 +305,11 @@ class Program:
         return differentiation.batch(self, self.data, law, runs, save)
 
     def sweep(self, speeds: np.ndarray, positions: np.ndarray, chunk_size=None,
-              progress: bool = True, save=Extremes()) -> dict[str, np.ndarray]:
+              progress: bool = True, save=Extremes(), ahead=None) -> dict[str, np.ndarray]:
         """Every flat x speed x position x realisation's outputs by name, [n_flats,
         n_speeds, n_positions, R, ...], each run with :func:`wfjax.simulate`'s window and time
         step (:func:`wfjax.program.grid.plan_runs`), chunked and sharded over the devices."""
-        return _Sweep(self, speeds, positions, chunk_size, progress, save).run()
+        return _Sweep(self, speeds, positions, chunk_size, progress, save, ahead).run()
 
 
 def compile_scenario(scenario: Scenario, cache_dir=None) -> Program:
@@ -336,11 +336,25 @@ def compile_scenario(scenario: Scenario, cache_dir=None) -> Program:
                    cache_dir)
 
 
+def tables_ahead(scenario: Scenario, cache_dir=None) -> dict:
+    """The exact 3D tables of each of ``scenario``'s table groups (:func:`batch_groups`),
+    built in background threads: ``{flat indices: future of the tables}``. They need no
+    track, so a sweep starts them before its modal model and its program, which build
+    alongside (:meth:`Program.sweep`'s ``ahead``)."""
+    sc = scenario
+    return {tuple(g.indices): in_background(
+        cached_tables_3d, [sc.flats[i] for i in g.indices], float(sc.reference_wheel.radius),
+        float(sc.track.rail_head_radius), sc.material, sc.config.contact_element, cache_dir)
+        for g in batch_groups(sc.flats, sc.contact, sc.config) if g.tables}
+
+
 class _Sweep:
     """:meth:`Program.sweep`'s work: per group of flats, its laws, runs and chunks."""
 
-    def __init__(self, program: Program, speeds, positions, chunk_size, progress, save):
+    def __init__(self, program: Program, speeds, positions, chunk_size, progress, save,
+                 ahead=None):
         self.program, self.v, self.pos = program, np.asarray(speeds), np.asarray(positions)
+        self.ahead = ahead
         self.chunk_size, self.progress, self.save = chunk_size, progress, save
         self.mesh = grid_mod.device_mesh()
         self.data = grid_mod.replicate(program.data, self.mesh)
@@ -351,12 +365,7 @@ class _Sweep:
         if self.progress and any(g.tables for g in groups):
             print("  building the 3D contact tables (cached after the first run) ...",
                   end="\r", file=sys.stderr, flush=True)
-        # the exact 3D tables are built while the program compiles
-        ahead = {tuple(g.indices): in_background(
-            cached_tables_3d, [sc.flats[i] for i in g.indices],
-            float(sc.reference_wheel.radius),
-            float(sc.track.rail_head_radius), sc.material, sc.config.contact_element,
-            self.program.cache_dir) for g in groups if g.tables}
+        ahead = self.ahead if self.ahead is not None else tables_ahead(sc, self.program.cache_dir)
         out = {}
         for group in groups:
             for key, col in self._group(group, ahead.get(tuple(group.indices))).items():
