@@ -58,6 +58,8 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
     arrays = sleepers.support_arrays(track)
     gap, k_s, c_s = (arrays[n][hang] for n in ("ballast_gap", "ballast_stiffness",
                                                 "ballast_damping"))
+    c_s = c_s * fe_mod.end_grading(arrays["ballast_damping"].size,
+                                   int(track.absorbing_sleepers))[hang]
     e_s = np.zeros((k.shape[0], hang.size))
     e_s[fe.n_rail_dof + hang, np.arange(hang.size)] = 1.0
     g_s = lu.solve(e_s) if hang.size else e_s  # dynamic: unit upward loads at the sleepers

@@ -226,3 +226,19 @@ def test_the_adjoint_refuses_hanging_sleepers():
     law = prepare("hertz-profile", ROUNDED, wf.Wheel(), track, wf.Material(), config)
     with pytest.raises(NotImplementedError, match="hanging sleepers"):
         adjoint.adjoint_loop(law, struct, V, 2.5e-5, 0.5, 0.62, 10)
+
+
+def test_a_hanging_sleeper_in_an_absorbing_end_keeps_the_ends_grading():
+    """The one-sided ballast's damping is the linear model's for the same sleeper: graded up
+    inside an absorbing end (fe.end_grading), as the FE matrices grade it when it rests."""
+    track = wf.Track(n_bays=8, elements_per_bay=2)
+    n_sl = track.n_bays - 1
+    for index in (0, 1, n_sl // 2, n_sl - 1):
+        hang = supports.hanging_sleeper(track, index, 3e-4)
+        model = track_mod.modal_model(hang, 5e3, use_cache=False)
+        spec = supports.one_sided_spec(hang, model)
+        c = fe_mod.assemble(track).damping.toarray()  # resting: pad + graded ballast
+        pad_dof = fe_mod.assemble(track).n_rail_dof + index
+        pad = -c[pad_dof, 2 * ((index + 1) * track.elements_per_bay) - 2]
+        assert float(spec.damping[0]) == pytest.approx(c[pad_dof, pad_dof] - pad, rel=1e-12)
+    assert float(spec.damping[0]) > 7.9 * track.ballast_damping  # the outermost: x8

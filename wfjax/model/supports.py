@@ -192,6 +192,8 @@ def one_sided_spec(track: Track, model, offsets=(0.0,)) -> OneSidedSupports | No
         return None
     arrays = support_arrays(track)
     fe = fe_mod.assemble(track)
+    # an absorbing end's grading holds for the one-sided ballast too (as in fe.assemble)
+    grading = fe_mod.end_grading(arrays["ballast_damping"].size, int(track.absorbing_sleepers))
     unit = np.zeros((fe.stiffness.shape[0], idx.size))
     unit[fe.n_rail_dof + idx, np.arange(idx.size)] = 1.0  # unit loads on the sleepers
     k_inv_s = fe_mod.static_solve(fe, unit)  # [n_dof, n_s]
@@ -206,7 +208,7 @@ def one_sided_spec(track: Track, model, offsets=(0.0,)) -> OneSidedSupports | No
     phi = np.asarray(track_mod.mode_shapes_at(model, x))  # [n_res, n_w, m]
     kept_ws = np.real(np.einsum("rim,am,m->ria", phi, psi, w))
     return OneSidedSupports(psi, arrays["ballast_gap"][idx], arrays["ballast_stiffness"][idx],
-                            arrays["ballast_damping"][idx], unit.T @ k_inv_s - kept_ss,
+                            (arrays["ballast_damping"] * grading)[idx], unit.T @ k_inv_s - kept_ss,
                             full_ws - kept_ws)
 
 
