@@ -293,8 +293,9 @@ def family_column(family: FlatFamily, s, depth, length=None) -> interpolation.Co
     # Each node at its own position (:func:`_node_position`); column index = position / spacing.
     node_half = jnp.asarray(spec.node_half)[i_d[:, None], i_l[None, :]]
     scale = jnp.asarray(spec.column_scale)[i_d[:, None], i_l[None, :]] / node_half
-    u_s = jnp.clip(_node_position(spec, s, half, node_half) * scale + spec.n_half, 0.0,
-                   n_s - 1.0)  # [m_d, m_l]
+    position = interpolation.column_coordinate(_node_position(spec, s, half, node_half),
+                                               spec.stretch)
+    u_s = jnp.clip(position * scale + spec.n_half, 0.0, n_s - 1.0)  # [m_d, m_l]
     c = jnp.clip(jnp.floor(u_s), 0, n_s - 2).astype(jnp.int32)
     # Catmull-Rom weights of columns c-1, c, c+1, c+2 (clamped at the ends): [m_d, m_l, 4].
     w_s = jnp.moveaxis(interpolation.catmull_rom_weights(u_s - c), 0, -1)
@@ -302,10 +303,12 @@ def family_column(family: FlatFamily, s, depth, length=None) -> interpolation.Co
     ix = (i_d[:, None, None], i_l[None, :, None], i_s)
     if spec.onset == "columns":
         h = spec.element_size
-        u = s / h
+        u = interpolation.column_coordinate(s, spec.stretch) / h
         i0 = jnp.floor(u)
         wo = interpolation.catmull_rom_weights(u - i0)
         sj = (i0 + jnp.arange(-1, 3)) * h
+        if spec.stretch:
+            sj = interpolation.column_positions(sj, jnp.asarray(spec.stretch))
         onset = jnp.sum(wo * jax.vmap(lambda si: _exact_onset(spec, si, depth, half))(sj))
     else:
         onset = _exact_onset(spec, s, depth, half)

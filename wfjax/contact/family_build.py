@@ -13,7 +13,7 @@ import numpy as np
 from .._parallel import core_pool, map_per_core
 from .._xla import to_device
 from ..params import Material
-from . import influence, kalker, table_spec, tables, windows
+from . import influence, interpolation, kalker, table_spec, tables, windows
 from .family import FlatFamily
 from .family_spec import FamilySpec, lattice_depth, lattice_length_factor, node_flat
 
@@ -21,8 +21,9 @@ _DEFAULT_MATERIAL = Material()
 
 # Part of every node's cache key: raise it when the node builder's results change, so a cache
 # written by an older builder of the same wfjax version is never served (2: issue 20's
-# faster CG, forces within 1e-9 of revision 1's).
-NODE_BUILDER_REVISION = 2
+# faster CG, forces within 1e-9 of revision 1's; 3: a new flat's columns crowd at its centre,
+# FamilySpec.stretch).
+NODE_BUILDER_REVISION = 3
 
 
 FAMILY_WINDOW_SIZES = 6  # window sizes of a family build (one compiled solver each, shared)
@@ -35,7 +36,9 @@ def _node_geometry(spec: FamilySpec, idx: int):
     k, j = spec.depth_index[idx // n_l], spec.length_index[idx % n_l]
     depth, lam = lattice_depth(k), lattice_length_factor(j)
     flat = node_flat(spec.kind, depth, lam, spec.wheel_radius)
-    s = np.arange(spec.node_columns[idx]) * spec.node_steps[idx] * spec.element_size
+    s = interpolation.column_positions(
+        np.arange(spec.node_columns[idx]) * spec.node_steps[idx] * spec.element_size,
+        spec.stretch)
     return depth, lam, flat, s
 
 
@@ -47,6 +50,7 @@ def _node_key(spec: FamilySpec, idx: int, material: Material, tol: float) -> dic
             "wheel_radius": spec.wheel_radius, "rail_head_radius": spec.rail_head_radius,
             "element_size": spec.element_size, "c_max": spec.c_max, "n_t": spec.n_t,
             "step": spec.node_steps[idx], "n_cols": spec.node_columns[idx], "nx": nx, "ny": ny,
+            "stretch": spec.stretch,
             "youngs_modulus": float(material.youngs_modulus),
             "poisson_ratio": float(material.poisson_ratio), "tol": tol,
             "builder_revision": NODE_BUILDER_REVISION}
@@ -67,9 +71,11 @@ class _SharedBuilder:
         self.n = max(len(g[3]) for g in self.geometry.values())
         self.tspec = table_spec.TableSpec(
             nx=max(spec.grids[i][0] for i in indices), ny=max(spec.grids[i][1] for i in indices),
-            element_size=spec.element_size, s_max=(self.n - 1) * spec.element_size,
+            element_size=spec.element_size, s_max=float(interpolation.column_positions(
+                (self.n - 1) * spec.element_size, spec.stretch)),
             n_s=self.n, c_max=spec.c_max, n_t=spec.n_t, symmetric=True,
-            wheel_radius=spec.wheel_radius, rail_head_radius=spec.rail_head_radius)
+            wheel_radius=spec.wheel_radius, rail_head_radius=spec.rail_head_radius,
+            stretch=spec.stretch)
         self.gaps, boxes, self.shared = {}, {}, {}
         cs = table_spec.compression_nodes(self.tspec)
         for i, (_, _, flat, s) in self.geometry.items():

@@ -12,6 +12,8 @@ import numpy as np
 
 from ..params import MAX_FLAT_DEPTH, Flat, Material
 from . import geometry3d
+from .interpolation import column_coordinate
+from .table_spec import NEW_FLAT_STRETCH
 
 _DEFAULT_MATERIAL = Material()
 
@@ -73,10 +75,10 @@ class FamilySpec(NamedTuple):
             where it is unused).
         grids: (nx, ny) of each node's contact grid, depth-major (len = n_depth x n_length).
         node_columns: solved columns (s >= 0) of each node, same order.
-        node_steps: column spacing of each node in elements (an integer, so every column
-            sits at s = multiple of the element size like the per-flat tables' columns: the
-            flat then has the same position relative to the grid in every column, and the
-            discrete solution's sub-element wobble in s is sampled at the same phase).
+        node_steps: column spacing of each node in elements, in the column coordinate (an
+            integer, so every column sits where a per-flat table's does: the flat then has
+            the same position relative to the grid, and the discrete solution's sub-element
+            wobble in s is sampled at the same phase).
         onset: ``"columns"`` (default): the exact continuum onset of the traced flat at the
             4 element-spaced positions around s, Catmull-Rom in s, as the per-flat tables
             interpolate theirs; ``"exact"``: the exact onset at s.
@@ -85,6 +87,9 @@ class FamilySpec(NamedTuple):
             physical s in the centre band |s| <= centre_band, the physical offset from the
             chord edge for |s| >= half - edge_band, a C1 ramp between (see :func:`_node_position`).
         centre_band, edge_band: band widths [m] of ``"edges"`` (0 for ``"scaled"``).
+        stretch: L [m] of the nodes' column coordinate: the columns are uniform in
+            :func:`wfjax.contact.interpolation.column_coordinate` of the node position, as
+            a per-flat table's (new flats: ``table_spec.NEW_FLAT_STRETCH``; 0: uniform in s).
     """
 
     kind: str
@@ -105,6 +110,7 @@ class FamilySpec(NamedTuple):
     s_map: str = "scaled"
     centre_band: float = 0.0
     edge_band: float = 0.0
+    stretch: float = 0.0
 
     @property
     def depths(self) -> np.ndarray:
@@ -274,7 +280,8 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                       d_sigma=ds, n_half=max(columns) - 1, depth_index=depth_index,
                       length_index=length_index, grids=tuple(grids),
                       node_columns=tuple(columns), node_steps=tuple(steps),
-                      onset=onset, s_map=s_map, centre_band=float(b0), edge_band=float(b1))
+                      onset=onset, s_map=s_map, centre_band=float(b0), edge_band=float(b1),
+                      stretch=NEW_FLAT_STRETCH if kind == "new" else 0.0)
 
 
 def _depth_nodes(depths) -> tuple[int, ...]:
@@ -340,7 +347,8 @@ def _node_layout(kind: str, depth: float, lam: float, wheel_radius, rail_head_ra
     # the smooth wheel (as in table_spec.table_spec).
     reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
     step = max(1, round(ds * half / h)) if ds > 0 else 1
-    return (len(x), len(y)), math.ceil(reach / (step * h)) + 1, step
+    stretch = NEW_FLAT_STRETCH if kind == "new" else 0.0
+    return (len(x), len(y)), math.ceil(column_coordinate(reach, stretch) / (step * h)) + 1, step
 
 
 def _edge_bands(kind: str, nodes, wheel_radius, centre_band, edge_band) -> tuple[float, float]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -21,6 +22,9 @@ class ContactTable(NamedTuple):
         force: [n_s, n_t] force [N] at c = c_max (j / (n_t - 1))^2.
         slope: [n_s, n_t] dF/du [N] per node index u = t (n_t - 1).
         converged: 1.0 when every solve of the build converged, else 0.0 (scalar).
+        stretch: L [m] of the column coordinate :func:`column_coordinate` (0: columns
+            uniform in s; a new flat's tables crowd their columns at its centre). ``s_min``
+            and ``ds`` are in that coordinate.
     """
 
     s_min: Any
@@ -30,10 +34,54 @@ class ContactTable(NamedTuple):
     force: Any
     slope: Any
     converged: Any
+    stretch: Any = 0.0
+
+
+# A new flat's force at a fixed compression has a cusp at its centre s = 0 (the chord lies
+# parallel to the rail there), narrower than a contact element (about 0.2 mm at 25 um
+# compression); its tables crowd their columns there, uniform within CENTRE_INNER and
+# beyond CENTRE_OUTER (docs/convergence.md, "Min force").
+CENTRE_INNER = 5e-5  # m
+CENTRE_OUTER = 2e-3  # m
+
+
+def column_coordinate(s, stretch):
+    """The columns' coordinate phi(s) [m] at flat position ``s`` [m]: odd, smooth and
+    increasing, s + L (asinh(s / CENTRE_INNER) - asinh(s / CENTRE_OUTER)) with L =
+    ``stretch`` [m]; columns uniform in phi are 1 + L (1 / CENTRE_INNER - 1 / CENTRE_OUTER)
+    times closer at s = 0 than far from it, where phi - s tends to L ln(CENTRE_OUTER /
+    CENTRE_INNER). numpy in, numpy out; jax.numpy otherwise."""
+    xp = jnp if isinstance(s, jax.Array) or isinstance(stretch, jax.Array) else np
+    return s + stretch * (xp.arcsinh(s / CENTRE_INNER) - xp.arcsinh(s / CENTRE_OUTER))
+
+
+def column_positions(phi, stretch):
+    """The flat positions s [m] with :func:`column_coordinate` ``phi`` [m], any shape
+    (bisection to rounding: phi >= |s| on the same side). numpy in, numpy out; jax.numpy
+    for traced ``phi`` (a ``fori_loop``)."""
+    if isinstance(phi, jax.Array) or isinstance(stretch, jax.Array):
+        target = jnp.abs(phi)
+
+        def halve(_, bounds):
+            lo, hi = bounds
+            mid = 0.5 * (lo + hi)
+            low = column_coordinate(mid, stretch) < target
+            return jnp.where(low, mid, lo), jnp.where(low, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, 64, halve, (jnp.zeros_like(target), target))
+        return jnp.sign(phi) * 0.5 * (lo + hi)
+    phi = np.asarray(phi, dtype=float)
+    lo, hi = np.zeros_like(phi), np.abs(phi)
+    for _ in range(64):
+        mid = 0.5 * (lo + hi)
+        low = column_coordinate(mid, float(stretch)) < np.abs(phi)
+        lo, hi = np.where(low, mid, lo), np.where(low, hi, mid)
+    return np.sign(phi) * 0.5 * (lo + hi)
 
 
 def pad_columns(table: ContactTable, n_s: int) -> ContactTable:
-    """``table`` widened to ``n_s`` columns by repeating its end columns (half on either side).
+    """``table`` widened to ``n_s`` columns by repeating its end columns (half on either side;
+    its column coordinate, :func:`column_coordinate`, extends by whole spacings).
 
     Beyond its s range a table's end columns apply (the smooth wheel), so the padded table
     gives the same forces, up to the rounding of the column coordinate (~1e-14 relative),
@@ -72,7 +120,8 @@ def catmull_rom_weights(w):
 
 def _locate_s(table: ContactTable, s):
     n_s = table.onset.shape[0]
-    u = jnp.clip((s - table.s_min) / table.ds, 0.0, n_s - 1.0)
+    u = jnp.clip((column_coordinate(s, table.stretch) - table.s_min) / table.ds, 0.0,
+                 n_s - 1.0)
     i = jnp.clip(jnp.floor(u), 0, n_s - 2).astype(jnp.int32)
     weights = catmull_rom_weights(u - i)  # columns i-1, i, i+1, i+2 (clamped at the ends)
     cols = jnp.clip(i + jnp.arange(-1, 3), 0, n_s - 1)

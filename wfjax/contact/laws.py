@@ -170,7 +170,7 @@ def parametric_law(family, depth, length) -> ParametricLaw:
     table = interpolation.ContactTable(
         s_min=jnp.asarray(-n * spec.element_size), ds=jnp.asarray(spec.element_size),
         c_max=family.c_max, onset=columns.onset, force=columns.force, slope=columns.slope,
-        converged=family.converged)
+        converged=family.converged, stretch=jnp.zeros_like(family.c_max))
     return ParametricLaw(table, depth, length)
 
 

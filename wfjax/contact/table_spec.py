@@ -13,8 +13,14 @@ import numpy as np
 
 from ..params import Flat, Material
 from . import geometry3d, kalker
+from .interpolation import CENTRE_INNER, CENTRE_OUTER, column_coordinate, column_positions
 
 _DEFAULT_MATERIAL = Material()
+
+# A new flat's columns at s = 0 are 40 times closer than elsewhere (1 + L (1 / CENTRE_INNER -
+# 1 / CENTRE_OUTER) = 40), 7.4 more columns on each side: the table then follows direct
+# Kalker solves through the cusp at its centre (tests/test_tables.py).
+NEW_FLAT_STRETCH = 39.0 / (1.0 / CENTRE_INNER - 1.0 / CENTRE_OUTER)  # m (2 mm)
 
 
 class TableSpec(NamedTuple):
@@ -29,6 +35,8 @@ class TableSpec(NamedTuple):
         n_t: number of nodes along t = sqrt(c / c_max).
         symmetric: solve s >= 0 only and mirror (symmetric flats).
         wheel_radius, rail_head_radius: R_W, R_R [m].
+        stretch: the columns' coordinate's L [m]: the columns are uniform in
+            :func:`wfjax.contact.interpolation.column_coordinate` (0: in s).
     """
 
     nx: int
@@ -41,6 +49,7 @@ class TableSpec(NamedTuple):
     symmetric: bool
     wheel_radius: float
     rail_head_radius: float
+    stretch: float = 0.0
 
     @property
     def x(self) -> np.ndarray:
@@ -55,7 +64,8 @@ class TableSpec(NamedTuple):
     @property
     def s(self) -> np.ndarray:
         """[n_s] flat positions of the columns [m]."""
-        return np.linspace(-self.s_max, self.s_max, self.n_s)
+        phi_max = column_coordinate(self.s_max, self.stretch)
+        return column_positions(np.linspace(-phi_max, phi_max, self.n_s), self.stretch)
 
 
 def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
@@ -95,11 +105,14 @@ def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float =
     # Beyond |s| = half + sqrt(2 R_W c_max) the flat is outside the rigid overlap of every
     # tabulated compression, so the column equals the smooth wheel exactly.
     reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
-    n_half = max(1, math.ceil(reach / ds))
-    return TableSpec(nx=len(x), ny=len(y), element_size=h, s_max=n_half * ds,
+    stretch = NEW_FLAT_STRETCH if flat.kind == "new" else 0.0
+    n_half = max(1, math.ceil(column_coordinate(reach, stretch) / ds))
+    return TableSpec(nx=len(x), ny=len(y), element_size=h,
+                     s_max=float(column_positions(n_half * ds, stretch)),
                      n_s=2 * n_half + 1, c_max=c_max, n_t=int(n_t),
                      symmetric=flat.kind in ("new", "rounded", "none"),
-                     wheel_radius=float(wheel_radius), rail_head_radius=float(rail_head_radius))
+                     wheel_radius=float(wheel_radius), rail_head_radius=float(rail_head_radius),
+                     stretch=stretch)
 
 
 def rigid_onset(spec: TableSpec, flat: Flat, s, xp=jnp):

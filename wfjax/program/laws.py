@@ -143,7 +143,8 @@ def table_laws_like(flats: Sequence[Flat], wheel: Wheel, track: Track, material:
     scalar = np.zeros(n)
     return TableLaw(ContactTable(s_min=scalar, ds=scalar, c_max=scalar,
                                  onset=np.zeros((n, n_s)), force=np.zeros((n, n_s, n_t)),
-                                 slope=np.zeros((n, n_s, n_t)), converged=scalar))
+                                 slope=np.zeros((n, n_s, n_t)), converged=scalar,
+                                 stretch=scalar))
 
 
 def padded_models(tracks, config: SimConfig, cache_dir=None):
