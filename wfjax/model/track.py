@@ -466,7 +466,7 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
     if use_cache:
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
                "absorbing_sleepers": int(track.absorbing_sleepers),
-               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 3}
+               "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 4}
         if not is_uniform(track):
             key["supports"] = "per-sleeper arrays; residual along the rail"
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
