@@ -9,6 +9,11 @@ Sections (``--sections``, all by default):
   sleepers' pad and ballast damping multiplied by a few gradings (per-sleeper arrays,
   ``absorbing_sleepers=0``, so any grading can be tried; x2, 4, 8 is what
   ``absorbing_sleepers=3`` builds);
+* ``rail``: the rail's end damping (``wfjax.model.fe.END_RAIL_DAMPING``, set here for each
+  value with a cache of its own): new 0.9 mm flat, 20, 30 and 40 km/h, 5 impact positions,
+  3D (exact tables), ``Track.comparison``, modes to 20 kHz, float64: the largest min-force
+  difference [kN] of 24, 30 and 36 bays from 70 bays with the same ends, and the largest
+  max-force difference [%];
 * ``receptance``: the transfer receptance 0.3 -> 1.0 m and the point receptance at 0.3 m of
   the accuracy table's reference (70 bays, 26 el., 20 kHz) and of the default (24 bays,
   15 kHz), with and without the absorbing ends, against the infinite periodic track
@@ -18,7 +23,7 @@ Sections (``--sections``, all by default):
   of ``wfjax figures --only 8`` with and without the absorbing ends, ``--rounds`` alternated
   rounds after one unrecorded warm-up of each.
 
-Run: ``python benchmarks/absorbing_ends.py [--sections grading,receptance,timing]
+Run: ``python benchmarks/absorbing_ends.py [--sections grading,rail,receptance,timing]
 [--rounds 3]``; writes ``benchmarks/results/absorbing_ends.json`` and prints the figures.
 """
 
@@ -77,6 +82,41 @@ def grading() -> dict:
         for name, ramp in GRADINGS.items()}}
 
 
+RAIL_DAMPINGS = (0.0, 1000.0, 3000.0, 10000.0)  # 1/s
+
+
+def rail() -> dict:
+    """Per rail damping [1/s]: the largest min-force [kN] and max-force [%] differences of
+    24, 30 and 36 bays from 70 bays."""
+    from wfjax.model import fe
+
+    cfg = wf.SimConfig(track_max_frequency=20e3, precision="float64")
+    speeds = np.array([20.0, 30.0, 40.0])
+    kept, out = fe.END_RAIL_DAMPING, {}
+    try:
+        for eta in RAIL_DAMPINGS:
+            fe.END_RAIL_DAMPING = eta
+            cache = tempfile.mkdtemp()  # the modal models' cache key does not hold it
+
+            def run(n_bays, cache=cache):
+                r = wf.sweep(wf.Flat.new(0.9e-3), speeds / 3.6, 5, contact="3d",
+                             track=wf.Track.comparison(n_bays=n_bays), config=cfg,
+                             progress=False, cache_dir=cache)
+                return np.asarray(r.min_force)[0], np.asarray(r.max_force)[0]
+
+            ref = run(70)
+            for n in (24, 30, 36):
+                lo, hi = run(n)
+                out[f"{eta:g} 1/s, {n} bays"] = {
+                    "min_force_kN": float(np.abs(lo - ref[0]).max() / 1e3),
+                    "max_force_pct": float(100 * np.abs(hi / ref[1] - 1).max())}
+                print(f"rail {eta:g} 1/s, {n} bays: {out[f'{eta:g} 1/s, {n} bays']}",
+                      flush=True)
+    finally:
+        fe.END_RAIL_DAMPING = kept
+    return out
+
+
 def receptance() -> dict:
     """Largest / outside-850-1050-Hz relative difference [%] from the infinite track."""
     out, band = {}, (FREQS < 850) | (FREQS > 1050)
@@ -112,16 +152,19 @@ def timing(rounds: int) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sections", default="grading,receptance,timing")
+    ap.add_argument("--sections", default="grading,rail,receptance,timing")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results"
                                          / "absorbing_ends.json"))
     a = ap.parse_args()
-    makers = {"grading": grading, "receptance": receptance,
+    makers = {"grading": grading, "rail": rail, "receptance": receptance,
               "timing": lambda: timing(a.rounds)}
-    result = {name: makers[name]() for name in a.sections.split(",")}
+    out = pathlib.Path(a.out)
+    result = json.loads(out.read_text()) if out.exists() else {}  # other sections kept
+    for name in a.sections.split(","):
+        result[name] = makers[name]()
+        out.write_text(json.dumps(result, indent=1))
     print(json.dumps(result, indent=1))
-    pathlib.Path(a.out).write_text(json.dumps(result, indent=1))
 
 
 if __name__ == "__main__":

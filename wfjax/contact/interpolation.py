@@ -59,24 +59,23 @@ def column_positions(phi, stretch):
     """The flat positions s [m] with :func:`column_coordinate` ``phi`` [m], any shape
     (bisection to rounding: phi >= |s| on the same side). numpy in, numpy out; jax.numpy
     for traced ``phi`` (a ``fori_loop``)."""
-    if isinstance(phi, jax.Array) or isinstance(stretch, jax.Array):
-        target = jnp.abs(phi)
+    traced = isinstance(phi, jax.Array) or isinstance(stretch, jax.Array)
+    xp = jnp if traced else np
+    target = xp.abs(xp.asarray(phi, dtype=float))
 
-        def halve(_, bounds):
-            lo, hi = bounds
-            mid = 0.5 * (lo + hi)
-            low = column_coordinate(mid, stretch) < target
-            return jnp.where(low, mid, lo), jnp.where(low, hi, mid)
-
-        lo, hi = jax.lax.fori_loop(0, 64, halve, (jnp.zeros_like(target), target))
-        return jnp.sign(phi) * 0.5 * (lo + hi)
-    phi = np.asarray(phi, dtype=float)
-    lo, hi = np.zeros_like(phi), np.abs(phi)
-    for _ in range(64):
+    def halve(_, bounds):
+        lo, hi = bounds
         mid = 0.5 * (lo + hi)
-        low = column_coordinate(mid, float(stretch)) < np.abs(phi)
-        lo, hi = np.where(low, mid, lo), np.where(low, hi, mid)
-    return np.sign(phi) * 0.5 * (lo + hi)
+        low = column_coordinate(mid, stretch) < target
+        return xp.where(low, mid, lo), xp.where(low, hi, mid)
+
+    bounds = (xp.zeros_like(target), target)
+    if traced:
+        bounds = jax.lax.fori_loop(0, 64, halve, bounds)
+    else:
+        for k in range(64):
+            bounds = halve(k, bounds)
+    return xp.sign(phi) * 0.5 * (bounds[0] + bounds[1])
 
 
 def pad_columns(table: ContactTable, n_s: int) -> ContactTable:
