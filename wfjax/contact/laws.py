@@ -152,10 +152,13 @@ class ParametricLaw(TableLaw):
 def parametric_law(family, depth, length) -> ParametricLaw:
     """:class:`ParametricLaw` of the flat (depth [m], length [m]; may be traced).
 
-    The family is evaluated at s_j = j h, |j| <= n (h the element size; n covers the family's
-    largest flat and contact), onsets included (at s_j the family's onset is the continuum
-    rigid onset there, as in the per-flat tables); beyond the range the end columns, the
-    smooth wheel, apply. Pure jnp: no contact problem is solved here.
+    The family is evaluated at the columns of a per-flat table, s_j with phi(s_j) = j h,
+    |j| <= n (h the element size, phi the family's column coordinate,
+    :func:`wfjax.contact.interpolation.column_coordinate`: s_j = j h for rounded flats,
+    crowded at a new flat's centre; n covers the family's largest flat and contact), onsets
+    included (at s_j the family's onset is the continuum rigid onset there, as in the
+    per-flat tables); beyond the range the end columns, the smooth wheel, apply. Pure jnp: no
+    contact problem is solved here.
     """
     from . import family as family_mod
 
@@ -164,13 +167,14 @@ def parametric_law(family, depth, length) -> ParametricLaw:
     half_hi = (spec.length_factor_range[1] * math.sqrt(8 * spec.wheel_radius * d_hi) / 2
                if spec.kind == "rounded" else math.sqrt(2 * spec.wheel_radius * d_hi))
     reach = half_hi + math.sqrt(2 * spec.wheel_radius * d_hi) + 4 * spec.element_size
-    n = math.ceil(reach / spec.element_size)
-    s_j = jnp.arange(-n, n + 1) * spec.element_size
+    n = math.ceil(interpolation.column_coordinate(reach, spec.stretch) / spec.element_size)
+    s_j = jnp.asarray(interpolation.column_positions(
+        np.arange(-n, n + 1) * spec.element_size, spec.stretch))
     columns = jax.vmap(lambda sj: family_mod.family_column(family, sj, depth, length))(s_j)
     table = interpolation.ContactTable(
         s_min=jnp.asarray(-n * spec.element_size), ds=jnp.asarray(spec.element_size),
         c_max=family.c_max, onset=columns.onset, force=columns.force, slope=columns.slope,
-        converged=family.converged, stretch=jnp.zeros_like(family.c_max))
+        converged=family.converged, stretch=jnp.full_like(family.c_max, spec.stretch))
     return ParametricLaw(table, depth, length)
 
 
