@@ -208,10 +208,9 @@ def assemble(track: Track) -> FEModel:
     m = scipy.sparse.coo_matrix((np.concatenate([mv, msl]),
                                  (np.concatenate([rows, sl]), np.concatenate([cols, sl]))),
                                 shape=shape).tocsc()
-    eta = end_rail_damping((e + 0.5) * le, n_el * le,
-                           (int(track.absorbing_sleepers) + 1) * p["sleeper_spacing"])
-    if not int(track.absorbing_sleepers):
-        eta = np.zeros(n_el)
+    n_abs = int(track.absorbing_sleepers)
+    eta = (end_rail_damping((e + 0.5) * le, n_el * le, (n_abs + 1) * p["sleeper_spacing"])
+           if n_abs else np.zeros(n_el))  # [n_el] 1/s
     cv = (np.repeat(eta, 16) * np.tile(me.ravel(), n_el))[ok]
     c = scipy.sparse.coo_matrix((np.concatenate([cs_v, cv]),
                                  (np.concatenate([s_rows, rows]), np.concatenate([s_cols, cols]))),
