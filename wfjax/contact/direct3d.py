@@ -83,9 +83,8 @@ class Direct3DLaw(TableLaw):
         with ``rough_x`` [nx] [m] (or None) taken off the gap along x'."""
         layout = self.layout
         n_s, n_t = self.window_index.shape
-        phi_max = float(interpolation.column_coordinate(layout.s_max, layout.stretch))
         phi = interpolation.column_coordinate(s, jnp.asarray(layout.stretch))
-        j = jnp.clip(jnp.round((phi + phi_max) / (2 * phi_max) * (n_s - 1)), 0,
+        j = jnp.clip(jnp.round((phi + layout.phi_max) / (2 * layout.phi_max) * (n_s - 1)), 0,
                      n_s - 1).astype(jnp.int32)
         c = delta + rough_eq - interpolation.table_onset(self.table, s)
         k = jnp.clip(jnp.ceil(jnp.sqrt(jnp.maximum(c, 0.0) / layout.c_max) * (n_t - 1)), 1,

@@ -13,7 +13,7 @@ import numpy as np
 from ..params import MAX_FLAT_DEPTH, Flat, Material
 from . import geometry3d
 from .interpolation import column_coordinate
-from .table_spec import NEW_FLAT_STRETCH
+from .table_spec import column_stretch
 
 _DEFAULT_MATERIAL = Material()
 
@@ -89,7 +89,7 @@ class FamilySpec(NamedTuple):
         centre_band, edge_band: band widths [m] of ``"edges"`` (0 for ``"scaled"``).
         stretch: L [m] of the nodes' column coordinate: the columns are uniform in
             :func:`wfjax.contact.interpolation.column_coordinate` of the node position, as
-            a per-flat table's (new flats: ``table_spec.NEW_FLAT_STRETCH``; 0: uniform in s).
+            a per-flat table's (:func:`wfjax.contact.table_spec.column_stretch`).
     """
 
     kind: str
@@ -281,7 +281,7 @@ def family_spec(kind: str, depths, length_factors=None, wheel_radius: float = 0.
                       length_index=length_index, grids=tuple(grids),
                       node_columns=tuple(columns), node_steps=tuple(steps),
                       onset=onset, s_map=s_map, centre_band=float(b0), edge_band=float(b1),
-                      stretch=NEW_FLAT_STRETCH if kind == "new" else 0.0)
+                      stretch=column_stretch(kind))
 
 
 def _depth_nodes(depths) -> tuple[int, ...]:
@@ -347,8 +347,8 @@ def _node_layout(kind: str, depth: float, lam: float, wheel_radius, rail_head_ra
     # the smooth wheel (as in table_spec.table_spec).
     reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
     step = max(1, round(ds * half / h)) if ds > 0 else 1
-    stretch = NEW_FLAT_STRETCH if kind == "new" else 0.0
-    return (len(x), len(y)), math.ceil(column_coordinate(reach, stretch) / (step * h)) + 1, step
+    n_cols = math.ceil(column_coordinate(reach, column_stretch(kind)) / (step * h)) + 1
+    return (len(x), len(y)), n_cols, step
 
 
 def _edge_bands(kind: str, nodes, wheel_radius, centre_band, edge_band) -> tuple[float, float]:

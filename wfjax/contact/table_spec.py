@@ -23,6 +23,12 @@ _DEFAULT_MATERIAL = Material()
 NEW_FLAT_STRETCH = 39.0 / (1.0 / CENTRE_INNER - 1.0 / CENTRE_OUTER)  # m (2 mm)
 
 
+def column_stretch(kind: str) -> float:
+    """The column coordinate's L [m] of a ``kind`` of flat's tables: NEW_FLAT_STRETCH for new
+    flats (the cusp at their centre), else 0 (columns uniform in s)."""
+    return NEW_FLAT_STRETCH if kind == "new" else 0.0
+
+
 class TableSpec(NamedTuple):
     """Static layout of a contact table (hashable; concrete numbers).
 
@@ -62,10 +68,16 @@ class TableSpec(NamedTuple):
         return (np.arange(self.ny) - (self.ny - 1) / 2) * self.element_size
 
     @property
+    def phi_max(self) -> float:
+        """The last column's :func:`~wfjax.contact.interpolation.column_coordinate` [m]
+        (``s_max`` when the columns are uniform in s)."""
+        return float(column_coordinate(self.s_max, self.stretch))
+
+    @property
     def s(self) -> np.ndarray:
         """[n_s] flat positions of the columns [m]."""
-        phi_max = column_coordinate(self.s_max, self.stretch)
-        return column_positions(np.linspace(-phi_max, phi_max, self.n_s), self.stretch)
+        return column_positions(np.linspace(-self.phi_max, self.phi_max, self.n_s),
+                                self.stretch)
 
 
 def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
@@ -105,7 +117,7 @@ def table_spec(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float =
     # Beyond |s| = half + sqrt(2 R_W c_max) the flat is outside the rigid overlap of every
     # tabulated compression, so the column equals the smooth wheel exactly.
     reach = half + math.sqrt(2 * float(wheel_radius) * c_max) + 2 * h
-    stretch = NEW_FLAT_STRETCH if flat.kind == "new" else 0.0
+    stretch = column_stretch(flat.kind)
     n_half = max(1, math.ceil(column_coordinate(reach, stretch) / ds))
     return TableSpec(nx=len(x), ny=len(y), element_size=h,
                      s_max=float(column_positions(n_half * ds, stretch)),

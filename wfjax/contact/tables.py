@@ -56,7 +56,7 @@ from .._parallel import core_pool
 from .._xla import to_device
 from ..params import Flat, Material
 from . import influence, kalker
-from .interpolation import ContactTable, column_coordinate
+from .interpolation import ContactTable
 from .table_spec import (
     TableSpec,
     array_module,
@@ -275,9 +275,8 @@ def _assemble(spec: TableSpec, onset, force, slope, ok) -> ContactTable:
             return xp.concatenate([a[:0:-1], a], axis=0)
 
         onset, force, slope = mirror(onset), mirror(force), mirror(slope)
-    phi_max = float(column_coordinate(spec.s_max, spec.stretch))
     return ContactTable(
-        s_min=xp.asarray(-phi_max), ds=xp.asarray(2 * phi_max / (spec.n_s - 1)),
+        s_min=xp.asarray(-spec.phi_max), ds=xp.asarray(2 * spec.phi_max / (spec.n_s - 1)),
         c_max=xp.asarray(spec.c_max), onset=onset, force=force, slope=slope,
         converged=xp.asarray(ok).astype(force.dtype), stretch=xp.asarray(spec.stretch))
 

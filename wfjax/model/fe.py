@@ -211,7 +211,7 @@ def assemble(track: Track) -> FEModel:
     n_abs = int(track.absorbing_sleepers)
     eta = (end_rail_damping((e + 0.5) * le, n_el * le, (n_abs + 1) * p["sleeper_spacing"])
            if n_abs else np.zeros(n_el))  # [n_el] 1/s
-    cv = (np.repeat(eta, 16) * np.tile(me.ravel(), n_el))[ok]
+    cv = np.repeat(eta, 16)[ok] * mv  # eta of each element times its mass entries
     c = scipy.sparse.coo_matrix((np.concatenate([cs_v, cv]),
                                  (np.concatenate([s_rows, rows]), np.concatenate([s_cols, cols]))),
                                 shape=shape).tocsc()
