@@ -289,3 +289,20 @@ def test_new_flat_table_follows_direct_solves_through_its_centre():
             f_dir = float(direct(spec, flat, float(o) + c, float(si)).force)
             f_tab = float(ip.table_force(tab, float(o) + c, float(si)))
             assert abs(f_tab - f_dir) <= 1e3 + 0.01 * f_dir, (si, c, f_tab, f_dir)
+
+
+def test_column_coordinate_inverse_and_derivative():
+    """column_positions inverts column_coordinate (numpy and traced), and phi'(s) = 1 +
+    L (1 / sqrt(a^2 + s^2) - 1 / sqrt(b^2 + s^2)) under jax.grad: 40 at s = 0 for a new flat."""
+    L, a, b = table_spec.NEW_FLAT_STRETCH, ip.CENTRE_INNER, ip.CENTRE_OUTER
+    s = np.array([-0.03, -2e-3, -1e-4, 0.0, 3e-5, 5e-4, 0.02])
+    phi = ip.column_coordinate(s, L)
+    np.testing.assert_allclose(ip.column_positions(phi, L), s, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(jax.jit(ip.column_positions)(jnp.asarray(phi),
+                                                                        jnp.asarray(L))),
+                               s, rtol=0, atol=1e-15)
+    slope = jax.vmap(jax.grad(lambda x: ip.column_coordinate(x, jnp.asarray(L))))(jnp.asarray(s))
+    np.testing.assert_allclose(np.asarray(slope), 1 + L * (1 / np.hypot(a, s) - 1 / np.hypot(b, s)),
+                               rtol=1e-12)
+    assert float(slope[3]) == pytest.approx(40.0)
+    assert table_spec.column_stretch("rounded") == 0.0
