@@ -9,9 +9,10 @@ Reference: 26 rail elements per bay, track modes to 20 kHz, time step 6.25 us an
 0.25 mm, 70 bays (45.5 m) with three absorbing sleepers at each end
 (``Track.absorbing_sleepers``; row "reference, clamped ends" without), contact element 1 mm.
 Each row changes the settings named in its label and keeps the rest of the reference, except
-the rows labelled "default", which are whole configurations: today's (and today's with
-clamped ends) and the one before 2026-12-03 ("old default"), and the row "wfjax detector",
-the ``wfjax detector`` command's defaults (``wfjax.case``).
+the rows labelled "default", which are whole configurations: today's (``SimConfig``'s auto
+settings, which a run resolves by what it reads: a detector's reading gets 20 kHz, 25 us,
+float64 and at least 36 bays, ``wfjax.params.READING_SETTINGS``; and the same with clamped
+ends) and the one before 2026-12-03 ("old default").
 
 Sets (R_R = 0.45 m, ``Track.comparison()``):
 
@@ -19,8 +20,9 @@ Sets (R_R = 0.45 m, ``Track.comparison()``):
   table), 20-300 km/h every 10 km/h, 5 impact positions per bay: max and min force, first
   loss-of-contact speed.
 - ``sharp``: new flats 0.9 mm at 120, 160 and 200 km/h, Hertz-trajectory, 10 impact
-  positions, with the seat forces of the bay's two sleepers and the 3-bay detector: max and
-  min force, max seat force, detector reading (largest bay).
+  positions, with the seat forces of the bay's two sleepers: max and min force, max seat
+  force; and the same runs with the 3-bay detector: its reading (largest bay; a detector
+  lengthens the track to ``guards.READING_BAYS``, so rows of shorter tracks read NaN).
 - receptances of the track model alone, 20 Hz - 2 kHz (40 log-spaced points): rail
   displacement (point at 0.3 m, transfer 0.3 -> 1.0 m) and rail shear (0.3 -> 1.0 m and
   0.3 -> -0.45 m), from the modal model with its static correction.
@@ -47,6 +49,7 @@ import numpy as np
 import wfjax as wf
 from wfjax.model import track as track_mod
 from wfjax.scenario import sensors as sensor_mod
+from wfjax.scenario.guards import READING_BAYS
 
 REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
        "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3, "precision": "float64",
@@ -54,13 +57,18 @@ REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6
 OLD = {"elements_per_bay": 8, "track_max_frequency": 10e3, "time_step": 25e-6,
        "travel_step": 1e-3, "n_bays": 70, "absorbing_sleepers": 0}  # before 2026-12-03
 NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
-       "precision": "auto", "time_step": 40e-6, "absorbing_sleepers": 3}  # today's: float32
-# forward runs and 40 us since 2026-12-04, absorbing ends since the evening
+       "precision": "float32", "time_step": 40e-6, "absorbing_sleepers": 3}  # today's force
+# settings: float32 forward runs and 40 us since 2026-12-04, absorbing ends since the evening
+# the package's defaults: SimConfig's auto settings, which a run resolves by what it reads
+# (the force's above; a detector's reading 20 kHz, 25 us, float64 on at least 36 bays)
+DEFAULT = {**NEW, "track_max_frequency": "auto", "time_step": "auto", "precision": "auto"}
 ROWS = {  # label -> changes to REF
     "reference": {},
     "reference, clamped ends": {"absorbing_sleepers": 0},
-    "default (26 el., 15 kHz, 40 us / 1 mm, 24 bays, float32)": NEW,
-    "default, clamped ends": {**NEW, "absorbing_sleepers": 0},
+    "default (26 el., 24 bays; 15 kHz, 40 us / 1 mm, float32; reading: 20 kHz, 25 us, "
+    "float64, 36 bays)": DEFAULT,
+    "default, clamped ends": {**DEFAULT, "absorbing_sleepers": 0},
+    "26 el., 15 kHz, 40 us / 1 mm, 24 bays, float32": NEW,
     "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float32": {**NEW, "time_step": 25e-6},
     "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float64": {**NEW, "time_step": 25e-6,
                                                        "precision": "float64"},
@@ -97,8 +105,8 @@ ROWS = {  # label -> changes to REF
     "26 el., 15 kHz, 65 us / 1 mm, 24 bays": {**NEW, "time_step": 65e-6},
     "26 el., 15 kHz, 50 us / 1.5 mm, 24 bays": {**NEW, "time_step": 50e-6,
                                                 "travel_step": 1.5e-3},
-    # runs with a detector: the reading needs a longer track, higher modes, a finer step
-    "wfjax detector (26 el., 20 kHz, 25 us / 1 mm, 36 bays, float64)": {
+    # the reading needs a longer track, higher modes, a finer step: a detector's settings
+    "26 el., 20 kHz, 25 us / 1 mm, 36 bays, float64": {
         **NEW, "track_max_frequency": 20e3, "time_step": 25e-6, "n_bays": 36,
         "precision": "float64"},
     "26 el., 20 kHz, 25 us / 1 mm, 60 bays, float64": {
@@ -134,11 +142,12 @@ def settings(label: str) -> dict:
 
 
 def model_inputs(s: dict):
-    """(Track, SimConfig) of the settings ``s``."""
+    """(Track, SimConfig) of the settings ``s`` (``"auto"``: SimConfig's auto setting)."""
     track = wf.Track.comparison(elements_per_bay=s["elements_per_bay"], n_bays=s["n_bays"],
                                 absorbing_sleepers=s["absorbing_sleepers"])
-    config = wf.SimConfig(max_time_step=s["time_step"], max_travel_step=s["travel_step"],
-                          track_max_frequency=s["track_max_frequency"],
+    auto = {k: None if s[k] == "auto" else s[k] for k in ("time_step", "track_max_frequency")}
+    config = wf.SimConfig(max_time_step=auto["time_step"], max_travel_step=s["travel_step"],
+                          track_max_frequency=auto["track_max_frequency"],
                           contact_element=s.get("contact_element", 1e-3),
                           precision=s.get("precision", "float64"),
                           allow_inaccurate=True)  # the table measures what the guards refuse
@@ -158,23 +167,33 @@ def run_fig7(s: dict, quick: bool) -> dict:
 
 
 def run_sharp(s: dict, quick: bool) -> dict:
-    """Max/min force, max seat force and detector reading [N], [n_speeds, n_positions]."""
+    """Max/min force, max seat force and detector reading [N], [n_speeds, n_positions].
+
+    The forces and seat forces come from runs without a detector, the reading from the same
+    runs with one, whose track is at least ``guards.READING_BAYS`` long and whose auto
+    settings are the reading's: a row whose track is shorter reads NaN (it cannot carry a
+    detector), except a row of auto settings (the package's defaults)."""
     track, config = model_inputs(s)
     speeds = np.array([120.0, 200.0] if quick else [120.0, 160.0, 200.0])
-    r = wf.sweep(wf.Flat.new(0.9e-3), speeds / 3.6, 4 if quick else 10,
-                 contact="hertz-trajectory", track=track, config=config, progress=False,
-                 sensors=SEAT_SENSORS, sensor_quantities=("seat_force",),
-                 detector=wf.Detector())
+    kw = dict(contact="hertz-trajectory", track=track, config=config, progress=False)
+    flat, positions = wf.Flat.new(0.9e-3), 4 if quick else 10
+    r = wf.sweep(flat, speeds / 3.6, positions, sensors=SEAT_SENSORS,
+                 sensor_quantities=("seat_force",), **kw)
     seat = np.asarray(r.sensor_max)[0, :, :, 0, :].max(axis=-1)
-    return {"speeds_kmh": speeds.tolist(), "max_force": np.asarray(r.max_force)[0].tolist(),
-            "min_force": np.asarray(r.min_force)[0].tolist(), "seat_force": seat.tolist(),
-            "reading": np.asarray(r.detector_peak)[0].max(axis=-1).tolist()}
+    out = {"speeds_kmh": speeds.tolist(), "max_force": np.asarray(r.max_force)[0].tolist(),
+           "min_force": np.asarray(r.min_force)[0].tolist(), "seat_force": seat.tolist()}
+    if s["n_bays"] < READING_BAYS and s["track_max_frequency"] != "auto":
+        out["reading"] = np.full(np.shape(seat), np.nan).tolist()
+    else:
+        d = wf.sweep(flat, speeds / 3.6, positions, detector=wf.Detector(), **kw)
+        out["reading"] = np.asarray(d.detector_peak)[0].max(axis=-1).tolist()
+    return out
 
 
 def run_receptances(s: dict) -> dict:
     """Complex receptances [n_f] as [re, im] lists: displacement [m/N], shear [N/N]."""
-    track, _ = model_inputs(s)
-    model = track_mod.modal_model(track, max_frequency=s["track_max_frequency"])
+    track, config = model_inputs(s)
+    model = track_mod.modal_model(track, max_frequency=config.resolved().track_max_frequency)
     out = {}
     for name, (quantity, xf, xr) in RECEPTANCES.items():
         try:

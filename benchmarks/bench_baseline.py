@@ -82,7 +82,8 @@ def simulate_numpy(c_h, s_grid, drop, poles_r, weights, phi, res, poles_w, resid
 
 def baseline_sweep(flat, speeds, positions):
     """(max force, min force) [n_speeds, n_positions] [N] with the NumPy/SciPy loop."""
-    wheel, track, material, config = wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig()
+    wheel, track, material = wf.Wheel(), wf.Track(), wf.Material()
+    config = wf.SimConfig().resolved()
     model = T.modal_model(track, max_frequency=config.track_max_frequency)
     wm = W.modal_model(wheel)
     law = laws.prepare("hertz-trajectory", flat, wheel, track, material, config)

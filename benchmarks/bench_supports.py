@@ -32,7 +32,8 @@ def timed(fn) -> tuple[float, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--max-frequency", type=float, default=wfjax.SimConfig().track_max_frequency)
+    ap.add_argument("--max-frequency", type=float,
+                    default=wfjax.SimConfig().resolved().track_max_frequency)
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     base = wfjax.Track()

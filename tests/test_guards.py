@@ -4,6 +4,7 @@ defaults pass with margin, a refusal is one line before any work, and the expert
 warns and lands in the provenance."""
 
 import dataclasses
+import itertools
 import json
 import time
 import warnings
@@ -34,10 +35,12 @@ def _findings(contact="3d", speeds=SPEEDS, **changes):
 
 
 def test_defaults_pass_with_margin():
-    """Every default setting is at most 0.8 of its bound, for both rail-head radii, at every
-    speed up to 300 km/h and for every contact model."""
-    cfg, margin = wf.SimConfig(), 0.8
-    for track in (wf.Track(), wf.Track.comparison()):
+    """Every default setting, the force's and a detector's reading's, is at most 0.8 of its
+    bound, for both rail-head radii, at every speed up to 300 km/h and for every contact
+    model."""
+    margin = 0.8
+    for cfg, track in itertools.product((wf.SimConfig().resolved(reading=r) for r in (False, True)),
+                                        (wf.Track(), wf.Track.comparison())):
         sc = _scales(track)
         for v in SPEEDS:
             assert cfg.time_step_for(v) <= margin * G.STEP_FACTOR / sc.wheel_frequency

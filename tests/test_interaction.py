@@ -197,7 +197,8 @@ def test_contact_element_convergence_3d():
 
 
 def test_loop_mode_shapes_equal_track_interpolation():
-    model = wf.track.modal_model(wf.Track(), max_frequency=wf.SimConfig().track_max_frequency)
+    model = wf.track.modal_model(wf.Track(),
+                                 max_frequency=wf.SimConfig().resolved().track_max_frequency)
     node_major = node_major_shapes(model)
     for x in (-0.9, -0.0001, 0.0, 0.123, 0.325, 1.7):
         phi, res = rail_terms(model, node_major, x)

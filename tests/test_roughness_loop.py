@@ -230,8 +230,8 @@ def test_support_realisations_share_one_compile_and_equal_a_loop():
     base = wf.Track(n_bays=20)
     tracks = [supports.scatter(base, key=k, cv=0.3) for k in range(3)]
     models = padded_models(tracks, wf.SimConfig())
-    counts = [int(wf.track.modal_model(t, max_frequency=wf.SimConfig().track_max_frequency)
-                  .poles.shape[0]) for t in tracks]
+    f_max = wf.SimConfig().resolved().track_max_frequency
+    counts = [int(wf.track.modal_model(t, max_frequency=f_max).poles.shape[0]) for t in tracks]
     assert models.poles.shape[:2] == (3, max(counts))
     rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 5, 4.0, x_start=-2.0,
                                n_realisations=3)

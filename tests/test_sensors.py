@@ -17,7 +17,9 @@ from wfjax.loop.structure import structure
 from wfjax.model import fe as fe_mod
 from wfjax.model import track as T
 from wfjax.model.vehicle import Vehicle
+from wfjax.scenario import guards as G
 from wfjax.scenario import sensors as S
+from wfjax.scenario.description import Scenario
 
 P = 118e3
 LS = 0.65
@@ -148,12 +150,56 @@ def test_detector_reads_static_load_at_low_speed():
     np.testing.assert_allclose(np.asarray(r.detector_ratio), 1.0, atol=0.02)
     outside = (x < a[1] - 0.1) | (x > b[1] + 0.1)
     assert np.max(np.abs(load[outside, 1])) < 0.1 * P  # no wheel between: no load read
-    # detector estimate = difference of the sensors' shear histories at the same bridges
+    # detector estimate = difference of the sensors' shear histories at the same bridges, on
+    # the track and settings the detector gets (guards.READING_BAYS, the reading's auto ones)
+    track = wfjax.Track(n_bays=G.READING_BAYS)
     r2 = wfjax.simulate(wfjax.Flat.none(), 5.0, contact="hertz-trajectory",
-                        impact_position=0.3, sensors=[a[1], b[1]],
-                        config=wfjax.scenario.windows.detector_config(det, wfjax.Track(), f64))
+                        impact_position=0.3, sensors=[a[1], b[1]], track=track,
+                        config=wfjax.scenario.windows.detector_config(
+                            det, track, f64.resolved(reading=True)))
     shear = np.asarray(r2.sensors["shear"])
     np.testing.assert_allclose(shear[:, 0] - shear[:, 1], load[:, 1], rtol=1e-9, atol=1e-6)
+
+
+def test_a_detector_gets_the_readings_settings_and_track():
+    """A scenario with a Detector resolves SimConfig's auto settings to the reading's
+    (params.READING_SETTINGS) on at least guards.READING_BAYS bays; without one, to the
+    force's on the track as given; settings the user gave stay."""
+    flat = wfjax.Flat.new(0.9e-3)
+    read = Scenario.of(flat, "hertz-trajectory", detector=S.Detector())
+    assert dataclasses.replace(read.config, run_in=0.2, run_out=0.2) \
+        == wfjax.SimConfig().resolved(reading=True)
+    assert (read.config.track_max_frequency, read.config.max_time_step,
+            read.config.precision) == (20e3, 25e-6, "float64")
+    assert int(read.track.n_bays) == G.READING_BAYS
+    plain = Scenario.of(flat, "hertz-trajectory")
+    assert plain.config == wfjax.SimConfig().resolved()
+    assert (plain.config.track_max_frequency, plain.config.max_time_step) == (15e3, 40e-6)
+    assert plain.track == wfjax.Track()
+    given = Scenario.of(flat, "hertz-trajectory", detector=S.Detector(),
+                        config=wfjax.SimConfig(track_max_frequency=12e3, precision="float32"))
+    assert (given.config.track_max_frequency, given.config.max_time_step,
+            given.config.precision) == (12e3, 25e-6, "float32")
+
+
+@pytest.mark.slow
+def test_default_detector_reading_within_half_a_percent_of_the_reference():
+    """The package's defaults with a Detector (the reading's auto settings, 36 bays) read a new
+    0.9 mm flat at 120 km/h within 0.5 % of the converged reference (26 el./bay, 20 kHz,
+    6.25 us / 0.25 mm, 70 bays, float64: docs/convergence.md, issue 33's target) at every
+    impact position; the force's settings alone (15 kHz, 40 us, float32, 24 bays, the
+    detector's track held by sensors-only lengthening) were 1.2 % off."""
+    flat, v = wfjax.Flat.new(0.9e-3), 120 / 3.6
+    kw = dict(contact="hertz-trajectory", detector=S.Detector(), progress=False)
+    default = wfjax.sweep(flat, [v], 10, track=wfjax.Track.comparison(), **kw)
+    ref = wfjax.sweep(flat, [v], 10, track=wfjax.Track.comparison(n_bays=70),
+                      config=wfjax.SimConfig(max_time_step=6.25e-6, max_travel_step=0.25e-3,
+                                             track_max_frequency=20e3, precision="float64"),
+                      **kw)
+    a = np.asarray(default.detector_peak)[0].max(axis=-1)
+    b = np.asarray(ref.detector_peak)[0].max(axis=-1)
+    err = np.abs(a / b - 1)
+    assert err.max() < 5e-3, err
 
 
 def test_detector_peak_gradient_matches_finite_differences():

@@ -99,7 +99,7 @@ def _direct_static(track, positions, loads):
 
 def test_static_deflections_under_several_wheels_superpose_the_direct_solves():
     # three wheels of different loads; the reference wheel on a point of the residual table
-    track, config = wf.Track(), wf.SimConfig()
+    track, config = wf.Track(), wf.SimConfig().resolved()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3, 140e3)]
     vehicle = Vehicle((0.0, 1.6, 4.1))
     struct = structure(vehicle, wheels, track, config)
@@ -140,7 +140,8 @@ def test_static_deflections_under_several_wheels_on_varying_supports(name):
 
 def test_cross_table_along_a_varying_track_equals_the_direct_mode_sum():
     track = VARYING_TRACKS["void right of x = 0"]()
-    model = track_mod.modal_model(track, max_frequency=wf.SimConfig().track_max_frequency)
+    model = track_mod.modal_model(track,
+                                  max_frequency=wf.SimConfig().resolved().track_max_frequency)
     offsets = jnp.asarray(Vehicle.bogie().offsets())
     weight = model.weights * jnp.exp(model.poles * 2e-5)  # any per-mode weight
 
@@ -158,7 +159,7 @@ def test_cross_table_along_a_varying_track_equals_the_direct_mode_sum():
 
 
 def test_residual_pairs_are_symmetric_and_leave_the_diagonal_to_the_tracks_table():
-    track, config = wf.Track(), wf.SimConfig()
+    track, config = wf.Track(), wf.SimConfig().resolved()
     model = track_mod.modal_model(track, max_frequency=config.track_max_frequency)
     pairs = residual_pairs(track, model, np.array([0.0, -2.5]))
     np.testing.assert_allclose(pairs, np.swapaxes(pairs, 1, 2), rtol=1e-10, atol=1e-22)

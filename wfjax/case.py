@@ -188,11 +188,7 @@ def default_layer(command: str) -> dict:
     if command == "detector":  # sensors/Detector defaults (a 3-bay crib detector)
         layer.update({"run.speeds_kmh": "20:200:20", "run.impact_positions": 5,
                       "run.sensors": [0.0, 0.325], "detector.n_bays": 3, "detector.first_bay": -1,
-                      "detector.gauge_offset": 0.1, "detector.calibration": 1.0,
-                      # the reading within 0.5 % needs 20 kHz, 25 us, float64 and 36 bays
-                      # (package defaults: 1.2 %; docs/convergence.md, "The detector reading")
-                      "config.track_max_frequency": 20e3, "config.max_time_step": 25e-6,
-                      "config.precision": "float64", "track.n_bays": 36})
+                      "detector.gauge_offset": 0.1, "detector.calibration": 1.0})
     if command == "fit":  # fit_flat's defaults: the comparison track (R_R = 0.45 m)
         layer.update({"run.contact": "hertz-trajectory", "run.impact_positions": 3,
                       "run.impact_position": 0.0, "flat.depth": 1.2e-3, "flat.length": 0.13,

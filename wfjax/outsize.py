@@ -24,7 +24,7 @@ FIGURES_BYTES = 2_000_000  # the PNG figures and the JSON summary of one run, at
 def n_steps(flat, speed: float, config) -> int:
     """Time steps of one run of ``flat`` at ``speed`` [m/s] under ``config``."""
     s0, s1 = simulation_window(flat, speed, config)
-    dt = config.time_step or min(config.max_time_step, config.max_travel_step / speed)
+    dt = config.time_step_for(speed)
     return int(math.ceil((s1 - s0) / (speed * dt))) + 1
 
 

@@ -31,7 +31,7 @@ from .fields import (
 )
 
 __all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT_KINDS",
-           "SUPPORT_FIELDS", "loop_precision"]
+           "SUPPORT_FIELDS", "loop_precision", "FORCE_SETTINGS", "READING_SETTINGS"]
 
 MAX_FLAT_DEPTH = 5e-3  # m; deeper "flats" are outside the model's validity (half-space, Eq. 1)
 MAX_FLAT_LENGTH = 0.3  # m; about a tenth of a 0.45 m wheel's circumference
@@ -40,6 +40,12 @@ CONTACT_MODES_3D = ("auto", "table", "parametric", "direct")
 PRECISIONS = ("auto", "float64", "float32")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
 MAX_SPEED = 150.0  # m/s (540 km/h): the speed range of every entry point, (0, MAX_SPEED]
+# SimConfig's auto settings: the least cost that keeps the contact force, the seat force and,
+# where a Detector is read, its reading within 0.5 % of the converged reference (issue 33's
+# accuracy table, docs/convergence.md; a reading needs the rail's shear: higher modes, a finer
+# step and float64, and a track of at least guards.READING_BAYS bays)
+FORCE_SETTINGS = {"track_max_frequency": 15e3, "max_time_step": 40e-6}
+READING_SETTINGS = {"track_max_frequency": 20e3, "max_time_step": 25e-6, "precision": "float64"}
 
 
 def loop_precision(precision: str, gradients: bool = False, direct: bool = False) -> str:
@@ -180,7 +186,9 @@ class Track(Validated):
         n_bays (static): the least number of sleeper bays of the finite model. A scenario
             lengthens a track whose supports are scalars to what its wheels' paths, sensors
             and detector need, with the physics guards' margins from the clamped ends
-            (:meth:`wfjax.Scenario.lengthened`); per-sleeper supports fix the length.
+            (:meth:`wfjax.Scenario.lengthened`), and a detector's to at least
+            :data:`wfjax.scenario.guards.READING_BAYS` (36: its reading within 0.5 %);
+            per-sleeper supports fix the length.
         elements_per_bay (static): rail beam elements per sleeper bay.
         absorbing_sleepers (static): the last n sleepers at each end, whose pad and ballast
             damping grow geometrically to 8 times the track's at the outermost
@@ -229,7 +237,8 @@ class Track(Validated):
                                   "sleeper: supports.void_gap)")
     n_bays: int = option(24, low=4, high=1000,
                          doc="least number of sleeper bays of the finite track model "
-                             "(lengthened to what the case's wheels and sensors need)")
+                             "(lengthened to what the case's wheels and sensors need; "
+                             "a detector's to 36)")
     elements_per_bay: int = option(26, low=1, high=64, doc="rail beam elements per sleeper bay",
                                    flag="--elements-per-bay", flag_commands=("receptance",))
     absorbing_sleepers: int = option(3, low=0, high=40,
@@ -480,9 +489,11 @@ class SimConfig:
 
     Attributes:
         time_step: time step [s]; ``None`` picks ``min(max_time_step, max_travel_step / v)``.
-        max_time_step: upper bound of the automatic time step [s] (40 us: the longest step
-            whose max forces stay within 0.5 % of the converged reference, 0.37 % on the
-            Fig. 7 set; docs/convergence.md, issue 33).
+        max_time_step: upper bound of the automatic time step [s]; ``None`` (auto): 40 us
+            (:data:`FORCE_SETTINGS`: the longest step whose max forces stay within 0.5 % of
+            the converged reference, 0.37 % on the Fig. 7 set), 25 us where a
+            :class:`~wfjax.Detector` is read (:data:`READING_SETTINGS`; docs/convergence.md,
+            issue 33). :meth:`resolved` gives the number.
         max_travel_step: upper bound of the distance travelled per step [m] (1 mm). Measured
             (Hertz-trajectory, 0.9 mm flats, 60 and 250 km/h): max force changes by <= 0.3 %
             from 1 mm to 0.25 mm, and by < 1 % on halving the step (tests).
@@ -497,21 +508,24 @@ class SimConfig:
             the table for a single flat of a kind, the family for a batch of geometries of
             one kind and for fits).
         track_max_frequency: modes of the track model above this frequency [Hz] are replaced
-            by their static contribution (15 kHz: 326 modes on the default 24-bay track of 26
-            elements per bay; max force within 0.16 % of the reference, docs/convergence.md).
-            Every setting here is checked against the case by the physics guards
-            (:mod:`wfjax.scenario.guards`).
+            by their static contribution; ``None`` (auto): 15 kHz (326 modes on the default
+            24-bay track of 26 elements per bay; max force within 0.16 % of the reference),
+            20 kHz where a :class:`~wfjax.Detector` is read (its reading, the rail's shear,
+            needs the higher modes; docs/convergence.md). Every setting here is checked
+            against the case by the physics guards (:mod:`wfjax.scenario.guards`).
         newton_iterations: fixed iteration count of the per-step contact equation.
         precision: ``"auto"`` (default), ``"float64"`` or ``"float32"``: the dtype of the
             time loop (modal propagation, contact law, per-step Newton solve; complex64
             modes). ``"auto"`` is float32 for forward runs of point contact laws (simulate,
-            sweep, detector, Monte Carlo: 0.58-0.65x the float64 time of the default sweep on
+            sweep, Monte Carlo: 0.58-0.65x the float64 time of the default sweep on
             a CPU; on an H200 GPU 0.61x on large batches, 0.75-0.86x on 580-run sweeps) and
-            float64 where gradients are taken (a fit's program, the adjoint) and
-            for the ``"direct"`` 3D contact, whose Kalker solves converge to 1e-10, below
-            float32's resolution (:func:`loop_precision`). The setup stays float64 either
-            way (track modes, 3D tables and families, trajectory grids, the per-step
-            propagation coefficients exp(pole dt)), and so does the process
+            float64 where gradients are taken (a fit's program, the adjoint), where a
+            :class:`~wfjax.Detector` is read (float32 moves its reading by up to 0.4 %;
+            :data:`READING_SETTINGS`) and for the ``"direct"`` 3D contact, whose Kalker
+            solves converge to 1e-10, below float32's resolution (:func:`loop_precision`).
+            The setup stays float64 either way (track modes, 3D tables and families,
+            trajectory grids, the per-step propagation coefficients exp(pole dt)), and so
+            does the process
             (``jax_enable_x64``). Measured against float64: max force within 2.0e-4
             (Fig. 7) and 1.3e-4 (Fig. 8) relative, loss-of-contact speeds unchanged, 2000
             times inside the model's 0.5 % accuracy (benchmarks/README.md, "Precision";
@@ -526,8 +540,10 @@ class SimConfig:
     time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
                                      doc="time step; auto: min(max_time_step, "
                                          "max_travel_step / v)")
-    max_time_step: float = option(4e-5, unit="s", low=0.0, high=1e-3, low_open=True,
-                                  positive=True, doc="upper bound of the automatic time step")
+    max_time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
+                                         positive=True,
+                                         doc="upper bound of the automatic time step; auto: "
+                                             "40 us, 25 us where a detector is read")
     max_travel_step: float = option(1e-3, unit="m", low=0.0, high=1e-2, low_open=True,
                                     positive=True,
                                     doc="upper bound of the travel per time step")
@@ -539,14 +555,17 @@ class SimConfig:
                                     doc="side of the 3D/2D contact elements")
     contact_mode_3d: str = option("auto", choices=CONTACT_MODES_3D,
                                   doc="how the 3D contact law is evaluated")
-    track_max_frequency: float = option(15e3, unit="Hz", low=100.0, high=1e6, positive=True,
-                                        doc="track modes above this enter statically")
+    track_max_frequency: float | None = option(
+        None, unit="Hz", low=100.0, high=1e6, positive=True,
+        doc="track modes above this enter statically; auto: 15 kHz, 20 kHz where a detector "
+            "is read")
     newton_iterations: int = option(30, low=1, high=1000,
                                     doc="iterations of the per-step contact equation")
     precision: str = option("auto", choices=PRECISIONS, flag="--precision",
                             flag_commands=("sweep", "simulate", "fit", "detector"),
                             doc="dtype of the time loop (auto: float32 forward, float64 for "
-                                "gradients and direct 3D); setup stays float64 "
+                                "gradients, detector readings and direct 3D); setup stays "
+                                "float64 "
                                 "(environment: WFJAX_PRECISION)")
     allow_inaccurate: bool = option(False, flag="--allow-inaccurate",
                                     flag_commands=("sweep", "simulate", "fit", "detector"),
@@ -555,10 +574,9 @@ class SimConfig:
                                         "(docs/convergence.md)")
 
     def __post_init__(self):
-        for name, unit in positive_fields(self).items():
-            check_positive("SimConfig", name, getattr(self, name), unit)
-        if self.time_step is not None:
-            check_positive("SimConfig", "time_step", self.time_step, "s")
+        for name, unit in {"time_step": "s", **positive_fields(self)}.items():
+            if getattr(self, name) is not None:  # None: auto
+                check_positive("SimConfig", name, getattr(self, name), unit)
         for name in ("run_in", "run_out"):
             v = getattr(self, name)
             check_finite("SimConfig", name, v)
@@ -584,8 +602,19 @@ class SimConfig:
                 f"SimConfig.newton_iterations must be >= 1, got {self.newton_iterations!r}"
             )
 
+    def resolved(self, reading: bool = False) -> SimConfig:
+        """This config with every auto setting (``None``; ``precision="auto"`` where a reading
+        fixes it) given its number: :data:`READING_SETTINGS` where ``reading`` (a
+        :class:`~wfjax.Detector` is read), else :data:`FORCE_SETTINGS`. Settings given stay."""
+        defaults = READING_SETTINGS if reading else FORCE_SETTINGS
+        given = {k: v for k, v in defaults.items()
+                 if getattr(self, k) in (None, "auto")}
+        return dataclasses.replace(self, **given) if given else self
+
     def time_step_for(self, speed: float) -> float:
-        """Time step [s] used at ``speed`` [m/s]."""
+        """Time step [s] used at ``speed`` [m/s] (an auto step cap: :data:`FORCE_SETTINGS`'s,
+        unless :meth:`resolved` gave it)."""
         if self.time_step is not None:
             return float(self.time_step)
-        return float(min(self.max_time_step, self.max_travel_step / speed))
+        cap = self.resolved().max_time_step
+        return float(min(cap, self.max_travel_step / speed))

@@ -54,16 +54,13 @@ N_OFFSETS = 16  # impact positions per bay in the table (40.6 mm apart at L_S = 
 # the length): the defaults before 2026-12-03. Moving it to today's defaults (26 el./bay,
 # lengthened) rebuilds every table and needs the validation study run again.
 TRACK = Track(n_bays=70, elements_per_bay=8)
-STEP = 25e-6  # s: the time step cap its study ran at (SimConfig's default then)
 
 
 def identification_config(config: SimConfig | None = None) -> SimConfig:
-    """``config`` (default: :class:`SimConfig` with the time step cap :data:`STEP` and a float64
-    loop, as its study ran) with the
-    track modes to 20 kHz, as ``wfjax detector`` (the crib shear converges at 15 kHz and
-    above, docs/convergence.md)."""
-    return dataclasses.replace(config or SimConfig(max_time_step=STEP, precision="float64"),
-                               track_max_frequency=20e3)
+    """``config`` (default :class:`SimConfig`) with its auto settings resolved for a detector's
+    reading (:data:`wfjax.params.READING_SETTINGS`: modes to 20 kHz, a 25 us step cap and a
+    float64 loop, as the identification's study ran and ``wfjax detector`` runs)."""
+    return (config or SimConfig()).resolved(reading=True)
 
 
 def flat_of(kind: str, length, length_factor: float, wheel_radius: float,

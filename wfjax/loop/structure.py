@@ -49,8 +49,9 @@ def structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
     """:class:`Structure` of a :class:`wfjax.model.vehicle.Vehicle` (one wheel:
     ``Vehicle.single()``) with wheel models ``wheels`` ([n] :class:`Wheel`), placed on the
     track by :func:`wfjax.model.vehicle.placement`; the track's modal model is cached on disk in
-    ``cache_dir``."""
-    model = track_mod.modal_model(track, max_frequency=config.track_max_frequency,
+    ``cache_dir``; ``config``'s auto mode cut-off is the force's unless resolved
+    (:meth:`SimConfig.resolved`)."""
+    model = track_mod.modal_model(track, max_frequency=config.resolved().track_max_frequency,
                                   cache_dir=cache_dir)
     ws = vehicle_mod.wheel_set(wheels)
     offsets = vehicle.offsets()

@@ -161,7 +161,7 @@ def padded_models(tracks, config: SimConfig, cache_dir=None):
     """
     from ..model import track as track_mod
 
-    models = [track_mod.modal_model(tr, max_frequency=config.track_max_frequency,
+    models = [track_mod.modal_model(tr, max_frequency=config.resolved().track_max_frequency,
                                     cache_dir=cache_dir) for tr in tracks]
     first = models[0]
     for i, m in enumerate(models):

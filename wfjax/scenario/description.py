@@ -113,7 +113,8 @@ class Scenario:
         """
         registry.check(contact)
         wheel, track = wheel or Wheel(), track or Track()
-        material, config = material or Material(), config or SimConfig()
+        material = material or Material()
+        config = (config or SimConfig()).resolved(reading=detector is not None)
         flat_list = (flats,) if isinstance(flats, Flat) else tuple(flats)
         if not flat_list:
             raise ValueError("flats must contain at least one Flat")

@@ -40,6 +40,8 @@ MESH_FACTOR = 3.0  # rail elements per bending wavelength at the highest kept mo
 ELEMENT_FACTOR = 0.15  # contact element / 2a
 END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
 SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
+READING_BAYS = 36  # a Detector's least track: its reading within 0.5 % of the 70-bay
+# reference's with params.READING_SETTINGS (0.45 %; 0.93 % on 24 bays; docs/convergence.md)
 RECEPTANCE_BAYS = 140  # direct point receptances within 0.5 % of an 800-bay track's, 20 Hz -
 # 2 kHz outside the pinned-pinned band 900-990 Hz, where no finite track converges pointwise
 # (benchmarks/receptance_length.py)
@@ -104,8 +106,11 @@ def at_least(track: Track, half: float) -> Track:
 def holding_instruments(track: Track, sensors, detector=None) -> Track:
     """``track`` lengthened (scalar supports only) so that every sensor [m] and bridge of
     ``detector`` (a :class:`wfjax.scenario.sensors.Detector`) keeps :func:`sensor_margin`
-    from the clamped ends; non-finite positions are left to the sensors' own check."""
+    from the clamped ends, and to at least :data:`READING_BAYS` bays with a detector;
+    non-finite positions are left to the sensors' own check."""
     x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
+    if detector is not None and extendable(track) and int(track.n_bays) < READING_BAYS:
+        track = dataclasses.replace(track, n_bays=READING_BAYS)
     if detector is not None:
         a, b = detector.gauges(float(track.sleeper_spacing))
         x += [float(a[0]), float(b[-1])]
@@ -160,8 +165,9 @@ def sensor_margin(track: Track) -> float:
 
 def step_findings(config: SimConfig, speeds, sc: Scales) -> list[str]:
     """One line for the worst speed whose time step exceeds ``STEP_FACTOR / f_W`` or whose
-    travel per step exceeds ``TRAVEL_FACTOR`` 2a."""
-    worst = None
+    travel per step exceeds ``TRAVEL_FACTOR`` 2a (auto settings: the force's, unless
+    ``config`` is resolved)."""
+    config, worst = config.resolved(), None
     for v in np.atleast_1d(np.asarray(speeds, dtype=float)):
         v = float(v)
         dt = config.time_step_for(v)
@@ -187,8 +193,9 @@ def step_findings(config: SimConfig, speeds, sc: Scales) -> list[str]:
 
 def track_findings(track: Track, config: SimConfig, sc: Scales) -> list[str]:
     """Lines for a mode cut-off below ``MODES_FACTOR f_W`` and a rail mesh coarser than
-    ``MESH_FACTOR`` elements per bending wavelength at the cut-off."""
-    out = []
+    ``MESH_FACTOR`` elements per bending wavelength at the cut-off (auto settings: the
+    force's, unless ``config`` is resolved)."""
+    config, out = config.resolved(), []
     f_min = MODES_FACTOR * sc.wheel_frequency
     if config.track_max_frequency < f_min:
         out.append(f"config.track_max_frequency = {config.track_max_frequency:g} Hz is below "
