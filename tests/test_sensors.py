@@ -187,8 +187,8 @@ def test_default_detector_reading_within_half_a_percent_of_the_reference():
     """The package's defaults with a Detector (the reading's auto settings, 36 bays) read a new
     0.9 mm flat at 120 km/h within 0.5 % of the converged reference (26 el./bay, 20 kHz,
     6.25 us / 0.25 mm, 70 bays, float64: docs/convergence.md, issue 33's target) at every
-    impact position; the force's settings alone (15 kHz, 40 us, float32, 24 bays, the
-    detector's track held by sensors-only lengthening) were 1.2 % off."""
+    impact position (0.40 % when written); the force's settings (15 kHz, 40 us, float32) on
+    the same 36 bays read 1.22 % off, so the test tells the two apart."""
     flat, v = wfjax.Flat.new(0.9e-3), 120 / 3.6
     kw = dict(contact="hertz-trajectory", detector=S.Detector(), progress=False)
     default = wfjax.sweep(flat, [v], 10, track=wfjax.Track.comparison(), **kw)
