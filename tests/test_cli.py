@@ -167,6 +167,31 @@ def test_console_script_exits_at_once_with_its_output_and_status(tmp_path, capsy
     assert done.stderr.count("\n") == 1 and "--speeds-kmh" in done.stderr
 
 
+def test_a_second_process_compiles_nothing_anew(tmp_path):
+    """The command line keeps every XLA compilation on disk however short
+    (``enable_compilation_cache``): a second identical ``wfjax simulate`` finds each of its
+    programs in the persistent cache (JAX's default 1 s threshold left sub-second programs to
+    be compiled again in every process)."""
+    import subprocess
+    import sys
+
+    env = dict(os.environ, WFJAX_CACHE_DIR=str(tmp_path), JAX_LOG_COMPILES="1")
+    argv = ["wfjax", "simulate", "--contact", "hertz-trajectory", "--out", str(tmp_path / "o")]
+    code = f"import sys; sys.argv = {argv!r}; from wfjax.cli import entry_point; entry_point()"
+
+    def compiles():
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              cwd=tmp_path, env=env)
+        assert done.returncode == 0, done.stderr[-2000:]
+        lines = done.stderr.splitlines()
+        return (sum("Finished XLA compilation" in line for line in lines),
+                sum("Persistent compilation cache hit" in line for line in lines))
+
+    assert compiles()[0] > 0
+    n, hits = compiles()
+    assert n > 0 and hits == n, (n, hits)
+
+
 def test_config_check_shows_environment_precision_and_flag_wins(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("WFJAX_PRECISION", "float32")
     cfg = tmp_path / "c.toml"
