@@ -486,55 +486,43 @@ def _validate_depth(depth) -> None:
 @dataclasses.dataclass(frozen=True)
 class SimConfig:
     """Numerical settings of a simulation (all static: they shape the compiled program).
+    Settings left ``None`` (auto) are resolved by what a run reads (:meth:`resolved`):
+    :data:`FORCE_SETTINGS`, or :data:`READING_SETTINGS` where a :class:`~wfjax.Detector` is
+    read; every setting is checked against the case by the physics guards
+    (:mod:`wfjax.scenario.guards`; docs/convergence.md holds the accuracy table, issue 33).
 
     Attributes:
         time_step: time step [s]; ``None`` picks ``min(max_time_step, max_travel_step / v)``.
-        max_time_step: upper bound of the automatic time step [s]; ``None`` (auto): 40 us
-            (:data:`FORCE_SETTINGS`: the longest step whose max forces stay within 0.5 % of
-            the converged reference, 0.37 % on the Fig. 7 set), 25 us where a
-            :class:`~wfjax.Detector` is read (:data:`READING_SETTINGS`; docs/convergence.md,
-            issue 33). :meth:`resolved` gives the number.
-        max_travel_step: upper bound of the distance travelled per step [m] (1 mm). Measured
-            (Hertz-trajectory, 0.9 mm flats, 60 and 250 km/h): max force changes by <= 0.3 %
-            from 1 mm to 0.25 mm, and by < 1 % on halving the step (tests).
-        run_in: distance travelled before the flat reaches the contact [m] (from static
-            equilibrium; long enough for the sleeper-passing transient to settle).
-        run_out: distance travelled after the flat centre passed the contact [m].
+        max_time_step: upper bound of the automatic time step [s]; auto: 40 us (max forces
+            within 0.5 % of the converged reference, 0.37 % on the Fig. 7 set), 25 us where
+            a detector is read.
+        max_travel_step: upper bound of the travel per step [m] (1 mm: Hertz-trajectory max
+            forces move <= 0.3 % from 1 to 0.25 mm at 60 and 250 km/h).
+        run_in, run_out: travel [m] from static equilibrium until the flat reaches the
+            contact (the sleeper-passing transient settles), and after its centre passed.
         contact_element: side of the square 3D contact elements and 2D bedding elements [m].
-        contact_mode_3d: how the 3D contact is evaluated: ``"table"`` (the exact F(delta, s)
-            table of each flat), ``"parametric"`` (the family F(delta, s; depth, length) of
-            :mod:`wfjax.contact.family`: geometry traced, batched and differentiable),
-            ``"direct"`` (a Kalker solve every step, the reference) or ``"auto"`` (default:
-            the table for a single flat of a kind, the family for a batch of geometries of
-            one kind and for fits).
-        track_max_frequency: modes of the track model above this frequency [Hz] are replaced
-            by their static contribution; ``None`` (auto): 15 kHz (326 modes on the default
-            24-bay track of 26 elements per bay; max force within 0.16 % of the reference),
-            20 kHz where a :class:`~wfjax.Detector` is read (its reading, the rail's shear,
-            needs the higher modes; docs/convergence.md). Every setting here is checked
-            against the case by the physics guards (:mod:`wfjax.scenario.guards`).
+        contact_mode_3d: the 3D contact as ``"table"`` (each flat's exact F(delta, s)),
+            ``"parametric"`` (the family F(delta, s; depth, length) of
+            :mod:`wfjax.contact.family`: traced, batched, differentiable), ``"direct"`` (a
+            Kalker solve every step, the reference) or ``"auto"`` (the table for one flat of
+            a kind, the family for a batch of geometries of one kind and for fits).
+        track_max_frequency: track modes above it [Hz] enter by their static contribution;
+            auto: 15 kHz (326 modes on the default 24-bay track, max force within 0.16 % of
+            the reference), 20 kHz where a detector is read (the rail's shear needs them).
         newton_iterations: fixed iteration count of the per-step contact equation.
-        precision: ``"auto"`` (default), ``"float64"`` or ``"float32"``: the dtype of the
-            time loop (modal propagation, contact law, per-step Newton solve; complex64
-            modes). ``"auto"`` is float32 for forward runs of point contact laws (simulate,
-            sweep, Monte Carlo: 0.58-0.65x the float64 time of the default sweep on
-            a CPU; on an H200 GPU 0.61x on large batches, 0.75-0.86x on 580-run sweeps) and
-            float64 where gradients are taken (a fit's program, the adjoint), where a
-            :class:`~wfjax.Detector` is read (float32 moves its reading by up to 0.4 %;
-            :data:`READING_SETTINGS`) and for the ``"direct"`` 3D contact, whose Kalker
-            solves converge to 1e-10, below float32's resolution (:func:`loop_precision`).
-            The setup stays float64 either way (track modes, 3D tables and families,
-            trajectory grids, the per-step propagation coefficients exp(pole dt)), and so
-            does the process
-            (``jax_enable_x64``). Measured against float64: max force within 2.0e-4
-            (Fig. 7) and 1.3e-4 (Fig. 8) relative, loss-of-contact speeds unchanged, 2000
-            times inside the model's 0.5 % accuracy (benchmarks/README.md, "Precision";
-            docs/convergence.md).
-        allow_inaccurate: run settings that the physics guards
-            (:mod:`wfjax.scenario.guards`) refuse because they cannot keep the max contact
-            force within 3 % of the converged reference; each finding becomes an
-            :class:`~wfjax.scenario.guards.AccuracyWarning`, recorded in the outputs'
-            provenance.
+        precision: the time loop's dtype (modal propagation, contact law, per-step Newton
+            solve; complex64 modes), ``"float64"``, ``"float32"`` or ``"auto"``: float32 for
+            forward runs of point contact laws (0.58-0.65x the float64 time of the default
+            sweep on a CPU; 0.61x on large batches on an H200 GPU), float64 where gradients
+            are taken (fits, the adjoint), where a detector is read (float32 moves its
+            reading up to 0.4 %) and for the direct 3D contact (Kalker solves converge to
+            1e-10, below float32's resolution; :func:`loop_precision`). The setup (modes,
+            tables, exp(pole dt)) and the process (``jax_enable_x64``) stay float64. float32
+            max forces are within 2.0e-4 (Fig. 7) and 1.3e-4 (Fig. 8) of float64's, loss of
+            contact unchanged (benchmarks/README.md, "Precision").
+        allow_inaccurate: run settings that the physics guards refuse (max force not within
+            3 % of the converged reference), each finding an
+            :class:`~wfjax.scenario.guards.AccuracyWarning` recorded in the provenance.
     """
 
     time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
@@ -565,8 +553,7 @@ class SimConfig:
                             flag_commands=("sweep", "simulate", "fit", "detector"),
                             doc="dtype of the time loop (auto: float32 forward, float64 for "
                                 "gradients, detector readings and direct 3D); setup stays "
-                                "float64 "
-                                "(environment: WFJAX_PRECISION)")
+                                "float64 (environment: WFJAX_PRECISION)")
     allow_inaccurate: bool = option(False, flag="--allow-inaccurate",
                                     flag_commands=("sweep", "simulate", "fit", "detector"),
                                     doc="run settings the physics guards refuse, with a "
@@ -582,15 +569,11 @@ class SimConfig:
             check_finite("SimConfig", name, v)
             if v < 0:
                 raise ValueError(f"SimConfig.{name} must be >= 0 m, got {v!r}")
-        if self.contact_mode_3d not in CONTACT_MODES_3D:
-            raise ValueError(
-                f"SimConfig.contact_mode_3d must be one of {CONTACT_MODES_3D}, "
-                f"got {self.contact_mode_3d!r}"
-            )
-        if self.precision not in PRECISIONS:
-            raise ValueError(
-                f"SimConfig.precision must be one of {PRECISIONS}, got {self.precision!r}"
-            )
+        for name, allowed in (("contact_mode_3d", CONTACT_MODES_3D),
+                              ("precision", PRECISIONS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"SimConfig.{name} must be one of {allowed}, "
+                                 f"got {getattr(self, name)!r}")
         if self.precision == "float32" and self.contact_mode_3d == "direct":
             raise ValueError(
                 "SimConfig.precision='float32' does not support contact_mode_3d='direct': "
@@ -598,17 +581,15 @@ class SimConfig:
                 "resolution (1.2e-7); use 'table' or 'parametric' 3D contact, or float64"
             )
         if self.newton_iterations < 1:
-            raise ValueError(
-                f"SimConfig.newton_iterations must be >= 1, got {self.newton_iterations!r}"
-            )
+            raise ValueError(f"SimConfig.newton_iterations must be >= 1, "
+                             f"got {self.newton_iterations!r}")
 
     def resolved(self, reading: bool = False) -> SimConfig:
         """This config with every auto setting (``None``; ``precision="auto"`` where a reading
         fixes it) given its number: :data:`READING_SETTINGS` where ``reading`` (a
         :class:`~wfjax.Detector` is read), else :data:`FORCE_SETTINGS`. Settings given stay."""
         defaults = READING_SETTINGS if reading else FORCE_SETTINGS
-        given = {k: v for k, v in defaults.items()
-                 if getattr(self, k) in (None, "auto")}
+        given = {k: v for k, v in defaults.items() if getattr(self, k) in (None, "auto")}
         return dataclasses.replace(self, **given) if given else self
 
     def time_step_for(self, speed: float) -> float:
@@ -616,5 +597,4 @@ class SimConfig:
         unless :meth:`resolved` gave it)."""
         if self.time_step is not None:
             return float(self.time_step)
-        cap = self.resolved().max_time_step
-        return float(min(cap, self.max_travel_step / speed))
+        return float(min(self.resolved().max_time_step, self.max_travel_step / speed))
