@@ -182,6 +182,23 @@ def test_a_detector_gets_the_readings_settings_and_track():
             given.config.precision) == (12e3, 25e-6, "float32")
 
 
+def test_sweep_states_the_settings_it_ran_with(tmp_path):
+    """``SweepResult.settings``: the resolved cut-off, step cap, precision, the track as
+    lengthened and its modes, with a detector and without, through the NPZ."""
+    flat, kw = wfjax.Flat.new(0.9e-3), dict(contact="hertz-trajectory", progress=False)
+    read = wfjax.sweep(flat, [30.0], 2, detector=S.Detector(), **kw).settings
+    force = wfjax.sweep(flat, [30.0], 2, **kw)
+    for s, cfg, bays in ((read, wfjax.SimConfig().resolved(reading=True), G.READING_BAYS),
+                         (force.settings, wfjax.SimConfig().resolved(), wfjax.Track().n_bays)):
+        assert (s["track_max_frequency_Hz"], s["max_time_step_s"], s["precision"],
+                s["n_bays"]) == (cfg.track_max_frequency, cfg.max_time_step, cfg.precision,
+                                 bays)
+        model = T.modal_model(wfjax.Track(n_bays=bays), max_frequency=cfg.track_max_frequency)
+        assert s["n_modes"] == np.asarray(model.poles).size
+    force.save_npz(tmp_path / "r.npz")
+    assert wfjax.SweepResult.load_npz(tmp_path / "r.npz").settings == force.settings
+
+
 @pytest.mark.slow
 def test_default_detector_reading_within_half_a_percent_of_the_reference():
     """The package's defaults with a Detector (the reading's auto settings, 36 bays) read a new

@@ -64,6 +64,9 @@ class SweepResult(NamedTuple):
         wheel_loss_of_contact: the same, bool. wheel_axle_acc_peak: the same [m/s^2].
         wheel_positions: [n_wheels] the wheels' distances behind the leading wheel [m].
         flat_wheel: index of the wheel that carries the swept flats (0 without a vehicle).
+        settings: the numerical settings the runs used (:meth:`wfjax.Scenario.run_settings`:
+            the resolved mode cut-off [Hz], step caps [s, m], precision, the track's bays as
+            lengthened, its modes), or None.
     """
 
     speeds: Any
@@ -93,6 +96,7 @@ class SweepResult(NamedTuple):
     flat_wheel: int = 0
     realisation_max_force: Any = None
     realisation_min_force: Any = None
+    settings: Any = None
 
     def percentiles(self, q=PERCENTILES) -> np.ndarray:
         """Percentiles ``q`` [%] over the roughness realisations of each realisation's max
@@ -174,7 +178,10 @@ class SweepResult(NamedTuple):
         from .outputs import stage
 
         arrays = {k: np.asarray(getattr(self, k)) for k in self._fields
-                  if k not in ("flats", "contact") and getattr(self, k) is not None}
+                  if k not in ("flats", "contact", "settings") and getattr(self, k) is not None}
+        if self.settings is not None:
+            arrays["settings"] = np.array(json.dumps(self.settings))
+
         def write(target):
             with open(target, "wb") as fh:  # a file object: no ".npz" appended to the name
                 np.savez(fh, flats=np.array(self.flats), contact=np.array(self.contact),
@@ -190,6 +197,8 @@ class SweepResult(NamedTuple):
                       if k not in ("flats", "contact") and k in data}
             if "sensor_quantities" in fields:
                 fields["sensor_quantities"] = tuple(str(q) for q in fields["sensor_quantities"])
+            if "settings" in fields:
+                fields["settings"] = json.loads(str(fields["settings"]))
             return cls(flats=tuple(str(s) for s in data["flats"]),
                        contact=str(data["contact"]), **fields)
 
@@ -197,6 +206,8 @@ class SweepResult(NamedTuple):
         """JSON-ready summary per flat (kN, km/h)."""
         env = self.envelope()
         out = {"contact": self.contact, "flats": {}}
+        if self.settings is not None:
+            out["settings"] = self.settings
         for i, label in enumerate(self.flats):
             lost = np.asarray(self.speeds)[env["loss_of_contact"][i]] * 3.6
             j = int(np.argmax(env["max_force"][i]))
@@ -362,6 +373,7 @@ def _result(scenario: Scenario, program, v, pos, out: dict) -> SweepResult:
         contact=scenario.contact, axle_acc_peak=col["acc"],
         depths=np.array([float(np.asarray(f.depth)) for f in flats]),
         lengths=np.array([float(np.asarray(f.length)) for f in flats]), **det,
+        settings=scenario.run_settings(np.shape(program.data.struct.track.poles)[-1]),
     )
 
 

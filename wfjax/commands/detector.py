@@ -122,7 +122,7 @@ def run(args) -> int:
                "reading_over_true_peak": {"min": float(ratio.min()),
                                           "max": float(ratio.max()),
                                           "mean": float(ratio.mean())},
-               "wall_time_s": elapsed}
+               "settings": result.settings, "wall_time_s": elapsed}
     write_summary(out / "detector.json", summary, case,
                   {"profile_csv": case.get("flat.profile_csv")})
     save_figure(detector_figure(result), out / "detector.png")

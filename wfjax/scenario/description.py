@@ -205,6 +205,18 @@ class Scenario:
         track = guards.at_least(self.track, max(hi, -lo) + guards.end_margin(self.track))
         return self if track is self.track else dataclasses.replace(self, track=track)
 
+    def run_settings(self, n_modes: int) -> dict:
+        """The numerical settings the runs use, as a JSON-ready dict with units in the names:
+        ``config``'s resolved mode cut-off, step caps and precision setting, the track's
+        bays as lengthened and its elements per bay, and ``n_modes``, the track model's
+        complex modes."""
+        c, tr = self.config, self.track
+        return {"track_max_frequency_Hz": float(c.track_max_frequency),
+                "max_time_step_s": float(c.max_time_step),
+                "max_travel_step_m": float(c.max_travel_step), "precision": c.precision,
+                "n_bays": int(tr.n_bays), "elements_per_bay": int(tr.elements_per_bay),
+                "n_modes": int(n_modes)}
+
     def check_settings(self, window: Flat, speeds, positions) -> None:
         """Refuse, in one line, the runs of ``window``'s flat at ``speeds`` [m/s] and
         ``positions`` [m] unless every wheel stays on the track and on the rail roughness
