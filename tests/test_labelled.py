@@ -28,7 +28,8 @@ TINY = ["--contact", "hertz-trajectory", "--speeds-kmh", "60,120", "--positions"
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5)
 LABELS = ("speeds", "impact_positions", "flats", "contact", "depths", "lengths",
           "sensor_positions", "sensor_quantities", "detector_bays", "wheel_positions",
-          "flat_wheel")  # the SweepResult fields that label the arrays' axes
+          "flat_wheel", "settings")  # the SweepResult fields that label the arrays' axes or
+# describe the runs (settings: the Dataset's attrs)
 
 
 @pytest.fixture(scope="module", name="full")
@@ -71,6 +72,7 @@ def test_every_array_has_named_dimensions_in_the_csv_units(full):
     # every array field of the result is a variable; every labelling field a coordinate
     arrays = [f for f in full._fields if f not in LABELS and getattr(full, f) is not None]
     assert len(arrays) == len(want)
+    assert json.loads(ds.attrs["settings"]) == full.settings
     # values in the CSV's units, coordinates too
     np.testing.assert_allclose(ds["max_force_kN"], np.asarray(full.max_force) / 1e3, rtol=1e-15)
     np.testing.assert_allclose(ds["loss_of_contact_ms"],

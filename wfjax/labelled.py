@@ -166,7 +166,8 @@ def to_xarray(result, case=None, provenance: dict | None = None):
             the JSON attribute ``case``; None: no such attribute.
         provenance: what made the result (``wfjax sweep`` passes its JSON summary's); None:
             wfjax's and JAX's versions and the devices. Stored as the JSON attribute
-            ``provenance``.
+            ``provenance``; ``result.settings`` (the numerical settings as resolved) as the
+            JSON attribute ``settings``.
 
     Returns:
         Dataset with dimensions ``flat`` x ``speed_kmh`` x ``impact_position_mm`` (and
@@ -182,6 +183,8 @@ def to_xarray(result, case=None, provenance: dict | None = None):
     attrs = {"title": "wfjax sweep", "contact": str(result.contact)}
     if result.wheel_positions is not None:
         attrs["flat_wheel"] = int(result.flat_wheel)
+    if result.settings is not None:  # the numerical settings as resolved (JSON, as the case)
+        attrs["settings"] = json.dumps(result.settings)
     if case is not None:
         attrs["case"] = json.dumps(case)
     attrs["provenance"] = json.dumps(_base_provenance() if provenance is None else provenance)
