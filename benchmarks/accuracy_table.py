@@ -60,12 +60,13 @@ NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
        "precision": "float32", "time_step": 40e-6, "absorbing_sleepers": 3}  # today's force
 # settings: float32 forward runs and 40 us since 2026-12-04, absorbing ends since the evening
 # the package's defaults: SimConfig's auto settings, which a run resolves by what it reads
-# (the force's above; a detector's reading 20 kHz, 25 us, float64 on at least 36 bays)
+# (since 2026-12-05 12 kHz, 40 us, float32; a detector's reading 15 kHz, 25 us, float64 on at
+# least 36 bays)
 DEFAULT = {**NEW, "track_max_frequency": "auto", "time_step": "auto", "precision": "auto"}
 ROWS = {  # label -> changes to REF
     "reference": {},
     "reference, clamped ends": {"absorbing_sleepers": 0},
-    "default (26 el., 24 bays; 15 kHz, 40 us / 1 mm, float32; reading: 20 kHz, 25 us, "
+    "default (26 el., 24 bays; 12 kHz, 40 us / 1 mm, float32; reading: 15 kHz, 25 us, "
     "float64, 36 bays)": DEFAULT,
     "default, clamped ends": {**DEFAULT, "absorbing_sleepers": 0},
     "26 el., 15 kHz, 40 us / 1 mm, 24 bays, float32": NEW,
@@ -125,6 +126,14 @@ ROWS = {  # label -> changes to REF
                                                        "n_bays": 70, "time_step": 25e-6},
     "26 el., 20 kHz, 25 us / 1 mm, 24 bays, float64": {
         **NEW, "track_max_frequency": 20e3, "time_step": 25e-6, "precision": "float64"},
+    # lower cut-offs, since the truncated modes' damper augmentation (2026-12-05)
+    "26 el., 10 kHz, 40 us / 1 mm, 24 bays, float32": {**NEW, "track_max_frequency": 10e3},
+    "26 el., 12 kHz, 40 us / 1 mm, 24 bays, float32": {**NEW, "track_max_frequency": 12e3},
+    "26 el., 10 kHz, 25 us / 1 mm, 36 bays, float64": {
+        **NEW, "track_max_frequency": 10e3, "time_step": 25e-6, "n_bays": 36,
+        "precision": "float64"},
+    "26 el., 15 kHz, 25 us / 1 mm, 36 bays, float64": {
+        **NEW, "time_step": 25e-6, "n_bays": 36, "precision": "float64"},
 }
 FREQS = np.geomspace(20.0, 2000.0, 40)
 RECEPTANCES = {  # name -> (quantity, force position [m], response position [m])

@@ -119,7 +119,10 @@ def test_modal_model_layout(model):
     assert np.all(np.asarray(model.poles).imag >= 0)
     assert np.all(np.asarray(model.poles).real < 0)  # every mode damped
     assert set(np.unique(np.asarray(model.weights))) <= {1.0, 2.0}
-    assert np.abs(np.asarray(model.poles)).max() <= 2 * np.pi * 20e3 * 1.01
+    # the kept modes below the cut-off; above it at most the dampers' pseudo-modes (one per
+    # pad and ballast damper: two per interior sleeper)
+    above = np.abs(np.asarray(model.poles)) > 2 * np.pi * 20e3 * 1.01
+    assert 0 < np.sum(above) <= 2 * (wfjax.Track().n_bays - 1)
     nx = np.asarray(model.node_x)
     half = wfjax.Track().n_bays // 2
     assert nx[0] == pytest.approx(-half * LS) and nx[-1] == pytest.approx(half * LS)

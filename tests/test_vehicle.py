@@ -163,7 +163,11 @@ def test_residual_pairs_are_symmetric_and_leave_the_diagonal_to_the_tracks_table
     model = track_mod.modal_model(track, max_frequency=config.track_max_frequency)
     pairs = residual_pairs(track, model, np.array([0.0, -2.5]))
     np.testing.assert_allclose(pairs, np.swapaxes(pairs, 1, 2), rtol=1e-10, atol=1e-22)
-    assert np.all(pairs[:, [0, 1], [0, 1]] == 0.0) and np.all(pairs[:, 0, 1] > 0)
+    assert np.all(pairs[:, [0, 1], [0, 1]] == 0.0)
+    # 2.5 m apart the truncated modes' static coupling is a small remainder of the point's own
+    # (about 1 %; either sign since the dampers' pseudo-modes carry part of it)
+    assert np.all(np.abs(pairs[:, 0, 1]) < 0.02 * np.mean(np.asarray(model.residual)))
+    assert np.any(pairs[:, 0, 1] != 0)
 
 
 def test_transfer_receptance_is_reciprocal_and_matches_the_direct_solve():

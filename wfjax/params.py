@@ -43,9 +43,10 @@ MAX_SPEED = 150.0  # m/s (540 km/h): the speed range of every entry point, (0, M
 # SimConfig's auto settings: the least cost that keeps the contact force, the seat force and,
 # where a Detector is read, its reading within 0.5 % of the converged reference (issue 33's
 # accuracy table, docs/convergence.md; a reading needs the rail's shear: higher modes, a finer
-# step and float64, and a track of at least guards.READING_BAYS bays)
-FORCE_SETTINGS = {"track_max_frequency": 15e3, "max_time_step": 40e-6}
-READING_SETTINGS = {"track_max_frequency": 20e3, "max_time_step": 25e-6, "precision": "float64"}
+# step and float64, and a track of at least guards.READING_BAYS bays; 15 and 20 kHz before
+# the track model's damper augmentation of 2026-12-05)
+FORCE_SETTINGS = {"track_max_frequency": 12e3, "max_time_step": 40e-6}
+READING_SETTINGS = {"track_max_frequency": 15e3, "max_time_step": 25e-6, "precision": "float64"}
 
 
 def loop_precision(precision: str, gradients: bool = False, direct: bool = False) -> str:
@@ -494,8 +495,7 @@ class SimConfig:
     Attributes:
         time_step: time step [s]; ``None`` picks ``min(max_time_step, max_travel_step / v)``.
         max_time_step: upper bound of the automatic time step [s]; auto: 40 us (max forces
-            within 0.5 % of the converged reference, 0.37 % on the Fig. 7 set), 25 us where
-            a detector is read.
+            within 0.5 % of the converged reference), 25 us where a detector is read.
         max_travel_step: upper bound of the travel per step [m] (1 mm: Hertz-trajectory max
             forces move <= 0.3 % from 1 to 0.25 mm at 60 and 250 km/h).
         run_in, run_out: travel [m] from static equilibrium until the flat reaches the
@@ -507,8 +507,8 @@ class SimConfig:
             Kalker solve every step, the reference) or ``"auto"`` (the table for one flat of
             a kind, the family for a batch of geometries of one kind and for fits).
         track_max_frequency: track modes above it [Hz] enter by their static contribution;
-            auto: 15 kHz (326 modes on the default 24-bay track, max force within 0.16 % of
-            the reference), 20 kHz where a detector is read (the rail's shear needs them).
+            auto: 12 kHz (318 modes with the dampers' pseudo-modes on the default track, max
+            force within 0.28 % of the reference), 15 kHz where a detector is read.
         newton_iterations: fixed iteration count of the per-step contact equation.
         precision: the time loop's dtype (modal propagation, contact law, per-step Newton
             solve; complex64 modes), ``"float64"``, ``"float32"`` or ``"auto"``: float32 for
@@ -545,7 +545,7 @@ class SimConfig:
                                   doc="how the 3D contact law is evaluated")
     track_max_frequency: float | None = option(
         None, unit="Hz", low=100.0, high=1e6, positive=True,
-        doc="track modes above this enter statically; auto: 15 kHz, 20 kHz where a detector "
+        doc="track modes above this enter statically; auto: 12 kHz, 15 kHz where a detector "
             "is read")
     newton_iterations: int = option(30, low=1, high=1000,
                                     doc="iterations of the per-step contact equation")

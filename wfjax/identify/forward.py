@@ -58,8 +58,9 @@ TRACK = Track(n_bays=70, elements_per_bay=8)
 
 def identification_config(config: SimConfig | None = None) -> SimConfig:
     """``config`` (default :class:`SimConfig`) with its auto settings resolved for a detector's
-    reading (:data:`wfjax.params.READING_SETTINGS`: modes to 20 kHz, a 25 us step cap and a
-    float64 loop, as the identification's study ran and ``wfjax detector`` runs)."""
+    reading (:data:`wfjax.params.READING_SETTINGS`: modes to 15 kHz, a 25 us step cap and a
+    float64 loop, as ``wfjax detector`` runs; its studies ran at 20 kHz without the track's
+    damper augmentation, docs/identify.md)."""
     return (config or SimConfig()).resolved(reading=True)
 
 
@@ -223,7 +224,8 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
                lengths=np.asarray(lengths), j=int(n_offsets), r=int(n_roughness),
                s=int(n_supports), cv=float(scatter_cv), seed=int(seed), wheel=repr(wheel),
                track=repr(track), material=repr(material), config=repr(config),
-               v=2)  # 2: the rail's in-element deflection (2026-12-03)
+               v=3)  # 2: the rail's in-element deflection (2026-12-03); 3: the track's
+    # damper augmentation of its truncated modes (2026-12-05: the readings move)
     if contact == "3d":  # the exact tables' builder (Hertz-trajectory keys unchanged)
         from ..contact.table_law import TABLE_BUILDER_REVISION
         key |= dict(law="exact-3d-tables", table3d=TABLE_BUILDER_REVISION)

@@ -41,7 +41,8 @@ ELEMENT_FACTOR = 0.15  # contact element / 2a
 END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
 SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
 READING_BAYS = 36  # a Detector's least track: its reading within 0.5 % of the 70-bay
-# reference's with params.READING_SETTINGS (0.45 %; 0.93 % on 24 bays; docs/convergence.md)
+# reference's with params.READING_SETTINGS (0.45 %; 0.93 % on 24 bays before the damper
+# augmentation; docs/convergence.md)
 RECEPTANCE_BAYS = 140  # direct point receptances within 0.5 % of an 800-bay track's, 20 Hz -
 # 2 kHz outside the pinned-pinned band 900-990 Hz, where no finite track converges pointwise
 # (benchmarks/receptance_length.py)
