@@ -202,8 +202,9 @@ def test_default_detector_reading_within_half_a_percent_of_the_reference():
     """The package's defaults with a Detector (the reading's auto settings, 36 bays) read a new
     0.9 mm flat at 120 km/h within 0.5 % of the converged reference (26 el./bay, 20 kHz,
     6.25 us / 0.25 mm, 70 bays, float64: docs/convergence.md, issue 33's target) at every
-    impact position (0.40 % when written); the force's settings (15 kHz, 40 us, float32) on
-    the same 36 bays read 1.22 % off, so the test tells the two apart."""
+    impact position (0.45 % with the 15 kHz of 2026-12-05, 0.40 % with the 20 kHz before);
+    the force's settings (12 kHz, 40 us, float32) on the same 36 bays read 1.09 % off, so the
+    test tells the two apart."""
     flat, v = wfjax.Flat.new(0.9e-3), 120 / 3.6
     kw = dict(contact="hertz-trajectory", detector=S.Detector(), progress=False)
     default = wfjax.sweep(flat, [v], 10, track=wfjax.Track.comparison(), **kw)

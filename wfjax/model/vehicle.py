@@ -208,9 +208,9 @@ def required_bays(vehicle: Vehicle, travel: float, track: Track, margin: float) 
     ``margin`` [m] at each end.
 
     The track's length grows linearly with the wheelbase, and with it the number of modes
-    below ``SimConfig.track_max_frequency`` (about 13.6 per bay at 15 kHz and 26 elements
-    per bay: 326 for 24 bays) and the per-step cost of the modal update (linear in the mode
-    count).
+    below ``SimConfig.track_max_frequency`` (about 13 per bay at 12 kHz and 26 elements per
+    bay with the dampers' pseudo-modes: 318 for 24 bays) and the per-step cost of the modal
+    update (linear in the mode count).
     """
     offsets = vehicle.offsets()
     span = offsets.max() - offsets.min() + travel + 2 * margin
