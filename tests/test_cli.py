@@ -291,10 +291,12 @@ def test_detector_command_writes_files_and_rejects_bad_sensors(tmp_path, capsys)
     assert summary["case"]["detector"]["n_bays"] == 2
     # the case keeps "auto"; the summary states what it resolved to for a detector's reading
     assert summary["case"]["config"]["track_max_frequency"] == "auto"
+    reading = wf.SimConfig().resolved(reading=True)
     assert {k: summary["settings"][k] for k in ("track_max_frequency_Hz", "max_time_step_s",
                                                   "precision", "n_bays")} \
-        == {"track_max_frequency_Hz": 20e3, "max_time_step_s": 25e-6, "precision": "float64",
-            "n_bays": 36}
+        == {"track_max_frequency_Hz": reading.track_max_frequency,
+            "max_time_step_s": reading.max_time_step, "precision": "float64", "n_bays": 36}
+    assert reading.track_max_frequency > wf.SimConfig().resolved().track_max_frequency
     assert len((out / "sensors.csv").read_text().splitlines()) == 3
     assert (out / "detector.png").stat().st_size > 0
     capsys.readouterr()

@@ -168,11 +168,11 @@ def test_a_detector_gets_the_readings_settings_and_track():
     assert dataclasses.replace(read.config, run_in=0.2, run_out=0.2) \
         == wfjax.SimConfig().resolved(reading=True)
     assert (read.config.track_max_frequency, read.config.max_time_step,
-            read.config.precision) == (20e3, 25e-6, "float64")
+            read.config.precision) == (15e3, 25e-6, "float64")
     assert int(read.track.n_bays) == G.READING_BAYS
     plain = Scenario.of(flat, "hertz-trajectory")
     assert plain.config == wfjax.SimConfig().resolved()
-    assert (plain.config.track_max_frequency, plain.config.max_time_step) == (15e3, 40e-6)
+    assert (plain.config.track_max_frequency, plain.config.max_time_step) == (12e3, 40e-6)
     assert plain.track == wfjax.Track()
     given = Scenario.of(flat, "hertz-trajectory", detector=S.Detector(),
                         config=wfjax.SimConfig(track_max_frequency=12e3, precision="float32"))

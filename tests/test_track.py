@@ -130,7 +130,11 @@ def test_modal_model_layout(model):
     # residual: positive, periodic, small compared with the static compliance (with the
     # load's in-element deflection, about 1.1 % of it at mid-element)
     res = np.asarray(model.residual)
-    assert np.all(res > 0) and res[0] == pytest.approx(res[-1], rel=0.02)
+    # zero (to rounding) over the sleepers, whose rail nodes are dampers' DOFs: there the
+    # dampers' pseudo-modes carry the truncated modes' whole static response
+    tiny = 1e-9 * res.max()
+    assert np.all(res > -tiny) and abs(res[0]) < tiny and abs(res[-1]) < tiny
+    assert np.all(res[1:-1] > 0)
     assert res.max() < 0.015 * T.static_deflection(wfjax.Track(), 1.0)
 
 

@@ -154,7 +154,9 @@ def test_cross_table_along_a_varying_track_equals_the_direct_mode_sum():
         phi = np.asarray(shapes_at(x + offsets))
         direct = np.real(np.sum(np.asarray(weight) * phi[0] * phi[1]))
         got = np.asarray(track_mod.read_residual_table(model, table, x))
-        np.testing.assert_allclose(got[0, 1], direct, rtol=1e-9)
+        # rounding only: the dampers' pseudo-modes (far above the cut-off, large per-mode terms
+        # that cancel) take it from 1e-10 to 6e-9 relative
+        np.testing.assert_allclose(got[0, 1], direct, rtol=1e-7)
         assert got[0, 0] == 0.0
 
 
