@@ -17,8 +17,8 @@ Sections (``--sections``, all by default):
 * ``receptance``: the transfer receptance 0.3 -> 1.0 m and the point receptance at 0.3 m of
   the accuracy table's reference (70 bays, 26 el., 20 kHz) and of the default (24 bays,
   the force's auto cut-off: 12 kHz since 2026-12-05), with and without the absorbing ends,
-  against the infinite periodic track (``wfjax.track.periodic_receptance``) on the accuracy table's 40 frequencies: largest
-  relative difference [%], and outside 850-1050 Hz;
+  against the infinite periodic track (``wfjax.track.periodic_receptance``) on the accuracy
+  table's 40 frequencies: largest relative difference [%], and outside 850-1050 Hz;
 * ``timing``: whole-process warm wall times [s] of ``wfjax detector`` on 36 and 60 bays and
   of ``wfjax figures --only 8`` with and without the absorbing ends, ``--rounds`` alternated
   rounds after one unrecorded warm-up of each.
