@@ -40,11 +40,9 @@ CONTACT_MODES_3D = ("auto", "table", "parametric", "direct")
 PRECISIONS = ("auto", "float64", "float32")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
 MAX_SPEED = 150.0  # m/s (540 km/h): the speed range of every entry point, (0, MAX_SPEED]
-# SimConfig's auto settings: the least cost that keeps the contact force, the seat force and,
-# where a Detector is read, its reading within 0.5 % of the converged reference (issue 33's
-# accuracy table, docs/convergence.md; a reading needs the rail's shear: higher modes, a finer
-# step and float64, and a track of at least guards.READING_BAYS bays; 15 and 20 kHz before
-# the track model's damper augmentation of 2026-12-05)
+# SimConfig's auto settings: the least cost that keeps the force, the seat force and a Detector's
+# reading within 0.5 % of the reference (docs/convergence.md; a reading also needs
+# guards.READING_BAYS bays; 15 and 20 kHz before the damper augmentation of 2026-12-05)
 FORCE_SETTINGS = {"track_max_frequency": 12e3, "max_time_step": 40e-6}
 READING_SETTINGS = {"track_max_frequency": 15e3, "max_time_step": 25e-6, "precision": "float64"}
 
@@ -528,10 +526,11 @@ class SimConfig:
     time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
                                      doc="time step; auto: min(max_time_step, "
                                          "max_travel_step / v)")
-    max_time_step: float | None = option(None, unit="s", low=0.0, high=1e-3, low_open=True,
-                                         positive=True,
-                                         doc="upper bound of the automatic time step; auto: "
-                                             "40 us, 25 us where a detector is read")
+    max_time_step: float | None = option(
+        None, unit="s", low=0.0, high=1e-3, low_open=True, positive=True,
+        doc="upper bound of the automatic time step; auto: "
+            f"{FORCE_SETTINGS['max_time_step'] * 1e6:g} us, "
+            f"{READING_SETTINGS['max_time_step'] * 1e6:g} us where a detector is read")
     max_travel_step: float = option(1e-3, unit="m", low=0.0, high=1e-2, low_open=True,
                                     positive=True,
                                     doc="upper bound of the travel per time step")
@@ -545,8 +544,9 @@ class SimConfig:
                                   doc="how the 3D contact law is evaluated")
     track_max_frequency: float | None = option(
         None, unit="Hz", low=100.0, high=1e6, positive=True,
-        doc="track modes above this enter statically; auto: 12 kHz, 15 kHz where a detector "
-            "is read")
+        doc="track modes above this enter statically; auto: "
+            f"{FORCE_SETTINGS['track_max_frequency'] / 1e3:g} kHz, "
+            f"{READING_SETTINGS['track_max_frequency'] / 1e3:g} kHz where a detector is read")
     newton_iterations: int = option(30, low=1, high=1000,
                                     doc="iterations of the per-step contact equation")
     precision: str = option("auto", choices=PRECISIONS, flag="--precision",

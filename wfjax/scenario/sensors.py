@@ -290,8 +290,9 @@ class Detector:
     ``calibration`` x that difference, read while a_k <= X(t) <= b_k; its peak over the
     passage is the bay's reading (``docs/detector.md``). The reading is within 0.5 % of the
     converged reference (0.45 %) with the settings a run that reads a detector resolves to
-    (:meth:`wfjax.SimConfig.resolved`: track modes to 20 kHz, a 25 us step cap, a float64
-    loop; at least 36 bays); with the force's settings within 1.2 %.
+    (:data:`wfjax.params.READING_SETTINGS` through :meth:`wfjax.SimConfig.resolved`, on at
+    least :data:`wfjax.scenario.guards.READING_BAYS` bays); with the force's settings about
+    1.1 % off.
 
     Attributes:
         n_bays: number of instrumented consecutive bays N (>= 1).
