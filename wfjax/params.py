@@ -186,7 +186,7 @@ class Track(Validated):
             lengthens a track whose supports are scalars to what its wheels' paths, sensors
             and detector need, with the physics guards' margins from the clamped ends
             (:meth:`wfjax.Scenario.lengthened`), and a detector's to at least
-            :data:`wfjax.scenario.guards.READING_BAYS` (36: its reading within 0.5 %);
+            :data:`wfjax.scenario.guards.READING_BAYS` (its reading within 0.5 %);
             per-sleeper supports fix the length.
         elements_per_bay (static): rail beam elements per sleeper bay.
         absorbing_sleepers (static): the last n sleepers at each end, whose pad and ballast
