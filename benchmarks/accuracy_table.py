@@ -22,7 +22,7 @@ Sets (R_R = 0.45 m, ``Track.comparison()``):
 - ``sharp``: new flats 0.9 mm at 120, 160 and 200 km/h, Hertz-trajectory, 10 impact
   positions, with the seat forces of the bay's two sleepers: max and min force, max seat
   force; and the same runs with the 3-bay detector: its reading (largest bay; a detector
-  lengthens the track to ``guards.READING_BAYS``, so rows of shorter tracks read NaN).
+  lengthens the track to ``params.READING_BAYS``, so rows of shorter tracks read NaN).
 - receptances of the track model alone, 20 Hz - 2 kHz (40 log-spaced points): rail
   displacement (point at 0.3 m, transfer 0.3 -> 1.0 m) and rail shear (0.3 -> 1.0 m and
   0.3 -> -0.45 m), from the modal model with its static correction.
@@ -48,8 +48,8 @@ import numpy as np
 
 import wfjax as wf
 from wfjax.model import track as track_mod
+from wfjax.params import READING_BAYS
 from wfjax.scenario import sensors as sensor_mod
-from wfjax.scenario.guards import READING_BAYS
 
 REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
        "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3, "precision": "float64",
@@ -179,7 +179,7 @@ def run_sharp(s: dict, quick: bool) -> dict:
     """Max/min force, max seat force and detector reading [N], [n_speeds, n_positions].
 
     The forces and seat forces come from runs without a detector, the reading from the same
-    runs with one, whose track is at least ``guards.READING_BAYS`` long and whose auto
+    runs with one, whose track is at least ``params.READING_BAYS`` long and whose auto
     settings are the reading's: a row whose track is shorter reads NaN (it cannot carry a
     detector), except a row of auto settings (the package's defaults)."""
     track, config = model_inputs(s)

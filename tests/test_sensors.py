@@ -11,13 +11,13 @@ import pytest
 import scipy.sparse.linalg
 
 import wfjax
+from wfjax import params
 from wfjax.loop.observers import DetectorReadings
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
 from wfjax.model import fe as fe_mod
 from wfjax.model import track as T
 from wfjax.model.vehicle import Vehicle
-from wfjax.scenario import guards as G
 from wfjax.scenario import sensors as S
 from wfjax.scenario.description import Scenario
 
@@ -149,8 +149,8 @@ def test_detector_reads_static_load_at_low_speed():
     outside = (x < a[1] - 0.1) | (x > b[1] + 0.1)
     assert np.max(np.abs(load[outside, 1])) < 0.1 * P  # no wheel between: no load read
     # detector estimate = difference of the sensors' shear histories at the same bridges, on
-    # the track and settings the detector gets (guards.READING_BAYS, the reading's auto ones)
-    track = wfjax.Track(n_bays=G.READING_BAYS)
+    # the track and settings the detector gets (params.READING_BAYS, the reading's auto ones)
+    track = wfjax.Track(n_bays=params.READING_BAYS)
     r2 = wfjax.simulate(wfjax.Flat.none(), 5.0, contact="hertz-trajectory",
                         impact_position=0.3, sensors=[a[1], b[1]], track=track,
                         config=wfjax.scenario.windows.detector_config(
@@ -161,7 +161,7 @@ def test_detector_reads_static_load_at_low_speed():
 
 def test_a_detector_gets_the_readings_settings_and_track():
     """A scenario with a Detector resolves SimConfig's auto settings to the reading's
-    (params.READING_SETTINGS) on at least guards.READING_BAYS bays; without one, to the
+    (params.READING_SETTINGS) on at least params.READING_BAYS bays; without one, to the
     force's on the track as given; settings the user gave stay."""
     flat = wfjax.Flat.new(0.9e-3)
     read = Scenario.of(flat, "hertz-trajectory", detector=S.Detector())
@@ -169,7 +169,7 @@ def test_a_detector_gets_the_readings_settings_and_track():
         == wfjax.SimConfig().resolved(reading=True)
     assert (read.config.track_max_frequency, read.config.max_time_step,
             read.config.precision) == (15e3, 25e-6, "float64")
-    assert int(read.track.n_bays) == G.READING_BAYS
+    assert int(read.track.n_bays) == params.READING_BAYS
     plain = Scenario.of(flat, "hertz-trajectory")
     assert plain.config == wfjax.SimConfig().resolved()
     assert (plain.config.track_max_frequency, plain.config.max_time_step) == (12e3, 40e-6)
@@ -186,7 +186,7 @@ def test_sweep_states_the_settings_it_ran_with(tmp_path):
     flat, kw = wfjax.Flat.new(0.9e-3), dict(contact="hertz-trajectory", progress=False)
     read = wfjax.sweep(flat, [30.0], 2, detector=S.Detector(), **kw).settings
     force = wfjax.sweep(flat, [30.0], 2, **kw)
-    for s, cfg, bays in ((read, wfjax.SimConfig().resolved(reading=True), G.READING_BAYS),
+    for s, cfg, bays in ((read, wfjax.SimConfig().resolved(reading=True), params.READING_BAYS),
                          (force.settings, wfjax.SimConfig().resolved(), wfjax.Track().n_bays)):
         assert (s["track_max_frequency_Hz"], s["max_time_step_s"], s["precision"],
                 s["n_bays"]) == (cfg.track_max_frequency, cfg.max_time_step, cfg.precision,

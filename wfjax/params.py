@@ -41,10 +41,11 @@ PRECISIONS = ("auto", "float64", "float32")
 DEFAULT_EXTENT_BOUND = 0.1  # m; half extent assumed for flats whose length is traced
 MAX_SPEED = 150.0  # m/s (540 km/h): the speed range of every entry point, (0, MAX_SPEED]
 # SimConfig's auto settings: the least cost that keeps the force, the seat force and a Detector's
-# reading within 0.5 % of the reference (docs/convergence.md; a reading also needs
-# guards.READING_BAYS bays; 15 and 20 kHz before the damper augmentation of 2026-12-05)
+# reading (on at least READING_BAYS bays) within 0.5 % of the reference (docs/convergence.md;
+# 15 and 20 kHz before the damper augmentation of 2026-12-05)
 FORCE_SETTINGS = {"track_max_frequency": 12e3, "max_time_step": 40e-6}
 READING_SETTINGS = {"track_max_frequency": 15e3, "max_time_step": 25e-6, "precision": "float64"}
+READING_BAYS = 36
 
 
 def loop_precision(precision: str, gradients: bool = False, direct: bool = False) -> str:
@@ -186,7 +187,7 @@ class Track(Validated):
             lengthens a track whose supports are scalars to what its wheels' paths, sensors
             and detector need, with the physics guards' margins from the clamped ends
             (:meth:`wfjax.Scenario.lengthened`), and a detector's to at least
-            :data:`wfjax.scenario.guards.READING_BAYS` (its reading within 0.5 %);
+            :data:`READING_BAYS` (its reading within 0.5 %);
             per-sleeper supports fix the length.
         elements_per_bay (static): rail beam elements per sleeper bay.
         absorbing_sleepers (static): the last n sleepers at each end, whose pad and ballast
@@ -203,8 +204,7 @@ class Track(Validated):
     ``x = (i + 1 - n_bays // 2) L_S``). In an array, the pad damping and the ballast stiffness
     and damping may be 0 (a hanging sleeper, :func:`wfjax.model.supports.void_sleeper`); pad
     stiffness and sleeper mass stay > 0 (a sleeper must hang from the rail and have mass);
-    ``ballast_gap`` is in [0, 0.05] m.
-    Presets and random scatter: :mod:`wfjax.model.supports`.
+    ``ballast_gap`` is in [0, 0.05] m. Presets and random scatter: :mod:`wfjax.model.supports`.
     """
 
     bending_stiffness: Any = option(6.4e6, unit="N m^2", low=1e5, high=1e8, positive=True,
@@ -237,7 +237,7 @@ class Track(Validated):
     n_bays: int = option(24, low=4, high=1000,
                          doc="least number of sleeper bays of the finite track model "
                              "(lengthened to what the case's wheels and sensors need; "
-                             "a detector's to 36)")
+                             f"a detector's to {READING_BAYS})")
     elements_per_bay: int = option(26, low=1, high=64, doc="rail beam elements per sleeper bay",
                                    flag="--elements-per-bay", flag_commands=("receptance",))
     absorbing_sleepers: int = option(3, low=0, high=40,

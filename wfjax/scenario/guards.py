@@ -30,7 +30,7 @@ import warnings
 import numpy as np
 
 from ..contact.geometry3d import elliptic_hertz
-from ..params import SUPPORT_FIELDS, Material, SimConfig, Track, Wheel
+from ..params import READING_BAYS, SUPPORT_FIELDS, Material, SimConfig, Track, Wheel
 
 ACCURACY = 0.03  # the largest max-force error against the reference that runs without a word
 STEP_FACTOR = 0.4  # dt f_W
@@ -40,9 +40,6 @@ MESH_FACTOR = 3.0  # rail elements per bending wavelength at the highest kept mo
 ELEMENT_FACTOR = 0.15  # contact element / 2a
 END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
 SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
-READING_BAYS = 36  # a Detector's least track: its reading within 0.5 % of the 70-bay
-# reference's with params.READING_SETTINGS (0.45 %; 0.93 % on 24 bays before the damper
-# augmentation; docs/convergence.md)
 RECEPTANCE_BAYS = 140  # direct point receptances within 0.5 % of an 800-bay track's, 20 Hz -
 # 2 kHz outside the pinned-pinned band 900-990 Hz, where no finite track converges pointwise
 # (benchmarks/receptance_length.py)
@@ -107,8 +104,8 @@ def at_least(track: Track, half: float) -> Track:
 def holding_instruments(track: Track, sensors, detector=None) -> Track:
     """``track`` lengthened (scalar supports only) so that every sensor [m] and bridge of
     ``detector`` (a :class:`wfjax.scenario.sensors.Detector`) keeps :func:`sensor_margin`
-    from the clamped ends, and to at least :data:`READING_BAYS` bays with a detector;
-    non-finite positions are left to the sensors' own check."""
+    from the clamped ends, and to at least :data:`wfjax.params.READING_BAYS` bays with a
+    detector; non-finite positions are left to the sensors' own check."""
     x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
     if detector is not None and extendable(track) and int(track.n_bays) < READING_BAYS:
         track = dataclasses.replace(track, n_bays=READING_BAYS)

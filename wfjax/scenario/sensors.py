@@ -291,7 +291,7 @@ class Detector:
     passage is the bay's reading (``docs/detector.md``). The reading is within 0.5 % of the
     converged reference (0.45 %) with the settings a run that reads a detector resolves to
     (:data:`wfjax.params.READING_SETTINGS` through :meth:`wfjax.SimConfig.resolved`, on at
-    least :data:`wfjax.scenario.guards.READING_BAYS` bays); with the force's settings about
+    least :data:`wfjax.params.READING_BAYS` bays); with the force's settings about
     1.1 % off.
 
     Attributes:
