@@ -19,11 +19,19 @@ Sections (``--sections``, all by default):
   the force's auto cut-off: 12 kHz since 2026-12-05), with and without the absorbing ends,
   against the infinite periodic track (``wfjax.track.periodic_receptance``) on the accuracy
   table's 40 frequencies: largest relative difference [%], and outside 850-1050 Hz;
+* ``layers``: other end treatments of the default's 24 bays, solved directly (sparse FE, no
+  modes, so the treatment alone is measured): the rail's mass-proportional end damping over
+  4, 6 or 8 bays at each end (quadratic, up to 3,000 or 10,000 1/s), and rotational dampers
+  on the rail at the sleepers (graded the same way over 8 bays, up to 1e3 or 1e4 N m s; they
+  act where a pinned-pinned wave's slope is largest), each on top of the sleepers' grading:
+  the largest relative difference [%] of the point (0.3 m) and transfer (0.3 -> 1.0 m)
+  receptances from the infinite periodic track on the 40 frequencies, and outside 850-1050
+  Hz;
 * ``timing``: whole-process warm wall times [s] of ``wfjax detector`` on 36 and 60 bays and
   of ``wfjax figures --only 8`` with and without the absorbing ends, ``--rounds`` alternated
   rounds after one unrecorded warm-up of each.
 
-Run: ``python benchmarks/absorbing_ends.py [--sections grading,rail,receptance,timing]
+Run: ``python benchmarks/absorbing_ends.py [--sections grading,rail,receptance,layers,timing]
 [--rounds 3]``; writes ``benchmarks/results/absorbing_ends.json`` and prints the figures.
 """
 
@@ -117,6 +125,75 @@ def rail() -> dict:
     return out
 
 
+LAYERS = {  # label -> (zone [bays], rail damping [1/s], rotational damping [N m s])
+    "default: 4 bays, 3000 1/s": (4, 3000.0, 0.0),
+    "6 bays, 3000 1/s": (6, 3000.0, 0.0), "8 bays, 3000 1/s": (8, 3000.0, 0.0),
+    "6 bays, 10000 1/s": (6, 1e4, 0.0), "8 bays, 10000 1/s": (8, 1e4, 0.0),
+    "8 bays, 3000 1/s, rotational 1e3": (8, 3000.0, 1e3),
+    "8 bays, 3000 1/s, rotational 1e4": (8, 3000.0, 1e4)}
+
+
+def _layer_damping(track, zone_bays: int, eta: float, rotational: float):
+    """The FE model of ``track`` with the rail's end damping (``fe.end_rail_damping``'s
+    form) over ``zone_bays`` at each end, up to ``eta`` [1/s], and its damping matrix plus
+    rotational dampers [N m s] on the rail at the sleepers, graded alike (quadratically)."""
+    import scipy.sparse
+
+    from wfjax.model import fe as fe_mod
+
+    ls = float(track.sleeper_spacing)
+
+    def ramp(x, length, top):
+        d = np.minimum(x, length - x)
+        return top * np.clip(1.0 - d / (zone_bays * ls), 0.0, 1.0) ** 2
+
+    kept = fe_mod.end_rail_damping
+    try:
+        fe_mod.end_rail_damping = lambda x, length, _zone: ramp(np.asarray(x), length, eta)
+        model = fe_mod.assemble(track)
+    finally:
+        fe_mod.end_rail_damping = kept
+    x_node = model.node_x[1:-1] - model.node_x[0]  # the free rail nodes [m from the left end]
+    on_sleeper = np.abs(x_node / ls - np.round(x_node / ls)) < 1e-6
+    rot = np.zeros(model.mass.shape[0])
+    rot[1:model.n_rail_dof:2] = np.where(
+        on_sleeper, ramp(x_node, int(track.n_bays) * ls, rotational), 0.0)
+    return model, (model.damping + scipy.sparse.diags(rot)).tocsc()
+
+
+def _direct(model, damping, freqs, x: float, xr: float) -> np.ndarray:
+    """[n_f] receptance [m/N] from ``x`` to ``xr`` [m] by sparse solves (no modes)."""
+    import scipy.sparse.linalg
+
+    from wfjax.model import fe as fe_mod
+
+    b = fe_mod.load_vector(model, np.array([x])).toarray()[:, 0].astype(complex)
+    r = fe_mod.load_vector(model, np.array([xr])).toarray()[:, 0]
+    out = []
+    for f in freqs:
+        w = 2 * np.pi * f
+        a = (model.stiffness + 1j * w * damping - w * w * model.mass).tocsc()
+        out.append(r @ scipy.sparse.linalg.spsolve(a, b))
+    return np.asarray(out)
+
+
+def layers() -> dict:
+    """Per end treatment of 24 bays: the largest and the outside-850-1050-Hz relative
+    differences [%] of the direct receptances from the infinite track's."""
+    track = wf.Track.comparison(n_bays=24)
+    band = (FREQS < 850) | (FREQS > 1050)
+    out = {}
+    for label, (zone, eta, rot) in LAYERS.items():
+        model, c = _layer_damping(track, zone, eta, rot)
+        for name, xr in (("point 0.3", 0.3), ("transfer 0.3->1.0", 1.0)):
+            e = 100 * np.abs(_direct(model, c, FREQS, 0.3, xr)
+                             / periodic_receptance(track, FREQS, 0.3, xr) - 1)
+            out[f"{label}, {name}"] = [round(float(e.max()), 2), round(float(e[band].max()), 2)]
+        print(f"layers {label}: {out[f'{label}, point 0.3']} {out[f'{label}, transfer 0.3->1.0']}",
+              flush=True)
+    return out
+
+
 def receptance() -> dict:
     """Largest / outside-850-1050-Hz relative difference [%] from the infinite track."""
     out, band = {}, (FREQS < 850) | (FREQS > 1050)
@@ -153,12 +230,12 @@ def timing(rounds: int) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sections", default="grading,rail,receptance,timing")
+    ap.add_argument("--sections", default="grading,rail,receptance,layers,timing")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results"
                                          / "absorbing_ends.json"))
     a = ap.parse_args()
-    makers = {"grading": grading, "rail": rail, "receptance": receptance,
+    makers = {"grading": grading, "rail": rail, "receptance": receptance, "layers": layers,
               "timing": lambda: timing(a.rounds)}
     out = pathlib.Path(a.out)
     result = json.loads(out.read_text()) if out.exists() else {}  # other sections kept
