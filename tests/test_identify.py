@@ -295,6 +295,24 @@ def test_batch_padding():
     assert [fwd._padded(n) for n in (1, 2, 3, 5, 8, 9, 34, 40)] == [1, 2, 4, 8, 8, 16, 40, 40]
 
 
+def test_compiled_batches_are_bounded(monkeypatch):
+    """Once the batch function holds MAX_BATCH_PROGRAMS compiled programs they are dropped
+    (each holds its machine code in memory maps: a long identification ran out of them)."""
+    import jax
+    import jax.numpy as jnp
+
+    batch = jax.jit(lambda x: 2 * x)
+    monkeypatch.setattr(fwd, "_bogie_batch", batch)
+    monkeypatch.setattr(fwd, "MAX_BATCH_PROGRAMS", 3)
+    for n in (1, 2):
+        batch(jnp.zeros(n))
+    fwd._bounded_programs()
+    assert batch._cache_size() == 2  # under the bound: kept
+    batch(jnp.zeros(3))
+    fwd._bounded_programs()
+    assert batch._cache_size() == 0
+
+
 @pytest.mark.slow
 def test_coupled_batch_equals_coupled_runs():
     """Bogies batched (:func:`coupled_batch`, mixed flat kinds: two batches) read what each
@@ -312,3 +330,9 @@ def test_coupled_batch_equals_coupled_runs():
         p, f = fwd.coupled_readings(flats, impacts, [0.0, 2.5], 100 / 3.6, det)
         np.testing.assert_allclose(peaks[k], p, rtol=1e-9)
         np.testing.assert_allclose(force[k], f, rtol=1e-9)
+    # the same batches with another group first compile nothing new (the first group's
+    # flat kinds once entered every batch's program signature: one program per order)
+    programs = fwd._bogie_batch._cache_size()
+    again, _ = fwd.coupled_batch(groups[::-1], [0.0, 2.5], 100 / 3.6, det)
+    assert fwd._bogie_batch._cache_size() == programs
+    np.testing.assert_array_equal(again[::-1], peaks)

@@ -420,11 +420,11 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
     return np.asarray(peaks[0]), np.asarray(force[0])
 
 
-@functools.partial(jax.jit, static_argnames=("treedef", "mapped", "statics"))
-def _bogie_batch(data, leaves, runs, treedef, mapped, statics):
+@functools.partial(jax.jit, static_argnames=("treedef", "statics"))
+def _bogie_batch(data, leaves, runs, treedef, statics):
     """Detector peaks [B, n_wheels, n_bays] and peak forces [B, n_wheels] [N] of B groups of
-    one program: ``leaves`` of (reference law, the other wheels' laws, flat delays), stacked
-    along a leading axis [B] where ``mapped`` and shared otherwise, rebuilt by ``treedef``."""
+    one program: ``leaves`` of (reference law, the other wheels' laws, flat delays), each
+    stacked along a leading axis [B], rebuilt by ``treedef``."""
     save = Histories(instruments=False)
 
     def one(own, run):
@@ -434,19 +434,27 @@ def _bogie_batch(data, leaves, runs, treedef, mapped, statics):
         after = jnp.arange(out["force"].shape[0])[:, None] >= run.run_in
         return out["detector_peak"], jnp.max(jnp.where(after, out["force"], 0.0), axis=0)
 
-    axes = [0 if m else None for m in mapped]
-    return jax.vmap(one, in_axes=(axes, 0))(list(leaves), runs)
+    return jax.vmap(one)(list(leaves), runs)
+
+
+# Compiled batches kept at most: every layout, track, law structure and batch size is a
+# program of its own, and each holds its machine code in memory maps; a process that
+# identified train after train (a study, a wayside service) grew by about 1,000 maps per
+# program until the kernel's limit (vm.max_map_count, 65,530) ended it after 22 wagons.
+MAX_BATCH_PROGRAMS = 16
+
+
+def _bounded_programs() -> None:
+    """Drop :func:`_bogie_batch`'s compiled programs once it holds MAX_BATCH_PROGRAMS (a
+    persistent compilation cache, as the ``wfjax`` command enables, reloads them)."""
+    if _bogie_batch._cache_size() >= MAX_BATCH_PROGRAMS:
+        _bogie_batch.clear_cache()
 
 
 def _padded(n: int) -> int:
     """The batch size that runs ``n`` groups: a power of two up to 8, then a multiple of 8 (a
     compiled batch serves every count that pads to its size)."""
     return 1 << (n - 1).bit_length() if n <= 8 else -(-n // 8) * 8
-
-
-def _same(a, b) -> bool:
-    return a is b or (np.shape(a) == np.shape(b) and bool(np.array_equal(np.asarray(a),
-                                                                           np.asarray(b))))
 
 
 def _group_laws(flats, sc: Scenario, contact: str, cache_dir) -> tuple:
@@ -530,7 +538,10 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
     sc = Scenario.of(f0[0], contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
-    data = jax.tree.map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a, prog.data)
+    # the other wheels' laws come per group (the batch's leaves): the first group's would
+    # carry its flat kinds into the program's signature and compile it again for each
+    data = jax.tree.map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a,
+                        prog.data._replace(others=None))
     x0, dt, n_steps, run_in = _window(detector, track, wheel, config, positions, speed)
     statics = (n_steps, sc.config.newton_iterations, sc.config.precision)
     by_tree: dict = {}
@@ -546,15 +557,14 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
         idx = [m[0] for m in members]
         size = _padded(len(members))
         pad = members + [members[0]] * (size - len(members))
-        cols = list(zip(*(m[1] for m in pad), strict=True))
-        mapped = tuple(not all(_same(c[0], x) for x in c[1:]) for c in cols)
-        leaves = [jnp.stack([jnp.asarray(x) for x in c]) if m else c[0]
-                  for c, m in zip(cols, mapped, strict=True)]
+        cols = zip(*(m[1] for m in pad), strict=True)
+        leaves = [jnp.stack([jnp.asarray(x) for x in c]) for c in cols]
         runs = Run(*(jnp.asarray(c) for c in (
             np.zeros(size, int), np.full(size, float(speed)), np.full(size, dt),
             np.full(size, x0), np.array([m[2] for m in pad]), np.full(size, run_in),
             np.full(size, n_steps), np.zeros(size, int))))
-        p, f = _bogie_batch(data, leaves, runs, treedef, mapped, statics)
+        _bounded_programs()
+        p, f = _bogie_batch(data, leaves, runs, treedef, statics)
         peaks[idx], force[idx] = np.asarray(p)[:len(idx)], np.asarray(f)[:len(idx)]
     _log.debug("coupled batch of %d groups: %.1f s", len(cases), time.perf_counter() - t0)
     return peaks, force
