@@ -3,6 +3,8 @@ results to the bit, and traced as before where they cannot be kept."""
 
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 import pytest
 
@@ -31,10 +33,10 @@ def _traced() -> list[bool]:
 
 
 def test_a_kept_program_loads_without_tracing_and_gives_the_same_bits(tmp_path, monkeypatch):
-    monkeypatch.setattr(exported, "_LOADED", {})
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())
     first = _sweep(tmp_path)
     assert len(_entries(tmp_path)) == 1 and _traced() == [True]
-    monkeypatch.setattr(exported, "_LOADED", {})  # as a new process
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())  # as a new process
 
     def no_trace(*args):
         raise AssertionError("traced although the program was kept")
@@ -49,7 +51,7 @@ def test_a_kept_program_loads_without_tracing_and_gives_the_same_bits(tmp_path, 
 def test_a_program_without_serialization_is_traced(tmp_path, monkeypatch):
     """Without the flatbuffers package jax.export cannot serialize: the sweep traces its
     program as before and keeps nothing."""
-    monkeypatch.setattr(exported, "_LOADED", {})
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())
 
     def missing(self, *args, **kwargs):
         raise ModuleNotFoundError("No module named 'flatbuffers'")
@@ -63,7 +65,7 @@ def test_a_program_without_serialization_is_traced(tmp_path, monkeypatch):
 def test_without_flatbuffers_nothing_is_exported(tmp_path, monkeypatch):
     """Where flatbuffers is not installed the programs are traced once, as jits: no export
     is traced first only to fail at serialization."""
-    monkeypatch.setattr(exported, "_LOADED", {})
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())
     monkeypatch.setattr(exported, "_serializable", lambda: False)
 
     def no_export(*a, **k):
@@ -119,10 +121,10 @@ def test_a_kept_laws_batch_loads_without_tracing(tmp_path, monkeypatch):
     flats = [wf.Flat.rounded(0.6e-3, 0.08), wf.Flat.rounded(0.9e-3, 0.1)]
     args = ("hertz-trajectory", flats, wf.Wheel(), wf.Track(), wf.Material(), CONFIG,
             tmp_path)
-    monkeypatch.setattr(exported, "_LOADED", {})
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())
     first, _ = prepare_batch(*args)
     assert len(list(tmp_path.glob("program-*"))) == 1
-    monkeypatch.setattr(exported, "_LOADED", {})
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())
 
     def no_export(*a, **k):
         raise AssertionError("traced although the program was kept")
@@ -168,10 +170,10 @@ def test_a_kept_simulation_loads_without_tracing(tmp_path, monkeypatch):
                         cache_dir=tmp_path)
         return np.stack([r.force, r.rail_disp])
 
-    monkeypatch.setattr(exported, "_LOADED", {})
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())
     first = run()
     assert len(list(tmp_path.glob("program-*"))) == 1
-    monkeypatch.setattr(exported, "_LOADED", {})
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())
 
     def no_export(*a, **k):
         raise AssertionError("traced although the program was kept")
@@ -179,3 +181,35 @@ def test_a_kept_simulation_loads_without_tracing(tmp_path, monkeypatch):
     monkeypatch.setattr(exported.jax.export, "export", no_export)
     np.testing.assert_array_equal(run(), first)
     assert np.max(first[0]) > 1e5  # the impact's force [N]
+
+
+def test_loaded_programs_are_bounded(tmp_path, monkeypatch):
+    """A process keeps at most MAX_LOADED_PROGRAMS programs, the least recently used dropped:
+    each holds its machine code in memory maps, and simulating speed after speed (each a
+    program of its own step count) grew a process by ~300 maps a speed, towards the kernel's
+    65,530. Counted here in kept programs and in the process's memory maps (24 small
+    programs: about 260 more maps if all are kept, under 20 with two)."""
+    import jax.numpy as jnp
+
+    monkeypatch.setattr(exported, "_LOADED", collections.OrderedDict())
+    monkeypatch.setattr(exported, "MAX_LOADED_PROGRAMS", 2)
+
+    def kept(n):  # host arrays in and out: no op-by-op compilation in the count
+        return exported.kept_jit(lambda a: {"y": jnp.cumsum(a) * 2.0}, (np.zeros(n),), (n,),
+                                 tmp_path)
+
+    def maps():
+        with open("/proc/self/maps") as f:
+            return sum(1 for _ in f)
+
+    first = kept(3)
+    assert float(first(np.ones(3))["y"][-1]) == 6.0
+    kept(4)(np.ones(4))
+    assert kept(3) is first  # used again: now the most recent
+    kept(5)(np.ones(5))  # drops n = 4, the least recently used
+    assert len(exported._LOADED) == 2 and kept(3) is first
+    before = maps()
+    for n in range(6, 30):
+        kept(n)(np.ones(n))
+    assert len(exported._LOADED) == 2
+    assert maps() - before < 120

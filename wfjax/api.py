@@ -81,11 +81,12 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
     v = check_speed(speed)
     run, x_imp, scenario = _run_of(scenario, v, impact_position, angle0, n_steps)
     program = compile_scenario(scenario, cache_dir)
-    hist = program.history(run)
+    # summarised on the host: jnp would compile a dozen small programs for every step count
+    hist = {k: np.asarray(a) for k, a in program.history(run).items()}
     fw = scenario.vehicle.flat_wheel
     quantities = () if program.data.sensors is None else program.data.sensors.quantities
-    res = summarise_run(hist, fw, v, x_imp, run.dt, run.run_in, quantities,
-                        program.data.struct.preload)
+    res = summarise_run(hist, fw, v, x_imp, float(run.dt), int(run.run_in), quantities,
+                        np.asarray(program.data.struct.preload))
     if not scenario.per_wheel:
         res = one_wheel(res, fw)
     if program.data.struct.supports is not None:

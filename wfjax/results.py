@@ -192,19 +192,27 @@ class SimResult(NamedTuple):
         return json.dumps(self.summary(), indent=2)
 
 
+def _xp(hist: dict):
+    """numpy when every history is a host array (one run's, :func:`wfjax.simulate`: no
+    op-by-op compilation for each step count), else jnp (traced, batched programs)."""
+    return np if all(isinstance(v, np.ndarray) for v in hist.values()) else jnp
+
+
 def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(),
               preload=None, end_steps=None) -> SimResult:
-    """Reduce histories to a :class:`SimResult` (pure jnp; works batched under vmap).
+    """Reduce histories to a :class:`SimResult` (jnp, works batched under vmap; numpy for
+    host histories).
 
     ``quantities`` names the rows of the sensor outputs in ``hist`` (if any); ``preload`` [N]
     is the static wheel load the detector's ratio refers to. The extremes, loss of contact
     and axle-box peak count the steps ``run_in_steps <= n < end_steps`` (default: to the
     end of the histories).
     """
+    xp = _xp(hist)
     sensor = {}
     if "sensor_max" in hist:
         def split(a, axis):
-            return {q: jnp.take(a, i, axis=axis) for i, q in enumerate(quantities)}
+            return {q: xp.take(a, i, axis=axis) for i, q in enumerate(quantities)}
 
         sensor = {"sensor_max": split(hist["sensor_max"], -2),
                   "sensor_min": split(hist["sensor_min"], -2)}
@@ -217,26 +225,26 @@ def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(
             sensor["detector_load"] = hist["detector_load"]
     f = hist["force"]
     n = f.shape[-1]
-    after = counted_steps(n, run_in_steps, end_steps)
-    f_after = jnp.where(after, f, jnp.nan)
+    after = counted_steps(n, run_in_steps, end_steps, xp)
+    f_after = xp.where(after, f, xp.nan)
     lost = after & (f <= 0)
-    acc = hist.get("axle_acc", jnp.zeros_like(f))
+    acc = hist.get("axle_acc", xp.zeros_like(f))
     return SimResult(
-        axle_acc=acc, axle_acc_peak=jnp.max(jnp.where(after, jnp.abs(acc), 0.0), axis=-1),
+        axle_acc=acc, axle_acc_peak=xp.max(xp.where(after, xp.abs(acc), 0.0), axis=-1),
         t=hist["t"], x=hist["x"], s=hist["s"], force=f, approach=hist["approach"],
         wheel_disp=hist["wheel_disp"], rail_disp=hist["rail_disp"], residual=hist["residual"],
-        max_force=jnp.nanmax(f_after, axis=-1), min_force=jnp.nanmin(f_after, axis=-1),
-        loss_of_contact=jnp.any(lost, axis=-1),
-        loss_of_contact_duration=jnp.sum(lost, axis=-1) * dt,
-        speed=jnp.asarray(speed, dtype=float), impact_position=jnp.asarray(impact_position,
-                                                                             dtype=float),
-        time_step=jnp.asarray(dt, dtype=float), **sensor,
+        max_force=xp.nanmax(f_after, axis=-1), min_force=xp.nanmin(f_after, axis=-1),
+        loss_of_contact=xp.any(lost, axis=-1),
+        loss_of_contact_duration=xp.sum(lost, axis=-1) * dt,
+        speed=xp.asarray(speed, dtype=float), impact_position=xp.asarray(impact_position,
+                                                                           dtype=float),
+        time_step=xp.asarray(dt, dtype=float), **sensor,
     )
 
 
-def counted_steps(n_steps: int, run_in_steps, end_steps=None):
+def counted_steps(n_steps: int, run_in_steps, end_steps=None, xp=jnp):
     """[n_steps] bool: the steps a summary counts, ``run_in_steps <= n < end_steps``."""
-    n = jnp.arange(n_steps)
+    n = xp.arange(n_steps)
     return (n >= run_in_steps) if end_steps is None else (n >= run_in_steps) & (n < end_steps)
 
 
@@ -254,20 +262,21 @@ def summarise_run(hist: dict, flat_wheel: int, speed, impact_position, dt, run_i
     main.pop("detector_peak", None)
     res = summarise(main, speed, impact_position, dt, run_in_steps, quantities,
                     end_steps=end_steps)
+    xp = _xp(hist)
     f, acc = hist["force"], hist["axle_acc"]
-    after = counted_steps(f.shape[0], run_in_steps, end_steps)[:, None]
+    after = counted_steps(f.shape[0], run_in_steps, end_steps, xp)[:, None]
     extra = {}
     if "detector_peak" in hist:
         extra = {"detector_peak": hist["detector_peak"],
-                 "detector_ratio": hist["detector_peak"] / jnp.asarray(preload)[:, None]}
+                 "detector_ratio": hist["detector_peak"] / xp.asarray(preload)[:, None]}
         if "detector_load" in hist:
             extra["detector_load"] = hist["detector_load"]
     return res._replace(
-        wheel_force=f, wheel_max_force=jnp.max(jnp.where(after, f, -jnp.inf), axis=0),
-        wheel_min_force=jnp.min(jnp.where(after, f, jnp.inf), axis=0),
-        wheel_loss_of_contact=jnp.any(after & (f <= 0), axis=0),
-        wheel_axle_acc=acc, wheel_axle_acc_peak=jnp.max(jnp.where(after, jnp.abs(acc), 0.0),
-                                                        axis=0),
+        wheel_force=f, wheel_max_force=xp.max(xp.where(after, f, -xp.inf), axis=0),
+        wheel_min_force=xp.min(xp.where(after, f, xp.inf), axis=0),
+        wheel_loss_of_contact=xp.any(after & (f <= 0), axis=0),
+        wheel_axle_acc=acc, wheel_axle_acc_peak=xp.max(xp.where(after, xp.abs(acc), 0.0),
+                                                       axis=0),
         wheel_x=hist["x"], **extra)
 
 

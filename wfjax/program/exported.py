@@ -24,6 +24,7 @@ array, an object's address) is not kept; nor is a program when serialization is 
 
 from __future__ import annotations
 
+import collections
 import functools
 import hashlib
 import importlib.util
@@ -41,7 +42,32 @@ from .._xla import loop_compiler_options
 
 __all__ = ["sharded_program", "kept_jit", "sources_hash"]
 
-_LOADED: dict = {}  # this process's programs by key hash
+# This process's programs by key hash, the most recently used last. Each holds its machine code
+# in memory maps (about 300 for one run's history, 1,000 for a sweep's batch), so a process
+# that simulated speed after speed (every speed a program: its step count shapes the history)
+# would run into the kernel's vm.max_map_count (65,530) after ~200; the least recently used
+# are dropped beyond MAX_LOADED_PROGRAMS (a dropped one reloads from the wfjax cache and
+# XLA's persistent cache when the command line enabled it, else compiles again).
+MAX_LOADED_PROGRAMS = 32
+_LOADED: collections.OrderedDict = collections.OrderedDict()
+
+
+def _recall(memo):
+    """The loaded program of ``memo`` (marked as just used), or None."""
+    program = _LOADED.get(memo)
+    if program is not None:
+        _LOADED.move_to_end(memo)
+    return program
+
+
+def _keep(memo, program):
+    """Keep ``program`` under ``memo``, dropping the least recently used beyond
+    MAX_LOADED_PROGRAMS; returns ``program``."""
+    _LOADED[memo] = program
+    _LOADED.move_to_end(memo)
+    while len(_LOADED) > MAX_LOADED_PROGRAMS:
+        _LOADED.popitem(last=False)
+    return program
 _UNSAFE = re.compile(r"\.\.\.|0x[0-9a-f]{6,}|<[^<>]* object")
 
 
@@ -187,8 +213,8 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, cache_dir=None):
     key = _key(treedef, leaves, int(mesh.devices.size), statics, local)
     memo = (key_hash("sweep-program", key) if key is not None
             else (local, treedef, n_data, len(leaves), mesh))
-    if memo in _LOADED:
-        return _LOADED[memo]
+    if (known := _recall(memo)) is not None:
+        return known
     traced = []
 
     def build():
@@ -205,8 +231,7 @@ def sharded_program(local, mesh: Mesh, statics, data, columns, cache_dir=None):
         exported = jax.export.deserialize(bytearray(entry["stablehlo"].tobytes()))
         loaded = _Loaded(jax.jit(exported.call, compiler_options=loop_compiler_options()),
                          bool(traced))
-    _LOADED[memo] = loaded
-    return loaded
+    return _keep(memo, loaded)
 
 
 def kept_jit(fn, args: tuple, statics, cache_dir=None, compiler_options=None,
@@ -233,25 +258,24 @@ def kept_jit(fn, args: tuple, statics, cache_dir=None, compiler_options=None,
     if key is None:
         return fallback
     memo = key_hash("program", key)
-    if memo not in _LOADED:
-        trees = []
+    if (known := _recall(memo)) is not None:
+        return known
+    trees = []
 
-        def flat(*leaves):
-            out, tree = jax.tree.flatten(fn(*jax.tree.unflatten(treedef, leaves)))
-            trees.append(tree)
-            return out
+    def flat(*leaves):
+        out, tree = jax.tree.flatten(fn(*jax.tree.unflatten(treedef, leaves)))
+        trees.append(tree)
+        return out
 
-        def build():
-            exported = jax.export.export(jax.jit(flat))(*_avals(leaves))
-            return {"stablehlo": _as_bytes(exported.serialize()),
-                    "out_tree": _as_bytes(pickle.dumps(trees[0]))}
+    def build():
+        exported = jax.export.export(jax.jit(flat))(*_avals(leaves))
+        return {"stablehlo": _as_bytes(exported.serialize()),
+                "out_tree": _as_bytes(pickle.dumps(trees[0]))}
 
-        entry = _entry("program", key, build, cache_dir)
-        out_tree = None if entry is None else _out_tree(entry["out_tree"])
-        if out_tree is None:  # kept for the process, so its jit cache serves later calls
-            _LOADED[memo] = fallback
-            return fallback
-        call = jax.jit(jax.export.deserialize(bytearray(entry["stablehlo"].tobytes())).call,
-                       compiler_options=compiler_options)
-        _LOADED[memo] = lambda *a: jax.tree.unflatten(out_tree, call(*jax.tree.leaves(a)))
-    return _LOADED[memo]
+    entry = _entry("program", key, build, cache_dir)
+    out_tree = None if entry is None else _out_tree(entry["out_tree"])
+    if out_tree is None:  # kept for the process, so its jit cache serves later calls
+        return _keep(memo, fallback)
+    call = jax.jit(jax.export.deserialize(bytearray(entry["stablehlo"].tobytes())).call,
+                   compiler_options=compiler_options)
+    return _keep(memo, lambda *a: jax.tree.unflatten(out_tree, call(*jax.tree.leaves(a))))
