@@ -10,7 +10,12 @@ compile time from ``jax.monitoring`` compile events, run time the median of repe
 direct mode: its first call minus compilation, one repeat). Peak memory is the process's
 ``ru_maxrss`` after each model (monotone: a model's own peak is at most that).
 
-Run: ``python benchmarks/bench_simulate.py [--no-direct] [--repeats 3]``. Prints Markdown.
+``--loop N``: instead, ``wf.simulate`` called in one process at N speeds (new 0.9 mm flat,
+Hertz-trajectory, 40 km/h up in steps of 8 km/h; each speed a program of its own step count):
+the wall time of each call and the process's memory maps (``/proc/self/maps``) after it.
+
+Run: ``python benchmarks/bench_simulate.py [--no-direct] [--repeats 3] [--loop 20]``. Prints
+Markdown.
 """
 
 from __future__ import annotations
@@ -43,11 +48,29 @@ def peak_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def simulate_loop(n: int) -> None:
+    """``wf.simulate`` at ``n`` speeds in this process: seconds and memory maps per call."""
+    def maps() -> int:
+        with open("/proc/self/maps") as f:
+            return sum(1 for _ in f)
+
+    print(f"memory maps at the start: {maps()}\n\n| speed [km/h] | call [s] | memory maps |")
+    print("| --- | --- | --- |")
+    for k in range(n):
+        v = 40.0 + 8.0 * k
+        t0 = time.perf_counter()
+        wf.simulate(wf.Flat.new(0.9e-3), v / 3.6, contact="hertz-trajectory")
+        print(f"| {v:.0f} | {time.perf_counter() - t0:.2f} | {maps()} |", flush=True)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--no-direct", action="store_true", help="skip the 3D per-step direct mode")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--loop", type=int, default=0, help="wf.simulate at this many speeds")
     a = p.parse_args()
+    if a.loop:
+        return simulate_loop(a.loop)
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
     wheel, track, material, config = wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig()
     v, imp = 100 / 3.6, 0.0
