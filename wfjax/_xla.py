@@ -38,6 +38,12 @@ def cpu_only(options: dict) -> dict | None:
     return options if jax.default_backend() == "cpu" else None
 
 
+def array_module(a):
+    """numpy for a host array (concrete work: no op-by-op compilation per shape), else jnp
+    (JAX arrays and tracers)."""
+    return np if isinstance(a, np.ndarray) else jnp
+
+
 def to_device(x, dtype=None):
     """``jnp.asarray(x, dtype)`` without compiling for host values (NumPy arrays and scalars).
 

@@ -85,7 +85,7 @@ def simulate(flat: Flat, speed: float, contact: str = "3d", impact_position: flo
     hist = {k: np.asarray(a) for k, a in program.history(run).items()}
     fw = scenario.vehicle.flat_wheel
     quantities = () if program.data.sensors is None else program.data.sensors.quantities
-    res = summarise_run(hist, fw, v, x_imp, float(run.dt), int(run.run_in), quantities,
+    res = summarise_run(hist, fw, v, x_imp, run.dt, run.run_in, quantities,
                         np.asarray(program.data.struct.preload))
     if not scenario.per_wheel:
         res = one_wheel(res, fw)

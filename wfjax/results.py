@@ -10,6 +10,8 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from ._xla import array_module
+
 __all__ = ["SimResult", "summarise", "summarise_run", "one_wheel", "flat_label"]
 
 
@@ -192,12 +194,6 @@ class SimResult(NamedTuple):
         return json.dumps(self.summary(), indent=2)
 
 
-def _xp(hist: dict):
-    """numpy when every history is a host array (one run's, :func:`wfjax.simulate`: no
-    op-by-op compilation for each step count), else jnp (traced, batched programs)."""
-    return np if all(isinstance(v, np.ndarray) for v in hist.values()) else jnp
-
-
 def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(),
               preload=None, end_steps=None) -> SimResult:
     """Reduce histories to a :class:`SimResult` (jnp, works batched under vmap; numpy for
@@ -208,7 +204,7 @@ def summarise(hist: dict, speed, impact_position, dt, run_in_steps, quantities=(
     and axle-box peak count the steps ``run_in_steps <= n < end_steps`` (default: to the
     end of the histories).
     """
-    xp = _xp(hist)
+    xp = array_module(hist["force"])  # numpy for one run's host histories (simulate)
     sensor = {}
     if "sensor_max" in hist:
         def split(a, axis):
@@ -262,7 +258,7 @@ def summarise_run(hist: dict, flat_wheel: int, speed, impact_position, dt, run_i
     main.pop("detector_peak", None)
     res = summarise(main, speed, impact_position, dt, run_in_steps, quantities,
                     end_steps=end_steps)
-    xp = _xp(hist)
+    xp = array_module(hist["force"])
     f, acc = hist["force"], hist["axle_acc"]
     after = counted_steps(f.shape[0], run_in_steps, end_steps, xp)[:, None]
     extra = {}

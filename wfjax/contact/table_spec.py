@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._xla import array_module
 from ..params import Flat, Material
 from . import geometry3d, kalker
 from .interpolation import CENTRE_INNER, CENTRE_OUTER, column_coordinate, column_positions
@@ -214,11 +215,6 @@ def whole_grid_column(spec: TableSpec, flat: Flat, material: Material, s, tol: f
 def compression_nodes(spec: TableSpec) -> np.ndarray:
     """[n_t - 1] compressions c_j = c_max t_j^2 of the solved t nodes (t_0 = 0 is F = 0)."""
     return spec.c_max * np.linspace(0.0, 1.0, spec.n_t)[1:] ** 2
-
-
-def array_module(a):
-    """numpy for host arrays (the concrete builds: no op-by-op compilations), else jnp."""
-    return np if isinstance(a, np.ndarray) else jnp
 
 
 def column_outputs(spec: TableSpec, f, k):

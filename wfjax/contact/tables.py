@@ -53,13 +53,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._parallel import core_pool
-from .._xla import to_device
+from .._xla import array_module, to_device
 from ..params import Flat, Material
 from . import influence, kalker
 from .interpolation import ContactTable
 from .table_spec import (
     TableSpec,
-    array_module,
     column_outputs,
     compression_nodes,
     table_spec,
