@@ -17,7 +17,9 @@ element method of Mace, Duhamel, Brennan & Hinke 2005):
    circle, so two decay to the right (|lambda| < 1) and two to the left;
 3. the right half's boundary stiffness K_R = D_LL + D_LR Phi Lambda Phi^-1 (the force at
    its first node that holds it at u_0, its waves decaying away), the left half's
-   K_L = D_RR + D_RL Psi Lambda'^-1 Psi^-1;
+   K_L = D_RR + D_RL Psi Lambda'^-1 Psi^-1; computed by cyclic reduction of the chain of
+   cells (:func:`_semi_infinite`), which gives the same without the eigenvectors, which
+   are ill-conditioned where two waves decay alike;
 4. a section of a few cells, K_L and K_R at its ends, solved for the harmonic load.
 
 The result is the infinite track's receptance to the FE discretisation, with no length to
@@ -89,17 +91,40 @@ def _waves(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lam, vec[:2]
 
 
+REDUCTION_TOL = 1e-14  # cyclic reduction stops when the far coupling is this small
+REDUCTION_STEPS = 64  # at most 2^64 cells folded: beyond that the waves do not decay
+
+
+def _semi_infinite(boundary: np.ndarray, inward: np.ndarray, outward: np.ndarray,
+                   diagonal: np.ndarray) -> np.ndarray:
+    """Boundary stiffness [2, 2] of a semi-infinite chain of identical cells by cyclic
+    reduction (the decimation of Sancho, Lopez Sancho & Rubio 1985): every second node is
+    condensed out, doubling the cells per step, until the coupling to the far node is
+    negligible. ``boundary``: the boundary node's own block; ``outward`` / ``inward``: a
+    node's coupling to its outer / inner neighbour; ``diagonal``: an inner node's block.
+
+    Unlike the Floquet eigenvectors, it needs no wave to be told from another, so it stays
+    exact where two multipliers come close (1.36 and 5.9 kHz on the default track, where
+    the eigenvector form was 1.3 % and a factor 5 off a 400-bay track)."""
+    b, a1, a_out, a_in = boundary, diagonal, outward, inward
+    for _ in range(REDUCTION_STEPS):
+        x = np.linalg.inv(a1)
+        xa_in, xa_out = x @ a_in, x @ a_out
+        b = b - a_out @ xa_in
+        a1 = a1 - a_in @ xa_out - a_out @ xa_in
+        a_in, a_out = -a_in @ xa_in, -a_out @ xa_out
+        if np.abs(a_out).max() <= REDUCTION_TOL * np.abs(b).max():
+            return b
+    raise ValueError("a Floquet wave neither decays nor grows: an undamped track has no "
+                     "unique infinite-track receptance at this frequency")
+
+
 def _half_stiffnesses(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(K_L, K_R) [2, 2]: the left and right semi-infinite tracks' boundary stiffnesses."""
-    lam, phi = _waves(d)
-    order = np.argsort(np.abs(lam))
-    right, left = order[:2], order[2:]  # |lambda| < 1: decaying to the right
-    if np.any(np.isclose(np.abs(lam[order[1:3]]), 1.0, rtol=1e-12, atol=0.0)):
-        raise ValueError("a Floquet wave neither decays nor grows: an undamped track has no "
-                         "unique infinite-track receptance at this frequency")
-    pr, pl = phi[:, right], phi[:, left]
-    k_r = d[:2, :2] + d[:2, 2:] @ pr @ np.diag(lam[right]) @ np.linalg.inv(pr)
-    k_l = d[2:, 2:] + d[2:, :2] @ pl @ np.diag(1.0 / lam[left]) @ np.linalg.inv(pl)
+    """(K_L, K_R) [2, 2]: the left and right semi-infinite tracks' boundary stiffnesses (the
+    force at the half's end node that holds it at u_0, its waves decaying away)."""
+    dll, dlr, drl, drr = d[:2, :2], d[:2, 2:], d[2:, :2], d[2:, 2:]
+    k_r = _semi_infinite(dll, drl, dlr, dll + drr)
+    k_l = _semi_infinite(drr, dlr, drl, dll + drr)
     return k_l, k_r
 
 
