@@ -29,7 +29,11 @@ a patch of ``wfjax.model.track`` for the measurement): a new flat's max and min 
 bays with the network, with today's ends and clamped, against 70 bays with today's ends;
 and the network's modal receptance beside the band edge.
 
-Run: ``python benchmarks/end_network.py [--sections fit,time] [--n-aux 24]
+Section ``warm``: fits for other tracks (softer and stiffer pads, softer ballast, closer
+sleepers) started from the default's network, 800 iterations each: how long a track's own
+network takes when a stored one is the start.
+
+Run: ``python benchmarks/end_network.py [--sections fit,time,warm] [--n-aux 24]
 [--iterations 6000] [--seed 1]`` (fit about 7 minutes on 2 cores, time 1 minute; ``time``
 alone reuses the fitted factors); writes ``benchmarks/results/end_network.json``.
 """
@@ -99,8 +103,10 @@ def _network_stiffness(mats, w, xp=jnp):
     return s[:, :2, :2] - s[:, :2, 2:] @ xp.linalg.solve(s[:, 2:, 2:], s[:, 2:, :2])
 
 
-def fit(n_aux: int, iterations: int, seed: int, hf_weight: float, cell_kmc) -> tuple:
-    """The fitted factors and the fit's largest / median relative error in 10-2500 Hz."""
+def fit(n_aux: int, iterations: int, seed: int, hf_weight: float, cell_kmc,
+        start=None) -> tuple:
+    """The fitted factors and the fit's largest / median relative error in 10-2500 Hz and
+    where the largest is [Hz]; from ``start`` (factors) if given, else a random start."""
     band = np.unique(np.concatenate([np.geomspace(10, 700, 150), np.arange(700, 900, 1.0),
                                      np.arange(900, 1000, 0.25), np.arange(1000, 1300, 1.0),
                                      np.geomspace(1300, 2500, 100)]))
@@ -123,6 +129,7 @@ def fit(n_aux: int, iterations: int, seed: int, hf_weight: float, cell_kmc) -> t
     diag = np.flatnonzero(tri[0] == tri[1])
     for i in range(3):
         x0[i * nt + diag] = np.abs(x0[i * nt + diag]) + 1.0
+    x0 = x0 if start is None else np.asarray(start)
     res = scipy.optimize.minimize(lambda x: tuple(np.asarray(v) for v in value_grad(x)), x0,
                                   jac=True, method="L-BFGS-B",
                                   options={"maxiter": iterations, "maxcor": 50, "ftol": 1e-15,
@@ -317,6 +324,27 @@ def _beside(h) -> dict:
     return {f"+-{d:g} Hz": round(float(e[np.abs(FINE - edge) > d].max()), 2) for d in EXCLUDED_HZ}
 
 
+WARM_TRACKS = {"pads 60 MN/m": {"pad_stiffness": 60e6},
+               "pads 240 MN/m": {"pad_stiffness": 240e6},
+               "ballast 70 MN/m": {"ballast_stiffness": 70e6},
+               "sleepers 0.6 m apart": {"sleeper_spacing": 0.6}}
+
+
+def warm(factors, n_aux: int, iterations: int, hf_weight: float) -> dict:
+    """Fits for other tracks started from the default's network (``factors``), at most
+    ``iterations``: seconds and the fit's largest / median error [%] in 10-2500 Hz."""
+    out = {}
+    for label, changes in WARM_TRACKS.items():
+        track = wf.Track.comparison(**changes)
+        kmc = P._cell_matrices(P._numbers(track), int(track.elements_per_bay))
+        t0 = time.perf_counter()
+        _, e_max, e_med, at = fit(n_aux, iterations, 0, hf_weight, kmc, start=factors)
+        out[label] = {"s": round(time.perf_counter() - t0, 1), "max_pct": round(100 * e_max, 2),
+                      "at_Hz": at, "median_pct": round(100 * e_med, 3)}
+        print(label, out[label], flush=True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sections", default="fit,time")
@@ -339,6 +367,9 @@ def main() -> None:
         print(result, flush=True)
         result["receptance"] = receptance_errors(x, a.n_aux)
         result["factors"] = np.asarray(x).tolist()  # L_K, L_C, L_M stacked (_matrices)
+        out.write_text(json.dumps(result, indent=1))
+    if "warm" in a.sections:
+        result["warm"] = warm(result["factors"], result["n_aux"], 800, result["hf_weight"])
         out.write_text(json.dumps(result, indent=1))
     if "time" in a.sections:
         result["time_domain"] = time_domain(result["factors"], result["n_aux"])
