@@ -56,6 +56,16 @@ def test_floquet_multipliers_come_in_reciprocal_pairs_and_decay():
     assert decay[0] > 0.1 and decay[1] < 0.003
 
 
+def test_the_slower_multiplier_is_the_receptances_decay_along_the_rail():
+    """At 1361.5 Hz two waves decay alike and the waves' eigenproblem gave 0.926 for the
+    slower (and 2e-5 for the faster, 0.070): 20 bays from the load only the slower wave is
+    left, and the infinite track's receptance decays by its multiplier from bay to bay."""
+    h = T.periodic_receptance(wfjax.Track(), [1361.5], 0.3, 0.3 + LS * np.array([20, 21]))[0]
+    lam = P.floquet_multipliers(wfjax.Track(), [1361.5])[0]
+    assert abs(h[1] / h[0]) == pytest.approx(abs(lam[1]), rel=1e-6)
+    assert abs(lam[0]) == pytest.approx(0.0696, rel=1e-3)
+
+
 def test_periodic_receptance_equals_a_long_finite_track_away_from_pinned_pinned():
     """Away from the pinned-pinned band, a 400-bay clamped track (direct sparse FE solve) is
     converged in length: the periodic receptance equals it, point and transfer, statics
