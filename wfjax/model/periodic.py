@@ -119,13 +119,16 @@ def _semi_infinite(boundary: np.ndarray, inward: np.ndarray, outward: np.ndarray
                      "unique infinite-track receptance at this frequency")
 
 
+def _right_stiffness(d: np.ndarray) -> np.ndarray:
+    """K_R [2, 2]: the right semi-infinite track's boundary stiffness (the force at its first
+    node that holds it at u_0, its waves decaying away)."""
+    return _semi_infinite(d[:2, :2], d[2:, :2], d[:2, 2:], d[:2, :2] + d[2:, 2:])
+
+
 def _half_stiffnesses(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(K_L, K_R) [2, 2]: the left and right semi-infinite tracks' boundary stiffnesses (the
-    force at the half's end node that holds it at u_0, its waves decaying away)."""
-    dll, dlr, drl, drr = d[:2, :2], d[:2, 2:], d[2:, :2], d[2:, 2:]
-    k_r = _semi_infinite(dll, drl, dlr, dll + drr)
-    k_l = _semi_infinite(drr, dlr, drl, dll + drr)
-    return k_l, k_r
+    """(K_L, K_R) [2, 2]: the left and right semi-infinite tracks' boundary stiffnesses."""
+    k_l = _semi_infinite(d[2:, 2:], d[:2, 2:], d[2:, :2], d[:2, :2] + d[2:, 2:])
+    return k_l, _right_stiffness(d)
 
 
 def floquet_multipliers(track: Track, freqs) -> np.ndarray:
@@ -145,8 +148,8 @@ def floquet_multipliers(track: Track, freqs) -> np.ndarray:
         w = 2 * math.pi * f
         d = _condensed(k - w**2 * m + 1j * w * c)
         try:
-            k_r = _half_stiffnesses(d)[1]
-            right = np.linalg.eigvals(-np.linalg.solve(d[2:, 2:] + k_r, d[2:, :2]))
+            right = np.linalg.eigvals(-np.linalg.solve(d[2:, 2:] + _right_stiffness(d),
+                                                        d[2:, :2]))
             lam = np.concatenate([right, 1.0 / right])
         except ValueError:
             lam = _waves(d)[0]
