@@ -29,11 +29,13 @@ a patch of ``wfjax.model.track`` for the measurement): a new flat's max and min 
 bays with the network, with today's ends and clamped, against 70 bays with today's ends;
 and the network's modal receptance beside the band edge.
 
+Section ``edge``: the band edge's figures (:func:`edge_figures`).
+
 Section ``warm``: fits for other tracks (softer and stiffer pads, softer ballast, closer
 sleepers) started from the default's network, 800 iterations each: how long a track's own
 network takes when a stored one is the start.
 
-Run: ``python benchmarks/end_network.py [--sections fit,time,warm] [--n-aux 24]
+Run: ``python benchmarks/end_network.py [--sections fit,time,edge,warm] [--n-aux 24]
 [--iterations 6000] [--seed 1]`` (fit about 7 minutes on 2 cores, time 1 minute; ``time``
 alone reuses the fitted factors); writes ``benchmarks/results/end_network.json``.
 """
@@ -198,6 +200,19 @@ def band_edge(track=None) -> float:
         peak = f[np.argmax(np.abs(P.periodic_receptance(track, f, 0.3, 1.0)))]
         f = peak + np.arange(-100, 100) * step
     return float(f[np.argmax(np.abs(P.periodic_receptance(track, f, 0.3, 1.0)))])
+
+
+def edge_figures() -> dict:
+    """The band edge [Hz], |H| [m/N] of the infinite track's transfer receptance 0.3 -> 1.0 m
+    at 1, 0.1, 0.01 Hz and 0 from it (|f - f_edge|^-1/2 grows a decade in |H| per two
+    decades in f), and the slower wave's decay there [Np per bay]."""
+    edge, track = band_edge(), wf.Track.comparison()
+    offsets = np.array([-1.0, -0.1, -0.01, 0.0, 0.01, 0.1, 1.0])
+    h = np.abs(P.periodic_receptance(track, edge + offsets, 0.3, 1.0))
+    lam = P.floquet_multipliers(track, [edge])[0]
+    return {"band_edge_Hz": round(edge, 4), "offsets_Hz": offsets.tolist(),
+            "abs_H_m_per_N": [float(f"{v:.3g}") for v in h],
+            "slower_wave_decay_Np_per_bay": float(f"{-np.log(abs(lam[1])):.3g}")}
 
 
 def beside_band_edge(network: np.ndarray) -> dict:
@@ -376,6 +391,10 @@ def main() -> None:
         print(result, flush=True)
         result["receptance"] = receptance_errors(x, a.n_aux)
         result["factors"] = np.asarray(x).tolist()  # L_K, L_C, L_M stacked (_matrices)
+        out.write_text(json.dumps(result, indent=1))
+    if "edge" in a.sections:
+        result["edge"] = edge_figures()
+        print(result["edge"], flush=True)
         out.write_text(json.dumps(result, indent=1))
     if "warm" in a.sections:
         result["warm"] = warm(result["factors"], result["n_aux"], 800, result["hf_weight"])
