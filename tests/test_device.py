@@ -48,7 +48,9 @@ def test_table_batch_size_by_platform_and_batched_build_agrees():
                  for b in (1, 4))
     force = np.asarray(one.force)
     assert force.max() > 5e5  # the table spans the 600 kN range
-    np.testing.assert_allclose(np.asarray(four.force), force, rtol=0, atol=1e-7 * force.max())
+    # batch 1: windowed, float32 to tables.WINDOWED_TOL; batch 4: the whole grid, float64
+    np.testing.assert_allclose(np.asarray(four.force), force, rtol=0,
+                               atol=2 * tables.WINDOWED_TOL * force.max())
     np.testing.assert_array_equal(np.asarray(four.onset), np.asarray(one.onset))
 
 

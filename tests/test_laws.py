@@ -252,7 +252,8 @@ def test_exact_tables_of_two_kinds_run_as_one_program(tmp_path, monkeypatch):
 
 def test_tables_built_together_equal_tables_built_alone(tmp_path):
     """cached_tables_3d builds the missing tables together (one set of window sizes): each
-    equals its table built alone within the solver's tolerance, and lands in the cache."""
+    equals its table built alone within the solver's tolerance (relative, float32 solves:
+    tables.WINDOWED_TOL), and lands in the cache."""
     flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
     together = table_law.cached_tables_3d(flats, 0.45, 0.3, wf.Material(), 2e-3, tmp_path)
     assert len(list(tmp_path.glob("table3d-*"))) == 2
@@ -260,7 +261,7 @@ def test_tables_built_together_equal_tables_built_alone(tmp_path):
         alone = tables.build_table_3d(flat, 0.45, 0.3, wf.Material(), element_size=2e-3)
         assert float(table.converged) == 1.0
         np.testing.assert_allclose(table.force, alone.force, rtol=0,
-                                   atol=1e-8 * float(np.max(alone.force)))
+                                   atol=2 * tables.WINDOWED_TOL * float(np.max(alone.force)))
         loaded = table_law.cached_table_3d(flat, 0.45, 0.3, wf.Material(), 2e-3, tmp_path)
         np.testing.assert_array_equal(loaded.force, table.force)
 

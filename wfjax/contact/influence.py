@@ -129,6 +129,7 @@ def _fft_apply(khat, q, nx: int, ny: int, shape: tuple[int, int] | None = None):
     """
     mx, my = (fft_length(nx), fft_length(ny)) if shape is None else shape
     qhat = jnp.fft.fft(jnp.fft.rfft(q, n=my, axis=-1), n=mx, axis=-2)
+    khat = khat.astype(qhat.dtype if jnp.iscomplexobj(khat) else qhat.real.dtype)
     rows = jnp.fft.ifft(qhat * khat, axis=-2)[..., :nx, :]
     return jnp.fft.irfft(rows, n=my, axis=-1)[..., :ny]
 

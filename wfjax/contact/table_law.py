@@ -34,8 +34,9 @@ __all__ = [
 # Part of every 3D table's cache key, so a change of the builder's results within one wfjax
 # version is never served from an old cache: 2 = new-flat onsets include the chord ends;
 # 3 = issue 20's faster CG and shared window sizes (forces within 1e-9 of revision 2's);
-# 4 = a new flat's columns crowd at its centre (table_spec.NEW_FLAT_STRETCH).
-TABLE_BUILDER_REVISION = 4
+# 4 = a new flat's columns crowd at its centre (table_spec.NEW_FLAT_STRETCH); 5 = solves in
+# float32 to 1e-6 (tables.WINDOWED_TOL; forces within 8e-7 of revision 4's).
+TABLE_BUILDER_REVISION = 5
 # Columns of a 3D table solved together (``tables.build_table_3d(batch_size=...)``), by JAX
 # platform: one at a time on CPUs (a vmap over the columns was 4.5x slower on 2 cores: every
 # batched Kalker while-loop runs until its slowest column); GPUs/TPUs fill their lanes.

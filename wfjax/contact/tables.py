@@ -171,7 +171,7 @@ def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, s
     n_c = len(compressions)
     gpz = np.zeros((3,) + gap.shape, gap.dtype)  # gap, then the warm starts p and z
     gpz[0] = gap
-    out = np.zeros((n_c, 3), gap.dtype)
+    out = np.zeros((n_c, 3))
     warm = np.zeros((n_c, 2) + gap.shape, gap.dtype) if keep else None
     if shared:
         out[:shared] = np.stack([reference.force[:shared], reference.stiffness[:shared],
@@ -184,7 +184,7 @@ def _solve_column(solvers, sizes, gap: np.ndarray, onset: float, compressions, s
         k = int(size_index[j])
         wx, wy = sizes[k]
         window = np.s_[:, int(x0[j]):int(x0[j]) + wx, int(y0[j]):int(y0[j]) + wy]
-        pz, out[j] = solvers[k](gpz[window], onset + c, material)
+        pz, out[j] = solvers[k](gpz[window], gap.dtype.type(onset + c), material)
         gpz[1:] = 0.0
         gpz[(np.s_[1:],) + window[1:]] = pz
         if keep:
@@ -197,6 +197,15 @@ def _grid_sizes(spec: TableSpec, sizes) -> tuple[tuple[int, int], ...]:
     return tuple(dict.fromkeys((min(wx, spec.nx), min(wy, spec.ny)) for wx, wy in sizes))
 
 
+# The CG tolerance of concrete (windowed) builds unless one is given. Their solves run in
+# float32, which reaches it, at this tolerance or a looser one; a tighter one solves in float64.
+# Against float64 at 1e-8 the default sweep's tables move by 8e-7 of their largest force
+# (slopes: median 6e-8, 4 of 4,256 nodes 1e-3, an edge element's flip) and its max and min
+# forces by 2e-6 and 7e-6; the build costs 29 % less CPU (docs/convergence.md).
+WINDOWED_TOL = 1e-6
+WHOLE_GRID_TOL = 1e-8  # the CG tolerance of whole-grid (traced, batched) builds
+
+
 def _build_windowed(specs, flats, material: Material, tol: float,
                     max_sizes: int = MAX_WINDOW_SIZES) -> list[ContactTable]:
     """:func:`build_tables_3d` of concrete flats: every solve on its window, the window sizes
@@ -207,6 +216,8 @@ def _build_windowed(specs, flats, material: Material, tol: float,
     cores stay busy whatever the tables' sizes)."""
     columns = [(spec, _solve_positions(spec)) for spec in specs]
     gaps = [column_gaps(spec, flat, s) for (spec, s), flat in zip(columns, flats, strict=True)]
+    if tol >= WINDOWED_TOL:  # the solves in float32 (the table's values stay float64)
+        gaps = [(g.astype(np.float32), onsets) for g, onsets in gaps]
     shared = [shared_prefix(g, onsets, compression_nodes(spec))
               for spec, (g, onsets) in zip(specs, gaps, strict=True)]
     solved = [solved_mask(n, spec.n_t - 1) for spec, n in zip(specs, shared, strict=True)]
@@ -283,7 +294,7 @@ def _assemble(spec: TableSpec, onset, force, slope, ok) -> ContactTable:
 def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
                    material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
                    max_force: float = 600e3, ds: float | None = None, n_t: int = 16,
-                   spec: TableSpec | None = None, tol: float = 1e-8,
+                   spec: TableSpec | None = None, tol: float | None = None,
                    batch_size: int = 1, windows: bool = True) -> ContactTable:
     """Build the 3D contact table F3D(delta, s) of ``flat`` (see the module docstring).
 
@@ -295,7 +306,9 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
         max_force: largest force to cover [N].
         ds: column spacing [m] (default ``element_size``); n_t: nodes along the compression.
         spec: a precomputed :func:`table_spec` (required when ``flat`` holds tracers).
-        tol: CG tolerance of the solves.
+        tol: relative CG tolerance of the solves (default: :data:`WINDOWED_TOL` for a
+            windowed build, in float32 at it or looser, float64 tighter;
+            :data:`WHOLE_GRID_TOL` on the whole grid, in the inputs' precision).
         batch_size: columns solved together by ``vmap`` (> 1 for wide devices; then every
             solve runs on the whole grid).
         windows: solve each compression on a window around its rigid overlap
@@ -309,18 +322,22 @@ def build_table_3d(flat: Flat, wheel_radius: float = 0.45, rail_head_radius: flo
         spec = table_spec(flat, wheel_radius, rail_head_radius, material, element_size,
                           max_force, ds, n_t)
     if windows and int(batch_size) == 1 and kalker._is_concrete_tree((flat, material)):
-        return _build_windowed([spec], [flat], material, float(tol))[0]
-    return _build(spec, flat, material, float(tol), int(batch_size))
+        return _build_windowed([spec], [flat], material,
+                               WINDOWED_TOL if tol is None else float(tol))[0]
+    return _build(spec, flat, material, WHOLE_GRID_TOL if tol is None else float(tol),
+                  int(batch_size))
 
 
 def build_tables_3d(flats, wheel_radius: float = 0.45, rail_head_radius: float = 0.45,
                     material: Material = _DEFAULT_MATERIAL, element_size: float = 1e-3,
-                    max_force: float = 600e3, tol: float = 1e-8) -> list[ContactTable]:
+                    max_force: float = 600e3,
+                    tol: float = WINDOWED_TOL) -> list[ContactTable]:
     """:func:`build_table_3d` of several concrete flats, built together: one set of window
     sizes for all (each size compiles once), their columns spread over the CPU cores.
 
-    A table's values depend on its windows only within the solver's tolerance (about 1e-9
-    of its largest force), so a table built with others equals the one built alone to that.
+    A table's values depend on its windows only within the solver's tolerance ``tol``
+    (relative; float32 solves at :data:`WINDOWED_TOL` or looser, see :func:`build_table_3d`),
+    so a table built with others equals the one built alone to that.
     """
     flats = list(flats)
     if not kalker._is_concrete_tree((flats, material)):
