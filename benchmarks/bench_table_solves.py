@@ -2,10 +2,11 @@
 
 For the rounded flat 0.9 mm x 100 mm and the new flat 0.9 mm (R_W = 0.45 m, R_R = 0.30 m,
 1 mm elements), the solves a build runs and the ones it shares with the smooth-wheel column
-(``tables.shared_prefix``), then the active-set and CG iterations of every solve, with each
-solve warm-started from the previous pressure alone or from the first-order prediction
-p + E* dc z that ``tables._solve_column`` uses (same windows, a solver that also returns its
-iteration counts), and the wall / CPU time of a second build in one process (solvers compiled).
+(``tables.shared_prefix``), then the active-set and CG iterations of every solve (float32 to
+``tables.WINDOWED_TOL``, as the builds), with each solve warm-started from the previous
+pressure alone or from the first-order prediction p + E* dc z that ``tables._solve_column``
+uses (same windows, a solver that also returns its iteration counts), and the wall / CPU
+time of a second build in one process (solvers compiled).
 
 Run: ``python benchmarks/bench_table_solves.py``. Prints one line per measurement.
 """
@@ -23,7 +24,8 @@ from wfjax.contact import influence, kalker, table_spec, tables, windows
 
 FLATS = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
 MAT = wf.Material()
-TOL = 1e-8
+TOL = tables.WINDOWED_TOL  # the builds' own tolerance, and their precision at it:
+DTYPE = np.float32
 
 
 def counting_solver(size, h):
@@ -45,7 +47,7 @@ def counting_solver(size, h):
 def iterations(predict: bool):
     """(outer, CG) iterations over every solve of both tables, no sharing."""
     estar = float(influence.combined_modulus(MAT)) if predict else 0.0
-    mat = windows.solver_inputs(MAT, np.float64)
+    mat = windows.solver_inputs(MAT, DTYPE)
     outer = cg = 0
     for flat in FLATS:
         spec = table_spec.table_spec(flat, 0.45, 0.30, MAT, 1e-3)
@@ -58,7 +60,7 @@ def iterations(predict: bool):
         solvers = [counting_solver(size, spec.element_size) for size in plan.sizes]
         cs = table_spec.compression_nodes(spec)
         for i in range(len(onsets)):
-            gpz = np.zeros((3,) + gaps[i].shape)
+            gpz = np.zeros((3,) + gaps[i].shape, DTYPE)
             gpz[0] = gaps[i]
             for j, c in enumerate(cs):
                 if j:  # estar = 0: the previous pressure alone
@@ -67,7 +69,7 @@ def iterations(predict: bool):
                 wx, wy = plan.sizes[k]
                 x0, y0 = int(plan.x0[i, j]), int(plan.y0[i, j])
                 window = np.s_[:, x0:x0 + wx, y0:y0 + wy]
-                pz, out = solvers[k](gpz[window], onsets[i] + c, mat)
+                pz, out = solvers[k](gpz[window], DTYPE(onsets[i] + c), mat)
                 gpz[1:] = 0.0
                 gpz[(np.s_[1:],) + window[1:]] = pz
                 outer += int(out[3])
