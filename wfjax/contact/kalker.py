@@ -280,8 +280,9 @@ class KalkerResult(NamedTuple):
     diagnostics: Diagnostics
 
 
-def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_iter: int):
-    """Outer active-set loop on q = p / E*. Returns (q, mask, delta, u, outer, cg, ok).
+def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_iter: int,
+                     z0=None):
+    """Outer active-set loop on q = p / E*. Returns (q, mask, delta, u, z, outer, cg, ok).
 
     Inexact-Newton flavour: while the active set still changes, CG stops at the loose
     tolerance ``LOOSE_TOL`` (the set update only needs the sign pattern); once the set has
@@ -289,49 +290,71 @@ def _active_set_loop(cfg: _Config, g, target, q0, mask0, force_mode: bool, max_i
     solve. Under approach control the displacement u = C q comes out of the CG; admitting
     elements (q = 0 there) leaves it unchanged, and only releasing elements costs an operator
     application, so an outer iteration costs its CG iterations and little more.
+
+    With ``z0`` (approach control only) the stiffness solve C_AA z = 1_A on the final set runs
+    as one more pass of the loop from ``z0``, through the same CG: one CG loop to compile, not
+    two; ``ok`` then includes its convergence and ``outer`` leaves the pass out. ``z`` is None
+    without it.
     """
     op, prec = cfg.op(), cfg.prec()
     loose = max(cfg.tol, LOOSE_TOL)
     gmin = jnp.min(g)
+    fold = z0 is not None
 
-    def inner(q, u, mask, delta, tol):
+    def inner(s, tol):
+        q, u, mask, delta = s["q"], s["u"], s["mask"], s["delta"]
         if force_mode:
             q, delta, k, ok = _cg_fixed_sum(op, g, target, q, mask, tol, cfg.cg_max_iter,
                                             prec)
-            u = op(q)
-        else:
-            q, k, ok, u = _cg(op, delta - g, q, mask, tol, cfg.cg_max_iter, prec, u0=u)
+            return q, op(q), delta, k, ok
+        rhs = delta - g
+        if fold:  # the stiffness pass: 1_A from z (its displacement computed then only)
+            zp = s["z_pass"]
+            rhs, q = jnp.where(zp, mask, rhs), jnp.where(zp, s["z"], q)
+            u = jax.lax.cond(zp, lambda: op(mask * s["z"]), lambda: u)
+        q, k, ok, u = _cg(op, rhs, q, mask, tol, cfg.cg_max_iter, prec, u0=u)
         return q, u, delta, k, ok
 
     def cond(s):
-        return (~s["done"]) & (s["it"] < max_iter)
+        more = s["it"] < max_iter
+        return (~s["done"]) & ((more | s["z_pass"]) if fold else more)
 
     def body(s):
-        tol = jnp.where(s["tight"], cfg.tol, loose)
-        q, u, delta, k, ok = inner(s["q"], s["u"], s["mask"], s["delta"], tol)
+        zp = s["z_pass"] if fold else jnp.bool_(False)
+        tol = jnp.where(s["tight"] | zp, cfg.tol, loose)
+        x, ux, delta, k, ok = inner(s, tol)
+        q, u = jnp.where(zp, s["q"], x), jnp.where(zp, s["u"], ux)
         h = g - delta + u
         qmax = jnp.max(q)
         href = jnp.maximum(delta - gmin, 0.0)
         set_tol = 10.0 * tol
         active = s["mask"] > 0
-        neg = active & (q < -set_tol * qmax)
-        pen = (~active) & (h < -set_tol * href)
+        neg = active & (q < -set_tol * qmax) & ~zp
+        pen = (~active) & (h < -set_tol * href) & ~zp
         new_active = (active & ~neg) | pen
         maskf = new_active.astype(q.dtype)
         changed = jnp.any(neg | pen)
         done = ~changed & ok & s["tight"]
         if not force_mode:  # u of the released pressures leaves with them
             u = jax.lax.cond(jnp.any(neg), lambda: u - op(q * neg), lambda: u)
-        return dict(q=q * maskf, mask=maskf, delta=delta, u=u, it=s["it"] + 1,
-                    cg=s["cg"] + k, done=done, tight=s["tight"] | ~changed)
+        out = dict(q=q * maskf, mask=maskf, delta=delta, u=u,
+                   it=s["it"] + jnp.where(zp, 0, 1).astype(s["it"].dtype), cg=s["cg"] + k,
+                   done=done, tight=s["tight"] | ~changed)
+        if fold:  # after the set has settled (or run out of passes), the stiffness pass
+            out.update(done=zp, ok=jnp.where(zp, s["ok"] & ok, done), z=jnp.where(zp, x, s["z"]),
+                       z_pass=~zp & (done | (out["it"] >= max_iter)))
+        return out
 
     delta0 = jnp.zeros((), g.dtype) if force_mode else jnp.asarray(target, g.dtype)
     q0 = q0 * mask0
     state = dict(q=q0, mask=mask0, delta=delta0, u=jnp.zeros_like(g) if force_mode else op(q0),
                  it=jnp.int32(0), cg=jnp.int32(0), done=jnp.bool_(False),
                  tight=jnp.bool_(False))
+    if fold:
+        state.update(z=z0, z_pass=jnp.bool_(False), ok=jnp.bool_(False))
     s = jax.lax.while_loop(cond, body, state)
-    return s["q"], s["mask"], s["delta"], s["u"], s["it"], s["cg"], s["done"]
+    return (s["q"], s["mask"], s["delta"], s["u"], s["z"] if fold else None, s["it"], s["cg"],
+            s["ok"] if fold else s["done"])
 
 
 def _residual(q, h, delta, gmin):
@@ -364,8 +387,12 @@ def _solve_impl(cfg: _Config, g, material, approach, force, p_init, max_iter, st
         delta_in = jnp.asarray(approach, dtype)
         mask0 = warm.astype(dtype)
         target = jax.lax.stop_gradient(delta_in)
-    q, maskf, delta, u, it, cg_it, conv = _active_set_loop(
-        cfg, g_sg, target, jax.lax.stop_gradient(q0), mask0, force_mode, max_iter)
+    fold = stiffness and not force_mode  # the stiffness solve as the set loop's last pass
+    z_start = jnp.zeros_like(g_sg) if z_init is None else jax.lax.stop_gradient(
+        jnp.asarray(z_init, dtype))
+    q, maskf, delta, u, z, it, cg_it, conv = _active_set_loop(
+        cfg, g_sg, target, jax.lax.stop_gradient(q0), mask0, force_mode, max_iter,
+        z_start if fold else None)
     q = jnp.maximum(q, 0.0) * maskf
     h = g_sg - delta + u
     residual = _residual(q, h, delta, jnp.min(g_sg))
@@ -377,11 +404,11 @@ def _solve_impl(cfg: _Config, g, material, approach, force, p_init, max_iter, st
     pressure = estar * q
     force_out = area * jnp.sum(pressure)
     if stiffness:
-        z0 = jnp.zeros_like(q) if z_init is None else jax.lax.stop_gradient(z_init)
-        z, k2, ok2, _ = _cg(cfg.op(), maskf, z0, maskf, cfg.tol, cfg.cg_max_iter, cfg.prec())
+        if not fold:  # force control: the stiffness solve after the set loop
+            z, k2, ok2, _ = _cg(cfg.op(), maskf, z_start, maskf, cfg.tol, cfg.cg_max_iter,
+                                cfg.prec())
+            cg_it, conv = cg_it + k2, conv & ok2
         stiff = jax.lax.stop_gradient(area * estar * jnp.sum(z))
-        cg_it = cg_it + k2
-        conv = conv & ok2
     else:
         z = jnp.zeros_like(q)
         stiff = jnp.full((), jnp.nan, dtype)
