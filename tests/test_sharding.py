@@ -102,3 +102,40 @@ def test_in_background_hands_back_the_result_or_the_error():
 
     with pytest.raises(ValueError, match="table build failed"):
         in_background(fail).result(timeout=10)
+
+
+def test_while_compiling_waits_for_the_trace_or_the_result():
+    """Work deferred with while_compiling starts when a program has been traced
+    (start_deferred), not before; asked for first, it runs then; once, either way; its
+    error reaches the caller."""
+    import threading
+
+    from wfjax._parallel import start_deferred, while_compiling
+
+    started = threading.Event()
+    calls = []
+
+    def work(x):
+        calls.append(x)
+        started.set()
+        return x + 1
+
+    deferred = while_compiling(work, 1)
+    assert not started.wait(0.2) and calls == []  # nothing before the trace
+    start_deferred()
+    assert started.wait(10)
+    assert deferred.result() == 2 and calls == [1]
+    start_deferred()  # nothing left: no second run
+    assert deferred.result() == 2 and calls == [1]
+
+    asked_first = while_compiling(work, 5)
+    assert asked_first.result() == 6 and calls == [1, 5]
+    start_deferred()  # already run on demand: not again
+    assert asked_first.result() == 6 and calls == [1, 5]
+
+    def fail():
+        raise ValueError("import failed")
+
+    with pytest.raises(ValueError, match="import failed"):
+        while_compiling(fail).result()
+    start_deferred()

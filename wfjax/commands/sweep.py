@@ -47,11 +47,12 @@ def check_formats(formats: list[str]) -> None:
 def run(args) -> int:
     import importlib
 
-    from .._parallel import in_background
+    from .._parallel import while_compiling
     from ..sweeps import sweep
 
-    # matplotlib (0.3 s) imports while the sweep runs: only the figures at the end need it
-    plotting_ahead = in_background(importlib.import_module, "wfjax.plotting")
+    # matplotlib (0.4 s) imports while the sweep's program compiles: only the figures at the
+    # end need it
+    plotting_ahead = while_compiling(importlib.import_module, "wfjax.plotting")
     case = resolve_case(args, "sweep")
     check_formats(args.format)
 

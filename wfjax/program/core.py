@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh
 
-from .._parallel import in_background
+from .._parallel import in_background, start_deferred
 from .._xla import loop_compiler_options
 from ..contact.laws import prepare
 from ..contact.table_law import cached_tables_3d
@@ -405,6 +405,7 @@ class _Sweep:
         data = self.data._replace(laws=grid_mod.replicate(laws, self.mesh))
         first = grid_mod.chunk(runs, 0, self.mesh)[1]
         fn = _sweep_program(self.mesh, statics, data, first, program.cache_dir)
+        start_deferred()  # traced: XLA compiles next, the GIL is free
         if group.tables:
             compiled = fn.lower(data, *first).compile()
             like, laws = laws, table_laws(tables_ahead.result())
