@@ -6,7 +6,8 @@ For the rounded flat 0.9 mm x 100 mm and the new flat 0.9 mm (R_W = 0.45 m, R_R 
 ``tables.WINDOWED_TOL``, as the builds), with each solve warm-started from the previous
 pressure alone or from the first-order prediction p + E* dc z that ``tables._solve_column``
 uses (same windows, a solver that also returns its iteration counts), and the wall / CPU
-time of a second build in one process (solvers compiled).
+time of a second build in one process (solvers compiled); then the default build against
+float64 to 1e-8 (:func:`precision_change`: the float32 solves' effect on the tables).
 
 Run: ``python benchmarks/bench_table_solves.py``. Prints one line per measurement.
 """
@@ -95,6 +96,27 @@ def main():
     tables.build_tables_3d(FLATS, 0.45, 0.30, MAT, 1e-3)
     print(f"second build (solvers compiled): {time.perf_counter() - t0:.2f} s, "
           f"{time.process_time() - c0:.2f} CPU-s", flush=True)
+    precision_change()
+
+
+def precision_change():
+    """The default build (float32 to ``tables.WINDOWED_TOL``) against float64 to 1e-8: the
+    largest force difference relative to the table's largest force, and the slopes' largest
+    (relative to the largest slope), median and 99th-percentile node-wise relative differences,
+    per table; then the float64 build's time, as the second build's above."""
+    default = tables.build_tables_3d(FLATS, 0.45, 0.30, MAT, 1e-3)
+    tables.build_tables_3d(FLATS, 0.45, 0.30, MAT, 1e-3, tol=1e-8)  # compiles the solvers
+    t0, c0 = time.perf_counter(), time.process_time()
+    tight = tables.build_tables_3d(FLATS, 0.45, 0.30, MAT, 1e-3, tol=1e-8)
+    print(f"float64 to 1e-8 (solvers compiled): {time.perf_counter() - t0:.2f} s, "
+          f"{time.process_time() - c0:.2f} CPU-s", flush=True)
+    for flat, a, b in zip(FLATS, default, tight, strict=True):
+        fa, fb = np.asarray(a.force), np.asarray(b.force)
+        sa, sb = np.asarray(a.slope), np.asarray(b.slope)
+        node = np.abs(sa - sb) / np.maximum(np.abs(sb), np.finfo(float).tiny)
+        print(f"{flat.kind}: force {np.abs(fa - fb).max() / np.abs(fb).max():.2g}, slope "
+              f"{np.abs(sa - sb).max() / np.abs(sb).max():.2g} (node-wise median "
+              f"{np.median(node):.2g}, 99 % {np.quantile(node, 0.99):.2g})", flush=True)
 
 
 if __name__ == "__main__":

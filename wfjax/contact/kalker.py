@@ -388,11 +388,11 @@ def _solve_impl(cfg: _Config, g, material, approach, force, p_init, max_iter, st
         mask0 = warm.astype(dtype)
         target = jax.lax.stop_gradient(delta_in)
     fold = stiffness and not force_mode  # the stiffness solve as the set loop's last pass
-    z_start = jnp.zeros_like(g_sg) if z_init is None else jax.lax.stop_gradient(
-        jnp.asarray(z_init, dtype))
+    z_start = None if not stiffness else jnp.zeros_like(g_sg) if z_init is None else (
+        jax.lax.stop_gradient(jnp.asarray(z_init, dtype)))
     q, maskf, delta, u, z, it, cg_it, conv = _active_set_loop(
         cfg, g_sg, target, jax.lax.stop_gradient(q0), mask0, force_mode, max_iter,
-        z_start if fold else None)
+        z_start if fold else None)  # z_start: None without the stiffness solve
     q = jnp.maximum(q, 0.0) * maskf
     h = g_sg - delta + u
     residual = _residual(q, h, delta, jnp.min(g_sg))
