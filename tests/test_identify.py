@@ -122,20 +122,55 @@ def test_refined_phases_interpolate_linearly():
     np.testing.assert_allclose(fine[1:-4:4], 0.75 * native[:-1] + 0.25 * native[1:])
 
 
+def _strike_value(t, x, k):
+    """(bay ``k``'s reading, whether k is the strike's bay or after it) of one strike at ``x``
+    [m] on the synthetic table, element by element: linear between the two table positions
+    around x; None when k is out of reach."""
+    w = x / (0.65 / 4)
+    i0 = int(np.floor(w + 1e-6))
+    f = w - i0 if w - i0 > 1e-6 else 0.0
+    vals = []
+    for idx in (i0, i0 + 1):
+        q, j = idx // 4, idx % 4
+        near = abs(k - q) <= 2
+        m = int(np.clip(k - q, -2, 2))
+        vals.append((near, 120e3 + (2.5e6 * 0.13 if near and m == 0 else 0)
+                     + (m + 2) * 1e3 + j * 10, k >= q))
+    if not (vals[0][0] or (f and vals[1][0])):
+        return None
+    return vals[0][1] * (1 - f) + vals[1][1] * f, vals[0][2]
+
+
 def test_predict_shifts_the_table():
+    """Every bay reads the table at its offset from each strike (x + k 2 pi R): from the
+    strike at or before it where two reach it, the shortest flat's row where none does."""
     t = _table()
     t.readings[0, :, :, 0, :] += np.arange(5)[None, None, :] * 1e3 + np.arange(4)[None, :,
                                                                                  None] * 10
-    phases = fwd.phase_grid(t, BAYS)
-    mu = fwd.predict(t, BAYS, [0.13], phases)[0, 0, :, 0]  # [P, n_bays]
+    bays = np.arange(-1, 6)  # 4.55 m: longer than the 2.83 m circumference
+    phases = fwd.phase_grid(t, bays)
+    mu = fwd.predict(t, bays, [0.13], phases)[0, 0, :, 0]  # [P, n_bays]
+    c = 2 * np.pi * 0.45
     for p, x in enumerate(phases):
-        idx = int(round(x / (0.65 / 4)))
-        q, j = idx // 4, idx % 4
-        for b, k in enumerate(BAYS):
-            m = int(np.clip(k - q, -2, 2))
-            row = 0.13 if abs(k - q) <= 2 else 0.0
-            expect = 120e3 + (2.5e6 * row if m == 0 else 0) + (m + 2) * 1e3 + j * 10
+        for b, k in enumerate(bays):
+            hits = [h for n in (-2, -1, 0, 1, 2)
+                    if (h := _strike_value(t, x + n * c, k)) is not None]
+            smooth = 120e3 + (int(np.clip(k - np.floor(x / 0.65), -2, 2)) + 2) * 1e3 \
+                + int(round(x / (0.65 / 4))) % 4 * 10
+            expect = smooth if not hits else next((v for v, a in hits if a), hits[0][0])
             assert mu[p, b] == pytest.approx(expect)
+
+
+def test_a_detector_longer_than_the_circumference_reads_two_strikes():
+    """A flat struck in the detector's first bay strikes again 2 pi R later, in its last
+    bays: both bays read the impact."""
+    t = _table()
+    bays = np.arange(-1, 4)  # 3.25 m
+    mu = fwd.predict(t, bays, [0.13], np.array([-0.65, 0.3]))[0, 0, :, 0]
+    impact = 120e3 + 2.5e6 * 0.13
+    # x = -0.65: bay -1, and again at 2.18 m, in bay 3; x = 0.3: bay 0 only (3.13 m is past)
+    np.testing.assert_allclose(mu[0], [impact, 120e3, 120e3, 120e3, impact])
+    np.testing.assert_allclose(mu[1], [120e3, impact, 120e3, 120e3, 120e3])
 
 
 def test_posterior_matches_quadrature(monkeypatch):
@@ -336,3 +371,29 @@ def test_coupled_batch_equals_coupled_runs():
     again, _ = fwd.coupled_batch(groups[::-1], [0.0, 2.5], 100 / 3.6, det)
     assert fwd._bogie_batch._cache_size() == programs
     np.testing.assert_array_equal(again[::-1], peaks)
+
+
+def test_two_strikes_read_as_the_strike_at_or_before_each_bay():
+    """The loop with the flat striking every revolution (``Vehicle.repeat_flats``, as the
+    identification's coupled runs) over a 6-bay detector (3.9 m): a strike in bay 0 strikes
+    again in bay 4, and every bay reads what one strike alone reads there, from the strike at
+    or before the bay (:func:`forward.predict`'s rule), within 0.5 %. Without repeats bay 4
+    reads a round wheel."""
+    import wfjax as wf
+    from wfjax.model.vehicle import Vehicle
+
+    flat, c, ls, x = wf.Flat.new(0.6e-3), 2 * np.pi * float(wf.Wheel().radius), 0.65, 0.1
+    config = wf.SimConfig(precision="float64")
+
+    def read(impact, first_bay, repeat):
+        r = wf.simulate(flat, 100 / 3.6, contact="hertz-trajectory", impact_position=impact,
+                        detector=wf.Detector(6, first_bay), config=config,
+                        vehicle=Vehicle((0.0,), repeat_flats=repeat))
+        return np.asarray(r.detector_peak).ravel()
+
+    once, both = read(x, -1, False), read(x, -1, True)
+    second = read(x + c - 4 * ls, -5, False)  # the second strike alone, 4 bays earlier
+    bays = np.arange(-1, 5)  # the second strike is in bay 4: bays 2-4 within its reach
+    expect = np.where(bays >= 3, second, once)
+    np.testing.assert_allclose(both, expect, rtol=5e-3)
+    assert both[-1] > 1.5 * once[-1]

@@ -279,9 +279,8 @@ def phase_grid(table: ResponseTable, bays: np.ndarray, refine: int = 1) -> np.nd
     """[P] impact rail coordinates x [m] (x = 0: the sleeper at the start of bay 0), the
     table's in-bay positions (``refine`` points per table interval) over one wheel
     circumference 2 pi R from the start of the detector's first bay ``bays[0]``: a flat
-    strikes once in every circumference, so exactly one of its impacts lies there (the loop
-    models that one; with a detector longer than 2 pi R the next one, 2 pi R later, is not
-    modelled)."""
+    strikes once in every circumference, so exactly one of its strikes lies there; the others,
+    2 pi R apart, follow from it (:func:`predict`)."""
     ls, j = table.sleeper_spacing, table.offsets.size
     circumference = 2 * math.pi * table.wheel_radius
     x0 = int(bays[0]) * ls
@@ -308,25 +307,64 @@ def predict(table: ResponseTable, bays, lengths, phases) -> np.ndarray:
     indices) for every shape, ``lengths`` [n_len] m (linear interpolation in the table's
     lengths, clamped) and impact coordinate ``phases`` [P] m on :func:`phase_grid`.
 
-    Bays farther than ``REACH`` from the impact bay read the table's shortest flat (the
-    wheel is as good as round there)."""
-    bays = np.asarray(bays, int)
-    ls, nj = table.sleeper_spacing, table.offsets.size
-    idx = np.floor(np.asarray(phases) / (ls / nj) + 1e-6).astype(int)
-    q, j = np.floor_divide(idx, nj), np.mod(idx, nj)
-    rel = bays[None, :] - q[:, None]  # [P, n_bays]
-    far = np.abs(rel) > REACH
-    m = np.clip(rel, -REACH, REACH) + REACH
-    t = table.readings  # [S, L, J, R, M]
-    # the far bays read the smooth row
-    near = t[:, :, j[:, None], :, m]  # [P, n_bays, S, L, R]
-    smooth = t[:, :1, j[:, None], :, m]
-    vals = np.where(far[:, :, None, None, None], smooth, near)
+    The flat strikes once per revolution, at x + k 2 pi R for every integer k, so a detector
+    longer than a circumference reads two strikes, and the strike before x rings in its first
+    bays. Each strike reads in the bays within ``REACH`` of its own bay what the table holds
+    (one impact alone; a strike off the table's positions interpolated linearly between the
+    two around it). A bay within reach of two strikes (2 pi R is more than 2 ``REACH`` bays)
+    lies after one and before the other: it reads the one at or before it, whose impact has
+    happened when the wheel crosses the bay (the table's bays before an impact hold the
+    single run's approach instead). Bays farther than ``REACH`` from every strike read the
+    table's shortest flat (the wheel is as good as round there)."""
+    phases = np.asarray(phases, float)
+    span = (np.max(bays) - np.min(bays) + 2 * REACH + 1) * table.sleeper_spacing
+    circumference = 2 * math.pi * table.wheel_radius
+    reach = int(math.ceil(span / circumference)) + 1
+    vals, near, after = _strike(table, bays, phases)
+    for k in range(-reach, reach + 1):
+        if k == 0:
+            continue
+        vk, nk, ak = _strike(table, bays, phases + k * circumference)
+        take = nk & (~near | (ak & ~after))
+        vals = np.where(take[:, :, None, None, None], vk, vals)
+        near, after = near | nk, np.where(take, ak, after)
     vals = np.moveaxis(vals, (0, 1), (3, 4))  # [S, L, R, P, n_bays]
     w, i0 = _interp_weights(table.lengths, lengths)
     out = vals[:, i0] * (1 - w)[None, :, None, None, None] + \
         vals[:, i0 + 1] * w[None, :, None, None, None]
     return np.moveaxis(out, 2, 3)  # [S, n_len, P, R, n_bays]
+
+
+def _strike(table: ResponseTable, bays, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(values [P, n_bays, S, L, R] N, near [P, n_bays], after [P, n_bays]) of one strike at
+    each rail coordinate ``x`` [P] m: the table's readings at its bay offsets within ``REACH``
+    (near), the shortest flat's farther away; between two table positions linear in the
+    position; ``after``: the bay is the strike's or after it."""
+    step = table.sleeper_spacing / table.offsets.size
+    w = np.asarray(x, float) / step
+    i0 = np.floor(w + 1e-6).astype(int)
+    f = np.where(w - i0 > 1e-6, w - i0, 0.0)
+    v0, n0, a0 = _table_strike(table, bays, i0)
+    if not np.any(f):
+        return v0, n0, a0
+    v1, n1, _ = _table_strike(table, bays, i0 + 1)
+    f = f[:, None, None, None, None]
+    return v0 * (1 - f) + v1 * f, n0 | n1, a0
+
+
+def _table_strike(table: ResponseTable, bays, idx: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`_strike` at the table's own impact positions ``idx`` [P] (steps of
+    L_S / J from x = 0)."""
+    bays = np.asarray(bays, int)
+    nj = table.offsets.size
+    q, j = np.floor_divide(idx, nj), np.mod(idx, nj)
+    rel = bays[None, :] - q[:, None]  # [P, n_bays]
+    near = np.abs(rel) <= REACH
+    m = np.clip(rel, -REACH, REACH) + REACH
+    t = table.readings  # [S, L, J, R, M]
+    vals = np.where(near[:, :, None, None, None], t[:, :, j[:, None], :, m],
+                    t[:, :1, j[:, None], :, m])  # [P, n_bays, S, L, R]
+    return vals, near, rel >= 0
 
 
 def predict_peak(table: ResponseTable, lengths) -> np.ndarray:
@@ -377,7 +415,8 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
                      contact: str = "hertz-trajectory", roughness=None,
                      track: Track | None = None, wheel: Wheel | None = None,
                      material: Material | None = None, config: SimConfig | None = None,
-                     cache_dir=None) -> tuple[np.ndarray, np.ndarray]:
+                     cache_dir=None, repeat_flats: bool = True
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Readings [n, n_bays] N and peak contact forces [n] N of ``n`` coupled wheels (a bogie)
     on one track, every wheel with its own flat, in one run.
 
@@ -390,6 +429,11 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
         speed: v [m/s]. detector: the :class:`Detector` (absolute bays).
         roughness: one rail :class:`wfjax.Roughness` realisation (values [n]) or None.
         track: the track (may carry support scatter).
+        repeat_flats: every flat strikes once per revolution
+            (:attr:`wfjax.model.vehicle.Vehicle.repeat_flats`): at its impact coordinate and
+            2 pi R before and after it, within the run's window (which starts a bay and a
+            circumference before the detector); the peak contact force is the largest of
+            them. False: at its impact coordinate only (a response table's single strike).
     """
     from ..contact.laws import prepare
     from ..model.vehicle import Vehicle
@@ -403,7 +447,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
     delays = impacts - impacts[0] - offsets
     ref = flats[0]
     vehicle = Vehicle(tuple(positions), flats=tuple(flats), flat_wheel=0,
-                      flat_delays=tuple(delays))
+                      flat_delays=tuple(delays), repeat_flats=repeat_flats)
     sc = Scenario.of(ref, contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
@@ -496,7 +540,7 @@ def _common_columns(laws, sc: Scenario):
 def coupled_batch(groups, positions, speed: float, detector: Detector,
                   contact: str = "hertz-trajectory", roughness=None, track: Track | None = None,
                   wheel: Wheel | None = None, material: Material | None = None,
-                  config: SimConfig | None = None, cache_dir=None
+                  config: SimConfig | None = None, cache_dir=None, repeat_flats: bool = True
                   ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`coupled_readings` of ``B`` groups of wheels (bogies) of one layout on one track
     and rail, each with its own flats and impacts, batched: readings [B, n, n_bays] N and peak
@@ -534,7 +578,8 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
     if not cases:
         return np.zeros((0, positions.size, n_bays)), np.zeros((0, positions.size))
     f0, _, d0 = cases[0]
-    vehicle = Vehicle(tuple(positions), flats=tuple(f0), flat_wheel=0, flat_delays=tuple(d0))
+    vehicle = Vehicle(tuple(positions), flats=tuple(f0), flat_wheel=0, flat_delays=tuple(d0),
+                      repeat_flats=repeat_flats)
     sc = Scenario.of(f0[0], contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)

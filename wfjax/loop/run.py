@@ -39,6 +39,7 @@ from .setup import (
     StaticStart,
     between_sleepers,
     cast_precision,
+    flat_coordinates,
     loop_setup,
     static_start,
 )
@@ -159,7 +160,7 @@ def _step_fn(ls: LoopSetup, start: StaticStart, observers, ctx: LoopContext, gro
 
     def step(state: LoopState, n):
         x_ref = ls.x_start + ls.speed * ls.dt * n
-        x, s = x_ref + ls.offsets, x_ref - ls.impact_position - ls.delays
+        x, s = x_ref + ls.offsets, flat_coordinates(ls, x_ref)
         phi = shapes_at(x)
         q_hat = ls.e_r * state.q + ls.ap_r * (modal_loads(state.force, state.phi)
                                              - support_loads(state.supports))

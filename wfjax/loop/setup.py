@@ -111,6 +111,16 @@ def loop_setup(laws: tuple, struct: Structure, speed, dt, x_start, impact_positi
                      x_start, impact_position, roughness)
 
 
+def flat_coordinates(ls: LoopSetup, x_ref):
+    """[n] every wheel's flat coordinate s [m] (0: its flat centre at the contact point) with
+    the reference wheel at rail coordinate ``x_ref`` [m]: x_ref - impact_position - delays,
+    taken to the nearest strike, s - C round(s / C), where the flats strike once per
+    revolution of circumference C (``struct.revolutions``)."""
+    s = x_ref - ls.impact_position - ls.delays
+    c = ls.struct.revolutions
+    return s if c is None else s - c * jnp.round(s / c)
+
+
 class StaticStart(NamedTuple):
     """The loop's state at t = 0, the static equilibrium (F = P, the rail in its static
     deflected shape; :func:`static_start`).
@@ -164,7 +174,7 @@ def static_start(ls: LoopSetup) -> StaticStart:
     differentiable by plain autodiff (the contact's static approach by its implicit
     gradient; hanging sleepers by a fixed count of Newton iterations)."""
     model = ls.struct.track
-    s0 = ls.x_start - ls.impact_position - ls.delays
+    s0 = flat_coordinates(ls, ls.x_start)
     x0 = ls.x_start + ls.offsets
     phi0 = shapes_fn(model)(x0)
     q0 = -modal_loads(ls.preload, phi0) / model.poles

@@ -30,7 +30,9 @@ class Structure(NamedTuple):
     modes between the wheels across one bay, or along the whole rail when the supports vary:
     :func:`wfjax.model.vehicle.residual_pairs`; None for one wheel, whose own residual is the modal
     model's residual table). ``supports``: the track's one-sided (hanging)
-    sleepers, :func:`wfjax.model.supports.one_sided_spec`, or None.
+    sleepers, :func:`wfjax.model.supports.one_sided_spec`, or None. ``revolutions`` [n_wheels]
+    m: every wheel's circumference 2 pi R when its flat strikes once per revolution
+    (:attr:`wfjax.model.vehicle.Vehicle.repeat_flats`), or None (one strike per run).
     """
 
     track: Any  # track.ModalModel
@@ -42,6 +44,7 @@ class Structure(NamedTuple):
     delays: Any = None
     residual_pairs: Any = None
     supports: Any = None  # supports.OneSidedSupports of hanging sleepers, or None
+    revolutions: Any = None  # [n_wheels] m, or None
 
 
 def structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
@@ -59,10 +62,13 @@ def structure(vehicle, wheels: list[Wheel], track: Track, config: SimConfig,
     if vehicle.n_wheels > 1:
         pairs = to_device(vehicle_mod.residual_pairs(
             track, model, offsets, vehicle_mod.placement(vehicle, float(track.sleeper_spacing))))
+    revolutions = None
+    if vehicle.repeat_flats:
+        revolutions = to_device(2 * np.pi * np.array([float(w.radius) for w in wheels]))
     return Structure(model, ws.poles, ws.residues, ws.preload, ws.axle_residues,
                      to_device(np.asarray(offsets, float)),
                      to_device(np.asarray(vehicle.delays(), float)), pairs,
-                     _one_sided(track, model, offsets))
+                     _one_sided(track, model, offsets), revolutions)
 
 
 def _one_sided(track: Track, model, offsets=(0.0,)):

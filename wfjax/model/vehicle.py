@@ -74,6 +74,12 @@ class Vehicle:
             is its impact).
         flat_delays: [n] rolling distance [m] from the reference impact to the moment wheel
             i's flat centre meets its contact point, or None (all 0: the flats hit together).
+        repeat_flats: every wheel's flat strikes once per revolution, every 2 pi R [m] of
+            rolling (R the wheel's radius), as on a real wheel, instead of once per run (the
+            paper's single impact, the default). It matters where a run rolls further than a
+            circumference past a flat, as over a detector longer than 2 pi R
+            (:mod:`wfjax.identify`); before the run's start the wheel has not struck. (A
+            wheel roughness is periodic in 2 pi R already and reads alike either way.)
     """
 
     positions: tuple = (0.0,)
@@ -81,6 +87,7 @@ class Vehicle:
     flats: tuple | None = None
     flat_wheel: int = 0
     flat_delays: tuple | None = None
+    repeat_flats: bool = False
 
     def __post_init__(self):
         pos = tuple(float(p) for p in np.atleast_1d(np.asarray(self.positions, dtype=float)))
@@ -98,6 +105,9 @@ class Vehicle:
                 if len(value) != n:
                     raise ValueError(f"Vehicle.{name} must have one entry per wheel ({n}), "
                                      f"got {len(value)}")
+        if not isinstance(self.repeat_flats, bool):
+            raise ValueError(f"Vehicle.repeat_flats must be True or False, got "
+                             f"{self.repeat_flats!r}")
         if not isinstance(self.flat_wheel, (int, np.integer)) or not 0 <= self.flat_wheel < n:
             raise ValueError(f"Vehicle.flat_wheel must be a wheel index in [0, {n - 1}], got "
                              f"{self.flat_wheel!r}")
