@@ -78,6 +78,24 @@ def test_new_flat_trajectory_pivots_on_edges():
     assert np.all(np.asarray(geometry.centre_trajectory(flat, np.array([-0.05, 0.05]))) == 0)
 
 
+@pytest.mark.parametrize("length", [0.080, 0.083])
+def test_deep_new_flat_trajectory_has_no_stray_maximiser(length):
+    """The pivot formula at every point of the Hertz-trajectory law's grid (2e-5 m steps from
+    0) of new flats 80 and 83 mm long on a 0.45 m wheel with the identification's extent
+    bound. The Newton polish of the maximiser once jumped off the chord (near-zero curvature)
+    to theta of order 1e4 rad, where r(theta) cos(theta - phi) is a round radius at an angle
+    near phi + 2 pi k: at x = +-0.1 mm the drop read 0.10 instead of 1.77 mm (a single-step
+    1,465 kN spike in a run over it)."""
+    radius = 0.45
+    depth = length**2 / (8 * radius)
+    flat = wf.Flat("new", depth=depth, length=length, wheel_radius=radius, extent_bound=0.065)
+    alpha = np.arccos(1 - depth / radius)
+    x = np.arange(-int(radius * alpha / 2e-5), int(radius * alpha / 2e-5) + 1) * 2e-5
+    traj = np.asarray(geometry.centre_trajectory(flat, x))
+    np.testing.assert_allclose(traj, -radius * (1 - np.cos(alpha - np.abs(x) / radius)),
+                               atol=1e-9, rtol=0)
+
+
 def test_rounded_trajectory_reaches_depth_and_stays_above_profile():
     flat = wf.Flat.rounded(D, 0.1)
     x = np.linspace(-0.06, 0.06, 601)

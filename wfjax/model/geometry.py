@@ -226,11 +226,15 @@ def _centre_trajectory(flat: Flat, x, window: float, n_coarse: int, n_fine: int)
         fine = best + jnp.linspace(-2 * step, 2 * step, n_fine)
         theta = fine[jnp.argmax(height(fine, phi))]
         # Two Newton steps polish a smooth maximiser (so the envelope gradient is accurate);
-        # max() below discards them where the maximiser is a kink instead.
+        # max() below discards them where the maximiser is a kink instead. A step must stay
+        # within the fine grid: next to a kink, or on a chord (height nearly linear, d2 ~ 0),
+        # Newton throws theta far away, where r(theta) cos(theta - phi) is no point of the
+        # wheel near the rail (a round radius at theta ~ phi + 2 pi k) and could win the max.
         for _ in range(2):
             d1 = jax.grad(height)(theta, phi)
             d2 = jax.grad(jax.grad(height))(theta, phi)
-            theta = jnp.where(d2 < 0, theta - d1 / jnp.where(d2 < 0, d2, -1.0), theta)
+            new = theta - d1 / jnp.where(d2 < 0, d2, -1.0)
+            theta = jnp.where((d2 < 0) & (new >= fine[0]) & (new <= fine[-1]), new, theta)
         fine = jnp.concatenate([fine, theta[None]])
         # Grid maximisers are held fixed (envelope theorem); kink angles move with the flat's
         # parameters, and the pivot height depends on that motion, so they keep their gradient.
