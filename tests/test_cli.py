@@ -305,6 +305,22 @@ def test_detector_command_writes_files_and_rejects_bad_sensors(tmp_path, capsys)
     assert "more than track.n_bays allows (1000)" in _one_line_error(capsys)
 
 
+def test_detector_longer_than_a_circumference_reads_the_next_strike(tmp_path):
+    """``wfjax detector --bays 7`` (4.55 m from bay -1): a flat struck in bay 0 (at 162.5 and
+    487.5 mm) strikes again 2 pi R (2.83 m) later, inside bay 4's and bay 5's gates, and those
+    bays read the impact as bay 0 does, not a round wheel."""
+    out = tmp_path / "det"
+    assert main(["detector", "--contact", "hertz-trajectory", "--speeds-kmh", "100",
+                 "--positions", "2", "--bays", "7", "--out", str(out)]) == 0
+    rows = list(csv.DictReader((out / "detector.csv").open()))
+    ls, c = wf.Track().sleeper_spacing, 2 * np.pi * float(wf.Wheel().radius)
+    for x_mm in sorted({r["impact_position_mm"] for r in rows}):
+        peak = {int(r["bay"]): float(r["detector_peak_kN"]) for r in rows
+                if r["impact_position_mm"] == x_mm}
+        again = int(np.floor((float(x_mm) / 1e3 + c) / ls))
+        assert peak[again] > 0.9 * peak[0] > 1.3 * peak[again - 2], (x_mm, peak)
+
+
 def test_simulate_sensors_csv(tmp_path):
     """``wfjax simulate --sensors-m``: the sensors' histories next to the force history."""
     out = tmp_path / "sim"

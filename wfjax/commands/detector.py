@@ -3,7 +3,9 @@ force, over speed and impact position (and the extremes at fixed rail sensors).
 
 One :func:`wfjax.sweep` with ``detector=`` and ``sensors=``: writes ``detector.csv`` (one row
 per speed x impact position x bay), ``sensors.csv`` (extremes of every sensor quantity),
-``detector.json`` and ``detector.png`` (reading against true peak force).
+``detector.json`` and ``detector.png`` (reading against true peak force). The flat strikes once
+per revolution (``Vehicle.repeat_flats``): a detector reaching more than a circumference past
+the impact bay reads its next strike too.
 """
 
 from __future__ import annotations
@@ -85,6 +87,7 @@ def run(args) -> int:
     case = resolve_case(args, "detector")
     if case.get("passage.csv"):
         return write_passage(case)
+    from ..model.vehicle import Vehicle
     from ..plotting import detector_figure
     from ..scenario.sensors import Detector
     from ..sweeps import sweep
@@ -106,7 +109,9 @@ def run(args) -> int:
     t0 = time.perf_counter()
     result = sweep(flat, speeds, case["run.impact_positions"], contact=contact, wheel=wheel,
                    track=track, material=material, config=config, sensors=sensors,
-                   detector=detector)
+                   detector=detector, vehicle=Vehicle((0.0,), repeat_flats=True))
+    result = result._replace(detector_peak=result.detector_peak[..., 0, :],  # one wheel
+                             detector_ratio=result.detector_ratio[..., 0, :])
     elapsed = time.perf_counter() - t0
     check_finite("detector", max_force=result.max_force, detector_peak=result.detector_peak,
                  sensor_max=result.sensor_max)
