@@ -39,12 +39,12 @@ def blind_fraction(table, bays, kind: str, factor: float, length: float,
     """The fraction of one circumference's impact phases at which a flat of ``kind``, l / l0
     ``factor`` (the table's nearest shape) and ``length`` [m] reads, in every bay, within
     ``sigma`` (relative) of a round wheel (both averaged over the table's realisations)."""
-    from wfjax.identify import forward as fwd
+    from wfjax.identify import prediction
     from wfjax.identify.inference import PHASE_REFINE
 
     s = min(range(len(table.shapes)), key=lambda i: (table.shapes[i][0] != kind) * 10 + abs(
         (table.shapes[i][1] or 1.0) - factor))
-    mu = fwd.predict_refined(table, bays, [length, 0.0], PHASE_REFINE)[s].mean(axis=2)
+    mu = prediction.predict_refined(table, bays, [length, 0.0], PHASE_REFINE)[s].mean(axis=2)
     flat, round_ = mu[0], mu[1]  # [P, n_bays]
     return float(np.mean(np.all(np.abs(flat - round_) <= sigma * round_, axis=-1)))
 

@@ -9,7 +9,7 @@ import pytest
 from scipy.stats import beta
 
 from wfjax.identify import forward as fwd
-from wfjax.identify import rules
+from wfjax.identify import prediction, rules
 from wfjax.identify.inference import Prior, posterior
 from wfjax.identify.passage import Passage, PassageError, check_layout, passages_csv, read_passages
 
@@ -116,8 +116,8 @@ def _table(slope=2.5e6, n_j=4, n_r=1, shapes=(("new", 0.0),)):
 def test_refined_phases_interpolate_linearly():
     t = _table()
     t.readings[0, :, :, 0, :] += np.arange(4)[None, :, None] * 1e3
-    fine = fwd.predict_refined(t, BAYS, [0.1], 4)[0, 0, :, 0]
-    native = fwd.predict(t, BAYS, [0.1], fwd.phase_grid(t, BAYS))[0, 0, :, 0]
+    fine = prediction.predict_refined(t, BAYS, [0.1], 4)[0, 0, :, 0]
+    native = prediction.predict(t, BAYS, [0.1], prediction.phase_grid(t, BAYS))[0, 0, :, 0]
     np.testing.assert_allclose(fine[::4], native)
     np.testing.assert_allclose(fine[1:-4:4], 0.75 * native[:-1] + 0.25 * native[1:])
 
@@ -148,8 +148,8 @@ def test_predict_shifts_the_table():
     t.readings[0, :, :, 0, :] += np.arange(5)[None, None, :] * 1e3 + np.arange(4)[None, :,
                                                                                  None] * 10
     bays = np.arange(-1, 6)  # 4.55 m: longer than the 2.83 m circumference
-    phases = fwd.phase_grid(t, bays)
-    mu = fwd.predict(t, bays, [0.13], phases)[0, 0, :, 0]  # [P, n_bays]
+    phases = prediction.phase_grid(t, bays)
+    mu = prediction.predict(t, bays, [0.13], phases)[0, 0, :, 0]  # [P, n_bays]
     c = 2 * np.pi * 0.45
     for p, x in enumerate(phases):
         for b, k in enumerate(bays):
@@ -166,7 +166,7 @@ def test_a_detector_longer_than_the_circumference_reads_two_strikes():
     bays: both bays read the impact."""
     t = _table()
     bays = np.arange(-1, 4)  # 3.25 m
-    mu = fwd.predict(t, bays, [0.13], np.array([-0.65, 0.3]))[0, 0, :, 0]
+    mu = prediction.predict(t, bays, [0.13], np.array([-0.65, 0.3]))[0, 0, :, 0]
     impact = 120e3 + 2.5e6 * 0.13
     # x = -0.65: bay -1, and again at 2.18 m, in bay 3; x = 0.3: bay 0 only (3.13 m is past)
     np.testing.assert_allclose(mu[0], [impact, 120e3, 120e3, 120e3, impact])
@@ -186,7 +186,7 @@ def test_posterior_matches_quadrature(monkeypatch):
     # bays, so compute the expectation over the phase grid independently
     post = posterior([t], [BAYS], [y], prior=prior, noise=0.03, model=0.0)
     lengths, sigma = prior.lengths(), 0.03
-    phases = fwd.phase_grid(t, BAYS)
+    phases = prediction.phase_grid(t, BAYS)
     lik = np.zeros(lengths.size)
     for x in phases:
         q = int(np.floor(x / 0.65 + 1e-9))
@@ -205,11 +205,11 @@ def test_posterior_calibrated_on_its_own_model():
     prior = Prior(p_new=1.0)
     rng = np.random.default_rng(7)
     n, hits = 120, 0
-    phases = fwd.phase_grid(t, BAYS)
+    phases = prediction.phase_grid(t, BAYS)
     for _ in range(n):
         ln = rng.uniform(0.0, 0.13)  # continuous: the grid's cells read as uniform
         x = rng.choice(phases)
-        mu = fwd.predict(t, BAYS, [ln], [x])[0, 0, 0, 0]
+        mu = prediction.predict(t, BAYS, [ln], [x])[0, 0, 0, 0]
         y = mu * (1 + 0.03 * rng.standard_normal(mu.shape))
         lo, hi = posterior([t], [BAYS], [y], prior=prior, noise=0.03, model=0.0).interval(
             "length", 0.9)
@@ -377,7 +377,7 @@ def test_two_strikes_read_as_the_strike_at_or_before_each_bay():
     """The loop with the flat striking every revolution (``Vehicle.repeat_flats``, as the
     identification's coupled runs) over a 6-bay detector (3.9 m): a strike in bay 0 strikes
     again in bay 4, and every bay reads what one strike alone reads there, from the strike at
-    or before the bay (:func:`forward.predict`'s rule), within 0.5 %. Without repeats bay 4
+    or before the bay (:func:`prediction.predict`'s rule), within 0.5 %. Without repeats bay 4
     reads a round wheel."""
     import wfjax as wf
     from wfjax.model.vehicle import Vehicle

@@ -22,6 +22,7 @@ from scipy.special import logsumexp
 from scipy.stats import chi2
 
 from . import forward as fwd
+from . import prediction
 
 PHASE_REFINE = 4  # phase points per table position interval (linear in between)
 # relative standard deviation of a neighbour correction: a neighbour's ringing read by a wheel
@@ -88,8 +89,8 @@ def loglik_grid(table: fwd.ResponseTable, bays, readings, lengths, sigma: float,
     or a :class:`CorrectionMixture` over which the likelihood is marginalised (each cell's
     tail probability P(chi2_n > chi2(y)) then averaged with the configurations'
     responsibilities)."""
-    phases = fwd.phase_grid(table, bays, PHASE_REFINE)
-    mu0 = fwd.predict_refined(table, bays, lengths, PHASE_REFINE)  # [S, L, P, R, n_bays]
+    phases = prediction.phase_grid(table, bays, PHASE_REFINE)
+    mu0 = prediction.predict_refined(table, bays, lengths, PHASE_REFINE)  # [S, L, P, R, n_bays]
     mix = CorrectionMixture.of(correction)
     y = np.asarray(readings, float)
     lls, tails = [], []
@@ -222,7 +223,7 @@ def posterior(tables, bays, readings, prior: Prior | None = None, noise: float =
         phase_w.append(jw.sum(axis=(0, 1, 3)))
         p_values.append(float(np.sum(jw * tail)))
         i_p = int(np.argmax(jw[s_best, l_best].sum(axis=-1)))
-        mu = fwd.predict_refined(tables[p], bays[p], lengths[[l_best]],
+        mu = prediction.predict_refined(tables[p], bays[p], lengths[[l_best]],
                                  PHASE_REFINE)[s_best, 0, i_p]
         mix = None if corrections is None else CorrectionMixture.of(corrections[p])
         mu = mu.mean(axis=0) + (0 if mix is None else mix.mode())

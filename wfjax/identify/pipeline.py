@@ -25,6 +25,7 @@ import numpy as np
 
 from ..params import Wheel
 from . import forward as fwd
+from . import prediction
 from . import rules as rules_mod
 from .inference import CorrectionMixture, Prior, WheelPosterior, posterior
 from .passage import Passage
@@ -354,7 +355,7 @@ def pooled_site_factors(passages: list[Passage], tables: list) -> list[np.ndarra
 def p_peak_exceeds(post: WheelPosterior, table: fwd.ResponseTable, level: float) -> float:
     """P(the wheel's peak contact force at the table's speed > ``level`` [N]) under the
     posterior (impact position and nuisance realisations averaged)."""
-    peak = fwd.predict_peak(table, post.lengths)  # [S, L, J, R]
+    peak = prediction.predict_peak(table, post.lengths)  # [S, L, J, R]
     return float(np.sum(post.weights * (peak > level).mean(axis=(2, 3))))
 
 

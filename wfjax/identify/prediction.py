@@ -1,0 +1,122 @@
+"""The identification's prediction from a response table: the readings of one wheel in a
+detector's bays for every shape, length and impact coordinate (phase) over a wheel
+circumference, every strike of the flat included (:func:`predict`), and its peak contact
+forces (:func:`predict_peak`). The table itself, and the coupled runs, are
+:mod:`wfjax.identify.forward`'s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .forward import REACH, ResponseTable
+
+__all__ = ["phase_grid", "predict", "predict_refined", "predict_peak"]
+
+
+def phase_grid(table: ResponseTable, bays: np.ndarray, refine: int = 1) -> np.ndarray:
+    """[P] impact rail coordinates x [m] (x = 0: the sleeper at the start of bay 0), the
+    table's in-bay positions (``refine`` points per table interval) over one wheel
+    circumference 2 pi R from the start of the detector's first bay ``bays[0]``: a flat
+    strikes once in every circumference, so exactly one of its strikes lies there; the others,
+    2 pi R apart, follow from it (:func:`predict`)."""
+    ls, j = table.sleeper_spacing, table.offsets.size
+    circumference = 2 * math.pi * table.wheel_radius
+    x0 = int(bays[0]) * ls
+    n = int(round(circumference / (ls / j))) * int(refine)
+    return x0 + np.arange(n) * ls / (j * int(refine))
+
+
+def predict_refined(table: ResponseTable, bays, lengths, refine: int) -> np.ndarray:
+    """:func:`predict` on ``phase_grid(table, bays, refine)``: between the table's impact
+    positions the readings are interpolated linearly in the position (a gate edge between
+    two positions becomes a ramp, not a step that the grid cannot place)."""
+    step = table.sleeper_spacing / table.offsets.size
+    native = phase_grid(table, bays)
+    coarse = predict(table, bays, lengths, np.append(native, native[-1] + step))
+    fine = phase_grid(table, bays, refine)
+    w = (fine - native[0]) / step
+    i0 = np.minimum(np.floor(w + 1e-9).astype(int), native.size - 1)
+    f = (w - i0)[None, None, :, None, None]
+    return coarse[:, :, i0] * (1 - f) + coarse[:, :, i0 + 1] * f
+
+
+def predict(table: ResponseTable, bays, lengths, phases) -> np.ndarray:
+    """Readings [S, n_len, P, R, n_bays] N of one wheel in detector ``bays`` (absolute bay
+    indices) for every shape, ``lengths`` [n_len] m (linear interpolation in the table's
+    lengths, clamped) and impact coordinate ``phases`` [P] m on :func:`phase_grid`.
+
+    The flat strikes once per revolution, at x + k 2 pi R for every integer k, so a detector
+    longer than a circumference reads two strikes, and the strike before x rings in its first
+    bays. Each strike reads in the bays within ``REACH`` of its own bay what the table holds
+    (one impact alone; a strike off the table's positions interpolated linearly between the
+    two around it). A bay within reach of two strikes (2 pi R is more than 2 ``REACH`` bays)
+    lies after one and before the other: it reads the one at or before it, whose impact has
+    happened when the wheel crosses the bay (the table's bays before an impact hold the
+    single run's approach instead). Bays farther than ``REACH`` from every strike read the
+    table's shortest flat (the wheel is as good as round there)."""
+    phases = np.asarray(phases, float)
+    span = (np.max(bays) - np.min(bays) + 2 * REACH + 1) * table.sleeper_spacing
+    circumference = 2 * math.pi * table.wheel_radius
+    reach = int(math.ceil(span / circumference)) + 1
+    vals, near, after = _strike(table, bays, phases)
+    for k in range(-reach, reach + 1):
+        if k == 0:
+            continue
+        vk, nk, ak = _strike(table, bays, phases + k * circumference)
+        take = nk & (~near | (ak & ~after))
+        vals = np.where(take[:, :, None, None, None], vk, vals)
+        near, after = near | nk, np.where(take, ak, after)
+    vals = np.moveaxis(vals, (0, 1), (3, 4))  # [S, L, R, P, n_bays]
+    w, i0 = _interp_weights(table.lengths, lengths)
+    out = vals[:, i0] * (1 - w)[None, :, None, None, None] + \
+        vals[:, i0 + 1] * w[None, :, None, None, None]
+    return np.moveaxis(out, 2, 3)  # [S, n_len, P, R, n_bays]
+
+
+def _strike(table: ResponseTable, bays, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(values [P, n_bays, S, L, R] N, near [P, n_bays], after [P, n_bays]) of one strike at
+    each rail coordinate ``x`` [P] m: the table's readings at its bay offsets within ``REACH``
+    (near), the shortest flat's farther away; between two table positions linear in the
+    position; ``after``: the bay is the strike's or after it."""
+    step = table.sleeper_spacing / table.offsets.size
+    w = np.asarray(x, float) / step
+    i0 = np.floor(w + 1e-6).astype(int)
+    f = np.where(w - i0 > 1e-6, w - i0, 0.0)
+    v0, n0, a0 = _table_strike(table, bays, i0)
+    if not np.any(f):
+        return v0, n0, a0
+    v1, n1, _ = _table_strike(table, bays, i0 + 1)
+    f = f[:, None, None, None, None]
+    return v0 * (1 - f) + v1 * f, n0 | n1, a0
+
+
+def _table_strike(table: ResponseTable, bays, idx: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`_strike` at the table's own impact positions ``idx`` [P] (steps of
+    L_S / J from x = 0)."""
+    bays = np.asarray(bays, int)
+    nj = table.offsets.size
+    q, j = np.floor_divide(idx, nj), np.mod(idx, nj)
+    rel = bays[None, :] - q[:, None]  # [P, n_bays]
+    near = np.abs(rel) <= REACH
+    m = np.clip(rel, -REACH, REACH) + REACH
+    t = table.readings  # [S, L, J, R, M]
+    vals = np.where(near[:, :, None, None, None], t[:, :, j[:, None], :, m],
+                    t[:, :1, j[:, None], :, m])  # [P, n_bays, S, L, R]
+    return vals, near, rel >= 0
+
+
+def predict_peak(table: ResponseTable, lengths) -> np.ndarray:
+    """Peak contact force [S, n_len, J, R] N at ``lengths`` [m] (interpolated, clamped)."""
+    w, i0 = _interp_weights(table.lengths, lengths)
+    p = table.peak
+    return p[:, i0] * (1 - w)[None, :, None, None] + p[:, i0 + 1] * w[None, :, None, None]
+
+
+def _interp_weights(grid: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
+    """(weights [n], lower indices [n]) of linear interpolation in ``grid``, clamped."""
+    x = np.clip(np.asarray(x, float), grid[0], grid[-1])
+    i0 = np.clip(np.searchsorted(grid, x, side="right") - 1, 0, grid.size - 2)
+    return (x - grid[i0]) / (grid[i0 + 1] - grid[i0]), i0
