@@ -48,27 +48,26 @@ def predict(table: ResponseTable, bays, lengths, phases) -> np.ndarray:
     indices) for every shape, ``lengths`` [n_len] m (linear interpolation in the table's
     lengths, clamped) and impact coordinate ``phases`` [P] m on :func:`phase_grid`.
 
-    The flat strikes once per revolution, at x + k 2 pi R for every integer k, so a detector
-    longer than a circumference reads two strikes, and the strike before x rings in its first
-    bays. Each strike reads in the bays within ``REACH`` of its own bay what the table holds
-    (one impact alone; a strike off the table's positions interpolated linearly between the
-    two around it). A bay within reach of two strikes (2 pi R is more than 2 ``REACH`` bays)
-    lies after one and before the other: it reads the one at or before it, whose impact has
-    happened when the wheel crosses the bay (the table's bays before an impact hold the
-    single run's approach instead). Bays farther than ``REACH`` from every strike read the
-    table's shortest flat (the wheel is as good as round there)."""
+    The strike at x reads in the bays within ``REACH`` of its own what the table holds; bays
+    farther away read the table's shortest flat (the wheel is as good as round there). The
+    flat strikes again at x + k 2 pi R: a detector longer than a circumference reads the next
+    strike, and the strike before x rings in the first bays. Such a strike replaces the
+    reading of its own bay and the ``REACH`` bays after it with the table's (at the table
+    position nearest to it: interpolating across a gate edge would read half an impact where
+    there is either one or none); bays before it read as they would without it (the wheel
+    crosses them before it strikes). Strikes are more than 2 ``REACH`` bays apart, so no bay
+    is at or after two of them."""
     phases = np.asarray(phases, float)
+    vals, _ = _strike(table, bays, _table_index(table, phases))
     span = (np.max(bays) - np.min(bays) + 2 * REACH + 1) * table.sleeper_spacing
     circumference = 2 * math.pi * table.wheel_radius
     reach = int(math.ceil(span / circumference)) + 1
-    vals, near, after = _strike(table, bays, phases)
+    step = table.sleeper_spacing / table.offsets.size
     for k in range(-reach, reach + 1):
-        if k == 0:
-            continue
-        vk, nk, ak = _strike(table, bays, phases + k * circumference)
-        take = nk & (~near | (ak & ~after))
-        vals = np.where(take[:, :, None, None, None], vk, vals)
-        near, after = near | nk, np.where(take, ak, after)
+        if k:
+            idx = np.round((phases + k * circumference) / step).astype(int)
+            vk, rel = _strike(table, bays, idx)
+            vals = np.where(((rel >= 0) & (rel <= REACH))[:, :, None, None, None], vk, vals)
     vals = np.moveaxis(vals, (0, 1), (3, 4))  # [S, L, R, P, n_bays]
     w, i0 = _interp_weights(table.lengths, lengths)
     out = vals[:, i0] * (1 - w)[None, :, None, None, None] + \
@@ -76,36 +75,26 @@ def predict(table: ResponseTable, bays, lengths, phases) -> np.ndarray:
     return np.moveaxis(out, 2, 3)  # [S, n_len, P, R, n_bays]
 
 
-def _strike(table: ResponseTable, bays, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(values [P, n_bays, S, L, R] N, near [P, n_bays], after [P, n_bays]) of one strike at
-    each rail coordinate ``x`` [P] m: the table's readings at its bay offsets within ``REACH``
-    (near), the shortest flat's farther away; between two table positions linear in the
-    position; ``after``: the bay is the strike's or after it."""
-    step = table.sleeper_spacing / table.offsets.size
-    w = np.asarray(x, float) / step
-    i0 = np.floor(w + 1e-6).astype(int)
-    f = np.where(w - i0 > 1e-6, w - i0, 0.0)
-    v0, n0, a0 = _table_strike(table, bays, i0)
-    if not np.any(f):
-        return v0, n0, a0
-    v1, n1, _ = _table_strike(table, bays, i0 + 1)
-    f = f[:, None, None, None, None]
-    return v0 * (1 - f) + v1 * f, n0 | n1, a0
+def _table_index(table: ResponseTable, x) -> np.ndarray:
+    """[P] the table position at or before rail coordinate ``x`` [P] m (steps of L_S / J
+    from x = 0; :func:`phase_grid`'s points are on it)."""
+    return np.floor(np.asarray(x, float) / (table.sleeper_spacing / table.offsets.size)
+                    + 1e-6).astype(int)
 
 
-def _table_strike(table: ResponseTable, bays, idx: np.ndarray) -> tuple[np.ndarray, ...]:
-    """:func:`_strike` at the table's own impact positions ``idx`` [P] (steps of
-    L_S / J from x = 0)."""
+def _strike(table: ResponseTable, bays, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(values [P, n_bays, S, L, R] N, bay offsets [P, n_bays]) of one strike at each table
+    position ``idx`` [P]: the table's readings at the bays' offsets from the strike's bay
+    within ``REACH``, the shortest flat's at the nearest offset held farther away."""
     bays = np.asarray(bays, int)
     nj = table.offsets.size
     q, j = np.floor_divide(idx, nj), np.mod(idx, nj)
     rel = bays[None, :] - q[:, None]  # [P, n_bays]
-    near = np.abs(rel) <= REACH
     m = np.clip(rel, -REACH, REACH) + REACH
     t = table.readings  # [S, L, J, R, M]
-    vals = np.where(near[:, :, None, None, None], t[:, :, j[:, None], :, m],
+    vals = np.where((np.abs(rel) <= REACH)[:, :, None, None, None], t[:, :, j[:, None], :, m],
                     t[:, :1, j[:, None], :, m])  # [P, n_bays, S, L, R]
-    return vals, near, rel >= 0
+    return vals, rel
 
 
 def predict_peak(table: ResponseTable, lengths) -> np.ndarray:
