@@ -309,7 +309,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
                      contact: str = "hertz-trajectory", roughness=None,
                      track: Track | None = None, wheel: Wheel | None = None,
                      material: Material | None = None, config: SimConfig | None = None,
-                     cache_dir=None, repeat_flats: bool = True
+                     cache_dir=None, repeat_flats: bool = False
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Readings [n, n_bays] N and peak contact forces [n] N of ``n`` coupled wheels (a bogie)
     on one track, every wheel with its own flat, in one run.
@@ -327,7 +327,8 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
             (:attr:`wfjax.model.vehicle.Vehicle.repeat_flats`): at its impact coordinate and
             2 pi R before and after it, within the run's window (which starts a bay and a
             circumference before the detector); the peak contact force is the largest of
-            them. False: at its impact coordinate only (a response table's single strike).
+            them. False (default): at its impact coordinate only, as the identification's
+            prediction models it (docs/identify.md, "Every strike").
     """
     from ..contact.laws import prepare
     from ..model.vehicle import Vehicle
@@ -434,7 +435,7 @@ def _common_columns(laws, sc: Scenario):
 def coupled_batch(groups, positions, speed: float, detector: Detector,
                   contact: str = "hertz-trajectory", roughness=None, track: Track | None = None,
                   wheel: Wheel | None = None, material: Material | None = None,
-                  config: SimConfig | None = None, cache_dir=None, repeat_flats: bool = True
+                  config: SimConfig | None = None, cache_dir=None, repeat_flats: bool = False
                   ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`coupled_readings` of ``B`` groups of wheels (bogies) of one layout on one track
     and rail, each with its own flats and impacts, batched: readings [B, n, n_bays] N and peak

@@ -1,6 +1,6 @@
 """The identification's prediction from a response table: the readings of one wheel in a
 detector's bays for every shape, length and impact coordinate (phase) over a wheel
-circumference, every strike of the flat included (:func:`predict`), and its peak contact
+circumference (:func:`predict`), and its peak contact
 forces (:func:`predict_peak`). The table itself, and the coupled runs, are
 :mod:`wfjax.identify.forward`'s.
 """
@@ -20,8 +20,8 @@ def phase_grid(table: ResponseTable, bays: np.ndarray, refine: int = 1) -> np.nd
     """[P] impact rail coordinates x [m] (x = 0: the sleeper at the start of bay 0), the
     table's in-bay positions (``refine`` points per table interval) over one wheel
     circumference 2 pi R from the start of the detector's first bay ``bays[0]``: a flat
-    strikes once in every circumference, so exactly one of its strikes lies there; the others,
-    2 pi R apart, follow from it (:func:`predict`)."""
+    strikes once in every circumference, so exactly one of its strikes lies there (the one
+    :func:`predict` models)."""
     ls, j = table.sleeper_spacing, table.offsets.size
     circumference = 2 * math.pi * table.wheel_radius
     x0 = int(bays[0]) * ls
@@ -48,53 +48,27 @@ def predict(table: ResponseTable, bays, lengths, phases) -> np.ndarray:
     indices) for every shape, ``lengths`` [n_len] m (linear interpolation in the table's
     lengths, clamped) and impact coordinate ``phases`` [P] m on :func:`phase_grid`.
 
-    The strike at x reads in the bays within ``REACH`` of its own what the table holds; bays
-    farther away read the table's shortest flat (the wheel is as good as round there). The
-    flat strikes again at x + k 2 pi R: a detector longer than a circumference reads the next
-    strike, and the strike before x rings in the first bays. Such a strike replaces the
-    reading of its own bay and the ``REACH`` bays after it with the table's (at the table
-    position nearest to it: interpolating across a gate edge would read half an impact where
-    there is either one or none); bays before it read as they would without it (the wheel
-    crosses them before it strikes). Strikes are more than 2 ``REACH`` bays apart, so no bay
-    is at or after two of them."""
-    phases = np.asarray(phases, float)
-    vals, _ = _strike(table, bays, _table_index(table, phases))
-    span = (np.max(bays) - np.min(bays) + 2 * REACH + 1) * table.sleeper_spacing
-    circumference = 2 * math.pi * table.wheel_radius
-    reach = int(math.ceil(span / circumference)) + 1
-    step = table.sleeper_spacing / table.offsets.size
-    for k in range(-reach, reach + 1):
-        if k:
-            idx = np.round((phases + k * circumference) / step).astype(int)
-            vk, rel = _strike(table, bays, idx)
-            vals = np.where(((rel >= 0) & (rel <= REACH))[:, :, None, None, None], vk, vals)
+    One strike per passage: bays farther than ``REACH`` from the impact bay read the table's
+    shortest flat (the wheel is as good as round there). A detector longer than a
+    circumference also reads the flat's next strike, 2 pi R later, and its first bays the
+    ringing of the strike before: not modelled here (docs/identify.md, "Every strike")."""
+    bays = np.asarray(bays, int)
+    ls, nj = table.sleeper_spacing, table.offsets.size
+    idx = np.floor(np.asarray(phases) / (ls / nj) + 1e-6).astype(int)
+    q, j = np.floor_divide(idx, nj), np.mod(idx, nj)
+    rel = bays[None, :] - q[:, None]  # [P, n_bays]
+    far = np.abs(rel) > REACH
+    m = np.clip(rel, -REACH, REACH) + REACH
+    t = table.readings  # [S, L, J, R, M]
+    # the far bays read the smooth row
+    near = t[:, :, j[:, None], :, m]  # [P, n_bays, S, L, R]
+    smooth = t[:, :1, j[:, None], :, m]
+    vals = np.where(far[:, :, None, None, None], smooth, near)
     vals = np.moveaxis(vals, (0, 1), (3, 4))  # [S, L, R, P, n_bays]
     w, i0 = _interp_weights(table.lengths, lengths)
     out = vals[:, i0] * (1 - w)[None, :, None, None, None] + \
         vals[:, i0 + 1] * w[None, :, None, None, None]
     return np.moveaxis(out, 2, 3)  # [S, n_len, P, R, n_bays]
-
-
-def _table_index(table: ResponseTable, x) -> np.ndarray:
-    """[P] the table position at or before rail coordinate ``x`` [P] m (steps of L_S / J
-    from x = 0; :func:`phase_grid`'s points are on it)."""
-    return np.floor(np.asarray(x, float) / (table.sleeper_spacing / table.offsets.size)
-                    + 1e-6).astype(int)
-
-
-def _strike(table: ResponseTable, bays, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(values [P, n_bays, S, L, R] N, bay offsets [P, n_bays]) of one strike at each table
-    position ``idx`` [P]: the table's readings at the bays' offsets from the strike's bay
-    within ``REACH``, the shortest flat's at the nearest offset held farther away."""
-    bays = np.asarray(bays, int)
-    nj = table.offsets.size
-    q, j = np.floor_divide(idx, nj), np.mod(idx, nj)
-    rel = bays[None, :] - q[:, None]  # [P, n_bays]
-    m = np.clip(rel, -REACH, REACH) + REACH
-    t = table.readings  # [S, L, J, R, M]
-    vals = np.where((np.abs(rel) <= REACH)[:, :, None, None, None], t[:, :, j[:, None], :, m],
-                    t[:, :1, j[:, None], :, m])  # [P, n_bays, S, L, R]
-    return vals, rel
 
 
 def predict_peak(table: ResponseTable, lengths) -> np.ndarray:

@@ -77,8 +77,8 @@ class Vehicle:
         repeat_flats: every wheel's flat strikes once per revolution, every 2 pi R [m] of
             rolling (R the wheel's radius), as on a real wheel, instead of once per run (the
             paper's single impact, the default). It matters where a run rolls further than a
-            circumference past a flat, as over a detector longer than 2 pi R
-            (:mod:`wfjax.identify`); before the run's start the wheel has not struck. (A
+            circumference past a flat, as over a detector longer than 2 pi R (``wfjax
+            detector``); before the run's start the wheel has not struck. (A
             wheel roughness is periodic in 2 pi R already and reads alike either way.)
     """
 
