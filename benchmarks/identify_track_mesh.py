@@ -52,7 +52,7 @@ def readings() -> list[dict]:
                 for label, (track, config) in MODELS.items():
                     peaks, force = F.coupled_readings(
                         [F.flat_of(kind, length, factor, radius)], [impact], [0.0], v / 3.6,
-                        detector, track=track, wheel=wheel, config=config, repeat_flats=False)
+                        detector, track=track, wheel=wheel, config=config)
                     row[label] = {"reading_N": float(peaks[0].max()), "force_N": float(force[0])}
                 rows.append(row)
                 print(row, flush=True)

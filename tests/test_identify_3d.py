@@ -28,8 +28,7 @@ def _tiny(contact):
 def test_3d_table_agrees_with_direct_runs_of_the_exact_tables():
     """Every entry of the 3D table (readings in the five bays, peak contact force) equals a
     single-wheel coupled run of that flat with its own exact 3D table (``contact="3d"``,
-    ``contact_mode_3d`` auto), the same roughness realisation and impact, one strike
-    (``repeat_flats=False``, as the table's runs): within 0.5 % (the
+    ``contact_mode_3d`` auto), the same roughness realisation and impact: within 0.5 % (the
     runs' windows differ: the table's starts a run-in before its flat, the coupled run a
     bay and a circumference before the detector); and the 3D law is not Hertz-trajectory's:
     the 70 mm new flat's peak force lower by more than 5 %."""
@@ -42,7 +41,7 @@ def test_3d_table_agrees_with_direct_runs_of_the_exact_tables():
             for j, u in enumerate(t3.offsets):
                 p, f = fwd.coupled_readings([fwd.flat_of(kind, float(length), factor, radius)],
                                             [float(u)], [0.0], SPEED, det, contact="3d",
-                                            roughness=rough, repeat_flats=False)
+                                            roughness=rough)
                 np.testing.assert_allclose(t3.readings[s, i, j, 0], p[0], rtol=5e-3)
                 np.testing.assert_allclose(t3.peak[s, i, j, 0], f[0], rtol=5e-3)
     th = _tiny("hertz-trajectory")  # cached apart: the key holds the contact law

@@ -276,6 +276,29 @@ def test_a_flat_that_repeats_strikes_again_one_circumference_later():
     assert np.max(f_once[~first]) < 1.05 * float(np.median(f_once))
 
 
+def test_a_detector_reads_each_strike_in_its_own_bays():
+    """The loop with the flat striking every revolution (``Vehicle.repeat_flats``) over a
+    6-bay detector (3.9 m): a strike in bay 0 strikes again in bay 4, which reads what that
+    strike alone reads, and the bays before it what the first strike alone reads, within
+    0.5 % (the rule a prediction with every strike would use, docs/identify.md, "Every
+    strike"). Without repeats bay 4 reads a round wheel."""
+    flat, c, ls, x = wf.Flat.new(0.6e-3), 2 * np.pi * float(wf.Wheel().radius), 0.65, 0.1
+    config = wf.SimConfig(precision="float64")
+
+    def read(impact, first_bay, repeat):
+        r = wf.simulate(flat, 100 / 3.6, contact="hertz-trajectory", impact_position=impact,
+                        detector=wf.Detector(6, first_bay), config=config,
+                        vehicle=Vehicle((0.0,), repeat_flats=repeat))
+        return np.asarray(r.detector_peak).ravel()
+
+    once, both = read(x, -1, False), read(x, -1, True)
+    second = read(x + c - 4 * ls, -5, False)  # the second strike alone, 4 bays earlier
+    bays = np.arange(-1, 5)  # the second strike is in bay 4
+    expect = np.where(bays >= 4, second, once)
+    np.testing.assert_allclose(both, expect, rtol=5e-3)
+    assert both[-1] > 1.5 * once[-1]
+
+
 def test_a_vehicle_too_long_for_a_track_with_per_sleeper_supports_is_refused():
     """Per-sleeper supports fix the track's length (a scalar track is lengthened instead)."""
     track = wf.Track()

@@ -309,8 +309,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
                      contact: str = "hertz-trajectory", roughness=None,
                      track: Track | None = None, wheel: Wheel | None = None,
                      material: Material | None = None, config: SimConfig | None = None,
-                     cache_dir=None, repeat_flats: bool = False
-                     ) -> tuple[np.ndarray, np.ndarray]:
+                     cache_dir=None) -> tuple[np.ndarray, np.ndarray]:
     """Readings [n, n_bays] N and peak contact forces [n] N of ``n`` coupled wheels (a bogie)
     on one track, every wheel with its own flat, in one run.
 
@@ -323,12 +322,6 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
         speed: v [m/s]. detector: the :class:`Detector` (absolute bays).
         roughness: one rail :class:`wfjax.Roughness` realisation (values [n]) or None.
         track: the track (may carry support scatter).
-        repeat_flats: every flat strikes once per revolution
-            (:attr:`wfjax.model.vehicle.Vehicle.repeat_flats`): at its impact coordinate and
-            2 pi R before and after it, within the run's window (which starts a bay and a
-            circumference before the detector); the peak contact force is the largest of
-            them. False (default): at its impact coordinate only, as the identification's
-            prediction models it (docs/identify.md, "Every strike").
     """
     from ..contact.laws import prepare
     from ..model.vehicle import Vehicle
@@ -342,7 +335,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
     delays = impacts - impacts[0] - offsets
     ref = flats[0]
     vehicle = Vehicle(tuple(positions), flats=tuple(flats), flat_wheel=0,
-                      flat_delays=tuple(delays), repeat_flats=repeat_flats)
+                      flat_delays=tuple(delays))
     sc = Scenario.of(ref, contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
@@ -435,7 +428,7 @@ def _common_columns(laws, sc: Scenario):
 def coupled_batch(groups, positions, speed: float, detector: Detector,
                   contact: str = "hertz-trajectory", roughness=None, track: Track | None = None,
                   wheel: Wheel | None = None, material: Material | None = None,
-                  config: SimConfig | None = None, cache_dir=None, repeat_flats: bool = False
+                  config: SimConfig | None = None, cache_dir=None
                   ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`coupled_readings` of ``B`` groups of wheels (bogies) of one layout on one track
     and rail, each with its own flats and impacts, batched: readings [B, n, n_bays] N and peak
@@ -473,8 +466,7 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
     if not cases:
         return np.zeros((0, positions.size, n_bays)), np.zeros((0, positions.size))
     f0, _, d0 = cases[0]
-    vehicle = Vehicle(tuple(positions), flats=tuple(f0), flat_wheel=0, flat_delays=tuple(d0),
-                      repeat_flats=repeat_flats)
+    vehicle = Vehicle(tuple(positions), flats=tuple(f0), flat_wheel=0, flat_delays=tuple(d0))
     sc = Scenario.of(f0[0], contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)

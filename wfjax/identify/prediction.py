@@ -1,8 +1,7 @@
 """The identification's prediction from a response table: the readings of one wheel in a
 detector's bays for every shape, length and impact coordinate (phase) over a wheel
-circumference (:func:`predict`), and its peak contact
-forces (:func:`predict_peak`). The table itself, and the coupled runs, are
-:mod:`wfjax.identify.forward`'s.
+circumference (:func:`predict`), and its peak contact forces (:func:`predict_peak`). The
+table itself, and the coupled runs, are :mod:`wfjax.identify.forward`'s.
 """
 
 from __future__ import annotations
