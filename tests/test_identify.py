@@ -14,6 +14,9 @@ from wfjax.identify.inference import Prior, posterior
 from wfjax.identify.passage import Passage, PassageError, check_layout, passages_csv, read_passages
 
 BAYS = np.arange(-1, 4)
+STEP = 0.65 / 4  # m: the synthetic table's positions
+CIRCUMFERENCE = 17 * STEP  # m: a whole number of them
+RADIUS = CIRCUMFERENCE / (2 * np.pi)
 
 
 def _passage(n=2, speed=100 / 3.6):
@@ -105,12 +108,19 @@ def test_rules():
 
 
 def _table(slope=2.5e6, n_j=4, n_r=1, shapes=(("new", 0.0),)):
-    """A synthetic table: bay offset 0 reads P + slope * l, the others P (phase-free)."""
+    """A synthetic table: bay offset 0 reads P + slope * l, the others P (phase-free). Its
+    wheel's circumference is 17 table positions (4.25 bays), so every strike lies on one."""
     lengths = np.linspace(0.0, 0.13, 14)
-    reads = np.full((len(shapes), lengths.size, n_j, n_r, 2 * fwd.REACH + 1), 120e3)
-    reads[..., fwd.REACH] += slope * lengths[None, :, None, None]
-    return fwd.ResponseTable(100 / 3.6, 0.65, 0.45, shapes, lengths,
-                             np.arange(n_j) * 0.65 / n_j, reads, reads[..., fwd.REACH])
+    reads = np.full((len(shapes), lengths.size, n_j, n_r, fwd.TABLE_BAYS), 120e3)
+    reads[..., 0] += slope * lengths[None, :, None, None]
+    return fwd.ResponseTable(100 / 3.6, 0.65, RADIUS, shapes, lengths,
+                             np.arange(n_j) * 0.65 / n_j, reads, reads[..., 0])
+
+
+def _strike_bays(x: float) -> set:
+    """The bays of a flat's strikes x + k 2 pi R near the detector (synthetic table)."""
+    return {int(np.floor(round((x + k * CIRCUMFERENCE) / STEP) * STEP / 0.65 + 1e-9))
+            for k in range(-3, 4)}
 
 
 def test_refined_phases_interpolate_linearly():
@@ -123,19 +133,24 @@ def test_refined_phases_interpolate_linearly():
 
 
 def test_predict_shifts_the_table():
+    """Every bay reads the table at the flat's last strike at or before it: its bay offset
+    (0..4) and in-bay position; a bay more than 4 bays after it the shortest flat."""
     t = _table()
     t.readings[0, :, :, 0, :] += np.arange(5)[None, None, :] * 1e3 + np.arange(4)[None, :,
                                                                                  None] * 10
     phases = prediction.phase_grid(t, BAYS)
+    assert phases.size == 17
     mu = prediction.predict(t, BAYS, [0.13], phases)[0, 0, :, 0]  # [P, n_bays]
+    seen_two = 0
     for p, x in enumerate(phases):
-        idx = int(round(x / (0.65 / 4)))
-        q, j = idx // 4, idx % 4
+        strikes = [int(round((x + k * CIRCUMFERENCE) / STEP)) for k in range(-3, 4)]
+        seen_two += sum(BAYS[0] <= i // 4 <= BAYS[-1] for i in strikes) == 2
         for b, k in enumerate(BAYS):
-            m = int(np.clip(k - q, -2, 2))
-            row = 0.13 if abs(k - q) <= 2 else 0.0
-            expect = 120e3 + (2.5e6 * row if m == 0 else 0) + (m + 2) * 1e3 + j * 10
+            last = max(i for i in strikes if i // 4 <= k)
+            rel, j = k - last // 4, last % 4
+            expect = 120e3 + (2.5e6 * 0.13 if rel == 0 else 0) + min(rel, 4) * 1e3 + j * 10
             assert mu[p, b] == pytest.approx(expect)
+    assert seen_two > 0  # the 5-bay detector holds two strikes of some phases
 
 
 def test_posterior_matches_quadrature(monkeypatch):
@@ -154,9 +169,9 @@ def test_posterior_matches_quadrature(monkeypatch):
     phases = prediction.phase_grid(t, BAYS)
     lik = np.zeros(lengths.size)
     for x in phases:
-        q = int(np.floor(x / 0.65 + 1e-9))
+        struck = _strike_bays(x)
         for i, ln in enumerate(lengths):
-            mu = np.array([120e3 + (2.5e6 * ln if k == q else 0.0) for k in BAYS])
+            mu = np.array([120e3 + (2.5e6 * ln if k in struck else 0.0) for k in BAYS])
             lik[i] += np.exp(-0.5 * np.sum(((y - mu) / (sigma * mu)) ** 2)) / np.prod(mu)
     np.testing.assert_allclose(post.weights[0], lik / lik.sum(), rtol=1e-6, atol=1e-12)
     lo, hi = post.interval("length", 0.9)

@@ -18,10 +18,10 @@ BAYS = np.arange(-1, 4)
 def _table(slope=0.6e6):
     """A synthetic table: bay offset 0 reads 120 kN + slope * l, the others 120 kN."""
     lengths = np.linspace(0.0, 0.13, 14)
-    reads = np.full((1, lengths.size, 4, 1, 2 * fwd.REACH + 1), 120e3)
-    reads[..., fwd.REACH] += slope * lengths[None, :, None, None]
+    reads = np.full((1, lengths.size, 4, 1, fwd.TABLE_BAYS), 120e3)
+    reads[..., 0] += slope * lengths[None, :, None, None]
     return fwd.ResponseTable(100 / 3.6, 0.65, 0.45, (("new", 0.0),), lengths,
-                             np.arange(4) * 0.65 / 4, reads, reads[..., fwd.REACH])
+                             np.arange(4) * 0.65 / 4, reads, reads[..., 0])
 
 
 def test_phase_modes_point_mass_and_two_bumps():

@@ -5,13 +5,14 @@ of :class:`wfjax.program.core.Autodiff`).
 Two levels:
 
 * :func:`build_table`: the **response table** of one wheel at one speed. One single-wheel
-  scenario with a wide detector (bays -2..+2 around the impact bay), compiled once; one
+  scenario with a wide detector (the impact bay and the 4 after it), compiled once; one
   ``vmap``-ed batch per flat shape over lengths x in-bay impact positions x nuisance
   realisations (rail roughness of the ISO 3095 limit class, and support scatter, each
   realisation its own program's data). The track is periodic in the sleeper spacing L_S, so
   an impact at rail coordinate x = q L_S + u reads in detector bay k what the table holds at
-  bay offset k - q and position u (:func:`wfjax.identify.prediction.predict`): the phase is
-  a grid over a whole wheel circumference, evaluated from one bay's runs.
+  bay offset k - q and position u (:func:`wfjax.identify.prediction.predict`, every strike
+  of the flat from the last at or before the bay): the phase is a grid over a whole wheel
+  circumference, evaluated from one bay's runs.
 * :func:`coupled_readings`: several wheels of a bogie on one track, every wheel its own
   flat and impact coordinate (the vehicle's ``flat_delays``), run in full: the synthetic
   passages of the validation, and the neighbour correction of the factorised inference.
@@ -38,7 +39,7 @@ from ..scenario.windows import batch_windows
 from .table3d import PROGRAMS as _PROGRAMS
 from .table3d import stacked_laws, table_batch_3d
 
-__all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "ResponseTable", "flat_of", "build_table",
+__all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "TABLE_BAYS", "ResponseTable", "flat_of", "build_table",
            "coupled_readings", "coupled_batch", "identification_config",
            "extent_bound"]
 
@@ -46,9 +47,16 @@ _log = logging.getLogger(__name__)
 SMOOTH_DEPTH = 5e-6  # m: a round wheel's stand-in flat (new, l0 = 4 mm): no impact
 SHAPES = (("new", 0.0), ("rounded", 1.6), ("rounded", 1.8), ("rounded", 2.0))  # (kind, l/l0)
 TABLE_LENGTHS = np.array([5, 12, 20, 28, 36, 45, 55, 65, 75, 87, 100, 115, 130]) * 1e-3  # m
-REACH = 2  # bays either side of the impact bay the table holds
+# bays the table holds: the impact bay and the 4 after it. A flat strikes every 2 pi R
+# (4.35 L_S for a 0.45 m wheel), so every detector bay lies 0..4 bays after its last strike
+TABLE_BAYS = 5
 ROUGHNESS_SPAN = 24.0  # m of generated rail roughness, centred on x = 0
-N_OFFSETS = 16  # impact positions per bay in the table (40.6 mm apart at L_S = 0.65 m)
+# impact positions per bay in the table, 32.5 mm apart at L_S = 0.65 m: a 0.45 m wheel's
+# circumference is then 87.0 positions (0.1 mm off), so every strike lies on one
+N_OFFSETS = 20
+# m of travel before a table run's impact at least (the detector's first bay is the impact
+# bay): its readings and peak force within 0.3 % of runs begun a circumference earlier
+TABLE_RUN_IN = 1.3
 # the track the identification was built and validated on (docs/identify.md: 70 bays hold a
 # bogie's windows over the 5-bay detector with support scatter, whose per-sleeper arrays fix
 # the length): the defaults before 2026-12-03. Moving it to today's defaults (26 el./bay,
@@ -109,8 +117,8 @@ class ResponseTable:
         speed: v [m/s]. sleeper_spacing: L_S [m]. wheel_radius: R [m].
         shapes: [S] (kind, l / l0) of the flat shapes. lengths: [L] flat lengths [m].
         offsets: [J] impact positions u within a bay [m], j L_S / J.
-        readings: [S, L, J, R, 2 REACH + 1] bay readings [N] at bay offsets -REACH..REACH
-            from the impact bay, over R nuisance realisations.
+        readings: [S, L, J, R, TABLE_BAYS] bay readings [N] at bay offsets
+            0..TABLE_BAYS - 1 from the impact bay (one strike), over R nuisance realisations.
         peak: [S, L, J, R] the wheel's peak contact force [N] after the run-in.
     """
 
@@ -219,13 +227,15 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
     check(contact)
     wheel, track = wheel or Wheel(), track or TRACK
     material, config = material or Material(), identification_config(config)
+    config = dataclasses.replace(config, run_in=max(config.run_in, TABLE_RUN_IN))
     key = dict(speed=round(float(speed), 9), contact=contact, g=float(gauge_offset),
                c=float(calibration), shapes=[list(s) for s in shapes],
                lengths=np.asarray(lengths), j=int(n_offsets), r=int(n_roughness),
                s=int(n_supports), cv=float(scatter_cv), seed=int(seed), wheel=repr(wheel),
                track=repr(track), material=repr(material), config=repr(config),
-               v=3)  # 2: the rail's in-element deflection (2026-12-03); 3: the track's
-    # damper augmentation of its truncated modes (2026-12-05: the readings move)
+               v=4)  # 2: the rail's in-element deflection (2026-12-03); 3: the track's
+    # damper augmentation of its truncated modes (2026-12-05: the readings move); 4: the
+    # impact bay and the 4 after it (every strike, 2026-12-05; were bays -2..+2)
     if contact == "3d":  # the exact tables' builder (Hertz-trajectory keys unchanged)
         from ..contact.table_law import TABLE_BUILDER_REVISION
         key |= dict(law="exact-3d-tables", table3d=TABLE_BUILDER_REVISION)
@@ -234,10 +244,10 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
     radius = float(wheel.radius)
 
     def build():
-        det = Detector(2 * REACH + 1, -REACH, float(gauge_offset), float(calibration))
+        det = Detector(TABLE_BAYS, 0, float(gauge_offset), float(calibration))
         total, done = len(shapes) * n_supports, 0
         reads = np.zeros((len(shapes), len(lengths), n_offsets, n_supports, n_roughness,
-                          2 * REACH + 1))
+                          TABLE_BAYS))
         peaks = np.zeros(reads.shape[:-1])
         bound = max(float(flat_of(kind, float(np.max(lengths)), factor, radius).half_extent)
                     for kind, factor in shapes)
@@ -266,7 +276,7 @@ def build_table(speed: float, contact: str = "hertz-trajectory", gauge_offset: f
                 done += 1
                 if progress:
                     progress(done, total)
-        return {"readings": reads.reshape(reads.shape[:3] + (-1, 2 * REACH + 1)),
+        return {"readings": reads.reshape(reads.shape[:3] + (-1, TABLE_BAYS)),
                 "peak": peaks.reshape(peaks.shape[:3] + (-1,))}
 
     arrays = load_or_build("identify-table", key, build, cache_dir)
@@ -309,7 +319,8 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
                      contact: str = "hertz-trajectory", roughness=None,
                      track: Track | None = None, wheel: Wheel | None = None,
                      material: Material | None = None, config: SimConfig | None = None,
-                     cache_dir=None) -> tuple[np.ndarray, np.ndarray]:
+                     cache_dir=None, repeat_flats: bool = True
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Readings [n, n_bays] N and peak contact forces [n] N of ``n`` coupled wheels (a bogie)
     on one track, every wheel with its own flat, in one run.
 
@@ -322,6 +333,11 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
         speed: v [m/s]. detector: the :class:`Detector` (absolute bays).
         roughness: one rail :class:`wfjax.Roughness` realisation (values [n]) or None.
         track: the track (may carry support scatter).
+        repeat_flats: every flat strikes once per revolution, as on a real wheel
+            (:attr:`wfjax.model.vehicle.Vehicle.repeat_flats`): at its impact coordinate and
+            every 2 pi R before and after it within the run's window (which starts a bay and a
+            circumference before the detector); the peak contact force is the largest of
+            them. False: at its impact coordinate only (a response table's single strike).
     """
     from ..contact.laws import prepare
     from ..model.vehicle import Vehicle
@@ -335,7 +351,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
     delays = impacts - impacts[0] - offsets
     ref = flats[0]
     vehicle = Vehicle(tuple(positions), flats=tuple(flats), flat_wheel=0,
-                      flat_delays=tuple(delays))
+                      flat_delays=tuple(delays), repeat_flats=bool(repeat_flats))
     sc = Scenario.of(ref, contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
@@ -428,7 +444,7 @@ def _common_columns(laws, sc: Scenario):
 def coupled_batch(groups, positions, speed: float, detector: Detector,
                   contact: str = "hertz-trajectory", roughness=None, track: Track | None = None,
                   wheel: Wheel | None = None, material: Material | None = None,
-                  config: SimConfig | None = None, cache_dir=None
+                  config: SimConfig | None = None, cache_dir=None, repeat_flats: bool = True
                   ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`coupled_readings` of ``B`` groups of wheels (bogies) of one layout on one track
     and rail, each with its own flats and impacts, batched: readings [B, n, n_bays] N and peak
@@ -437,7 +453,7 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
     Args:
         groups: [B] (flats [n], impacts [n]) per group, as :func:`coupled_readings` takes them.
         positions: [n] the layout every group shares [m] (0 first).
-        The rest as :func:`coupled_readings`: one track (support scatter included) and one rail
+        The rest as :func:`coupled_readings` (every strike by default): one track (support scatter included) and one rail
         ``roughness`` realisation for every group (one detector site).
 
     One program is compiled for the layout (:func:`compile_scenario` once, not per group); a
@@ -466,7 +482,8 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
     if not cases:
         return np.zeros((0, positions.size, n_bays)), np.zeros((0, positions.size))
     f0, _, d0 = cases[0]
-    vehicle = Vehicle(tuple(positions), flats=tuple(f0), flat_wheel=0, flat_delays=tuple(d0))
+    vehicle = Vehicle(tuple(positions), flats=tuple(f0), flat_wheel=0, flat_delays=tuple(d0),
+                      repeat_flats=bool(repeat_flats))
     sc = Scenario.of(f0[0], contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
