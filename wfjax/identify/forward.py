@@ -39,8 +39,8 @@ from ..scenario.windows import batch_windows
 from .table3d import PROGRAMS as _PROGRAMS
 from .table3d import stacked_laws, table_batch_3d
 
-__all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "TABLE_BAYS", "ResponseTable", "flat_of", "build_table",
-           "coupled_readings", "coupled_batch", "identification_config",
+__all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "TABLE_BAYS", "ResponseTable", "flat_of",
+           "build_table", "coupled_readings", "coupled_batch", "identification_config",
            "extent_bound"]
 
 _log = logging.getLogger(__name__)
@@ -453,8 +453,9 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
     Args:
         groups: [B] (flats [n], impacts [n]) per group, as :func:`coupled_readings` takes them.
         positions: [n] the layout every group shares [m] (0 first).
-        The rest as :func:`coupled_readings` (every strike by default): one track (support scatter included) and one rail
-        ``roughness`` realisation for every group (one detector site).
+        The rest as :func:`coupled_readings` (every strike by default): one track (support
+        scatter included) and one rail ``roughness`` realisation for every group (one
+        detector site).
 
     One program is compiled for the layout (:func:`compile_scenario` once, not per group); a
     group's flats enter only as its wheels' contact laws and flat delays, which are stacked
