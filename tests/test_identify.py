@@ -153,6 +153,19 @@ def test_predict_shifts_the_table():
     assert seen_two > 0  # the 5-bay detector holds two strikes of some phases
 
 
+def test_every_strike_rule_reads_as_runs_with_every_strike():
+    """The prediction's rule (each bay read at the flat's last strike at or before it, from
+    one-strike runs of the table's layout) against runs in which a new 80 mm flat strikes
+    every revolution, 140 km/h (the largest difference of benchmarks/identify_every_strike.py),
+    every 6th table position of a circumference: within 1 %, where the one-strike rule is
+    more than 10 % off."""
+    import bench_scripts
+
+    out = bench_scripts.load("identify_every_strike").compare("new", 0.0, 0.08, 140.0, every=6)
+    assert out["every strike"]["max_pct"] < 1.0, out
+    assert out["one strike"]["max_pct"] > 10.0, out
+
+
 def test_posterior_matches_quadrature(monkeypatch):
     """One phase-free reading, one shape: the grid posterior equals the normalised
     likelihood x prior computed directly (on the table's own phase points)."""
