@@ -276,6 +276,29 @@ def test_a_flat_that_repeats_strikes_again_one_circumference_later():
     assert np.max(f_once[~first]) < 1.05 * float(np.median(f_once))
 
 
+def test_a_repeated_strike_carries_the_gradient_to_the_flat():
+    """``repeat_flats``: over a window that holds only the flat's second strike (2 pi R after
+    the first), the peak force's derivative in the flat's depth by ``jax.grad`` equals a
+    central finite difference within 1 % (the strike coordinate s - C round(s / C) has
+    derivative 1 in s, so the depth reaches the second strike as it does the first)."""
+    wheel, track, config, mat = wf.Wheel(), wf.Track(), wf.SimConfig(), wf.Material()
+    struct = structure(Vehicle((0.0,), repeat_flats=True), [wheel], track, config)
+    c, x_imp, dt = 2 * np.pi * float(wheel.radius), 0.2, 2.5e-5
+    n = int(0.6 / (V * dt))
+
+    def peak(depth):
+        law = prepare("hertz-profile", wf.Flat("rounded", depth, 0.1), wheel, track, mat,
+                      config)
+        hist = run_scan((law,), struct, V, dt, x_imp + c - 0.3, x_imp, n)
+        return jnp.max(hist["force"][:, 0])
+
+    d0, h = 0.9e-3, 1e-6
+    assert float(peak(d0)) > 1.3 * float(peak(1e-7))  # the second strike is in the window
+    grad = float(jax.grad(peak)(d0))
+    fd = (float(peak(d0 + h)) - float(peak(d0 - h))) / (2 * h)
+    assert grad == pytest.approx(fd, rel=1e-2)
+
+
 def test_a_detector_reads_each_strike_in_its_own_bays():
     """The loop with the flat striking every revolution (``Vehicle.repeat_flats``) over a
     6-bay detector (3.9 m): a strike in bay 0 strikes again in bay 4, which reads what that
