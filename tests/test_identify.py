@@ -273,19 +273,26 @@ def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
 
 def test_site_factors_pooled_over_passages_of_one_site():
     """Passages over the same bays share one site factor per bay: the median over every
-    wheel of every passage of reading / the table's round reading; other bays: per passage."""
+    wheel of every passage of reading / the wheel's modelled reading; other bays: per
+    passage. Impacts the model explains do not move a factor, even in most of a bay's
+    wheels (a median over a round wheel's reading would read them as the site's)."""
     from wfjax.identify.pipeline import pooled_site_factors, site_factors
 
-    t = _table()
     a, b = _passage(4), _passage(4, speed=60 / 3.6)
     b = Passage(b.speed, b.positions, b.bays, b.readings * 1.1, 0.1, 1.0)
-    got = pooled_site_factors([a, b], [t, t])
+    fit = np.full(a.readings.shape, 120e3)
+    got = pooled_site_factors([a, b], [fit, fit])
     want = np.median(np.concatenate([a.readings, b.readings]) / 120e3, axis=0)
     np.testing.assert_allclose(got[0], want)
     np.testing.assert_allclose(got[1], want)
     c = Passage(b.speed, b.positions, BAYS + 1, b.readings, 0.1, 1.0)
-    got = pooled_site_factors([a, c], [t, t])
-    np.testing.assert_allclose(got[1], site_factors(c, t))
+    got = pooled_site_factors([a, c], [fit, fit])
+    np.testing.assert_allclose(got[1], site_factors(c, fit))
+    struck = np.full((4, BAYS.size), 120e3)
+    struck[:3, 2] = 250e3  # three of four wheels read an impact in the middle bay
+    hit = Passage(a.speed, a.positions, a.bays, 1.04 * struck, 0.1, 1.0)
+    np.testing.assert_allclose(site_factors(hit, struck), 1.04)
+    assert site_factors(hit, np.full_like(struck, 120e3))[2] > 2.0
 
 
 def test_parametric_flats_share_one_extent_bound():
