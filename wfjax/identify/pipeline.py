@@ -243,6 +243,18 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     return out
 
 
+def _response_tables(passages: list[Passage], line: float, opts: dict, progress) -> dict:
+    """{speed rounded to 1e-9 m/s: its :class:`~wfjax.identify.forward.ResponseTable`} for
+    every passage's speed and the line speed ``line`` [m/s]."""
+    out = {}
+    for v in sorted({round(p.speed, 9) for p in passages} | {round(line, 9)}):
+        out[v] = fwd.build_table(v, gauge_offset=passages[0].gauge_offset,
+                                 calibration=passages[0].calibration,
+                                 progress=progress and (lambda d, t, v=v: progress(
+                                     f"response table {v * 3.6:.0f} km/h", d, t)), **opts)
+    return out
+
+
 def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: float = 0.03,
              model: float = 0.02, prior: Prior | None = None, flag_length: float = 0.02,
              flag_probability: float = 0.9, line_speed: float | None = None,
@@ -281,14 +293,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
     wheel, prior = wheel or Wheel(), prior or Prior()
     opts = dict(table_options or {}, contact=contact, wheel=wheel, seed=seed,
                 cache_dir=cache_dir)
-    speeds = sorted({round(p.speed, 9) for p in passages})
     line = float(line_speed or passages[0].speed)
-    tables = {}
-    for v in sorted(set(speeds) | {round(line, 9)}):
-        g = passages[0].gauge_offset
-        tables[v] = fwd.build_table(v, gauge_offset=g, calibration=passages[0].calibration,
-                                    progress=progress and (lambda d, t, v=v: progress(
-                                        f"response table {v * 3.6:.0f} km/h", d, t)), **opts)
+    tables = _response_tables(passages, line, opts, progress)
     ptables = [tables[round(p.speed, 9)] for p in passages]
     bays = [p.detector_bays() for p in passages]
     n = passages[0].n_wheels
