@@ -4,9 +4,10 @@ docs/identify.md "Every strike").
 A flat strikes every 2 pi R. The identification reads a detector bay from its one-strike
 response table at the flat's last strike at or before that bay
 (:func:`wfjax.identify.prediction.predict`). Here, for one wheel on the identification's
-track (no roughness, Hertz-trajectory), the rule is evaluated from single-strike runs of the
-table's layout (the impact bay and the 4 after it, 20 positions per bay) and compared bay by
-bay with coupled runs in which the flat strikes every revolution
+track (no roughness, Hertz-trajectory), ``predict`` runs on a table of single-strike runs of
+the table's layout (the impact bay and the 4 after it, 20 positions per bay; a round wheel's
+runs as its shortest flat) and is compared bay by bay with coupled runs in which the flat
+strikes every revolution
 (``Vehicle.repeat_flats``), over a 5-bay detector from the impact coordinate's bay 0, at
 every ``--every``-th table position of one circumference. The one-strike rule (bays before
 the strike and more than 4 after it read a round wheel) is shown beside it.
@@ -27,6 +28,7 @@ import jax
 import numpy as np
 
 from wfjax.identify import forward as fwd
+from wfjax.identify import prediction
 from wfjax.params import Wheel
 from wfjax.scenario.sensors import Detector
 
@@ -37,44 +39,40 @@ SPEEDS_KMH = (60.0, 140.0)
 OUT = Path(__file__).resolve().parent / "results" / "identify_every_strike.json"
 
 
-def _rule(table: np.ndarray, smooth: float, phases: np.ndarray, step: float, n_j: int,
-          circumference: float, every_strike: bool) -> np.ndarray:
-    """[P, 5] readings [N] of detector bays 0..4 by the rule from single-strike runs
-    ``table`` [n_j, 5] (bay offsets 0..4 after the impact bay) and a round wheel's reading
-    ``smooth``: each bay at the flat's last strike at or before it (``every_strike``), or at
-    the strike at ``phases`` only."""
-    k = np.arange(-2, 3) if every_strike else np.zeros(1, int)
-    out = np.full((phases.size, 5), smooth)
-    for p, x in enumerate(phases):
-        idx = np.round((x + k * circumference) / step).astype(int)
-        q, j = np.floor_divide(idx, n_j), np.mod(idx, n_j)
-        for b in range(5):
-            ok = q <= b
-            if ok.any():
-                i = int(np.argmax(np.where(ok, q, np.iinfo(int).min)))
-                if b - q[i] < 5:
-                    out[p, b] = table[j[i], b - q[i]]
-    return out
+def _one_strike(table: fwd.ResponseTable, phases: np.ndarray) -> np.ndarray:
+    """[P, 5] readings [N] of detector bays 0..4 with the strike at ``phases`` [P] m only:
+    the table's flat row in the strike's bay and the 4 after it, its round row elsewhere."""
+    ls, n_j = table.sleeper_spacing, table.offsets.size
+    idx = np.round(phases / (ls / n_j)).astype(int)
+    rel = np.arange(5)[None, :] - np.floor_divide(idx, n_j)[:, None]  # [P, 5]
+    near = (rel >= 0) & (rel < 5)
+    t = table.readings[0, :, :, 0]  # [2, J, 5]: round, flat
+    j = np.mod(idx, n_j)[:, None]
+    return np.where(near, t[1, j, np.clip(rel, 0, 4)], t[0, j, np.arange(5)[None, :]])
 
 
 def compare(kind: str, factor: float, length: float, kmh: float, every: int = 3) -> dict:
-    """Largest and median relative differences of the every-strike and one-strike rules from
-    every-strike runs, one flat (``kind``, l / l0 ``factor``, ``length`` [m]) at ``kmh``."""
+    """Largest and median relative differences [%] from every-strike runs of the
+    identification's prediction (:func:`wfjax.identify.prediction.predict` on a table of this
+    flat's single-strike runs) and of the one-strike rule, one flat (``kind``, l / l0
+    ``factor``, ``length`` [m]) at ``kmh`` [km/h]."""
     radius = float(Wheel().radius)
     circumference, ls, n_j = 2 * math.pi * radius, 0.65, fwd.N_OFFSETS
     step, v, det = ls / n_j, kmh / 3.6, Detector(5, 0)
-    flat = fwd.flat_of(kind, length, factor, radius)
-    single, _ = fwd.coupled_batch([([flat], [u]) for u in np.arange(n_j) * step], [0.0], v,
-                                  det, repeat_flats=False)
-    round_wheel = fwd.flat_of("new", 4e-3, 0.0, radius)
-    smooth, _ = fwd.coupled_batch([([round_wheel], [0.3])], [0.0], v, det, repeat_flats=False)
+    flats = [fwd.flat_of("new", 4e-3, 0.0, radius), fwd.flat_of(kind, length, factor, radius)]
+    single = [fwd.coupled_batch([([f], [u]) for u in np.arange(n_j) * step], [0.0], v, det,
+                                repeat_flats=False)[0][:, 0] for f in flats]  # [J, 5] each
+    reads = np.stack(single)[None, :, :, None, :]  # [S=1, L=2 (round, flat), J, R=1, 5]
+    table = fwd.ResponseTable(v, ls, radius, (("new", 0.0),), np.array([0.0, length]),
+                              np.arange(n_j) * step, reads, reads.max(axis=-1))
     phases = np.arange(0, int(round(circumference / step)), every) * step
-    runs, _ = fwd.coupled_batch([([flat], [x]) for x in phases], [0.0], v, det)
-    runs = runs[:, 0]
+    runs = fwd.coupled_batch([([flats[1]], [x]) for x in phases], [0.0], v, det)[0][:, 0]
+    rules = {"every strike": prediction.predict(table, np.arange(5), [length],
+                                                phases)[0, 0, :, 0],
+             "one strike": _one_strike(table, phases)}
     out = {}
-    for label, every_strike in (("every strike", True), ("one strike", False)):
-        e = np.abs(_rule(single[:, 0], float(smooth[0, 0, 2]), phases, step, n_j,
-                         circumference, every_strike) / runs - 1)
+    for label, mu in rules.items():
+        e = np.abs(mu / runs - 1)
         out[label] = {"max_pct": round(100 * float(e.max()), 3),
                       "median_pct": round(100 * float(np.median(e)), 4)}
     return out

@@ -30,11 +30,11 @@ def scan(passages, truths, wheel: int, neighbour: int, dx: np.ndarray) -> list[d
     """Per passage the round ``wheel``'s correction [kN] per bay at each offset ``dx`` [m] of
     the ``neighbour``'s impact coordinate from its truth (one bogie of the wagon)."""
     from wfjax.identify import forward as fwd
-    from wfjax.scenario import roughness as rough_mod
+    from wfjax.identify.pipeline import correction_roughness
+    from wfjax.params import Wheel
 
-    radius = 0.45
-    rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, 7919, fwd.ROUGHNESS_SPAN,
-                               x_start=-fwd.ROUGHNESS_SPAN / 2)  # identify()'s, seed 0
+    radius = float(Wheel().radius)
+    rough = correction_roughness()  # identify()'s, seed 0
     smooth = fwd.flat_of("new", 0.004, 1.0, radius)
     pair = sorted((wheel, neighbour))
     layout = np.asarray(passages[0].positions)[pair] - passages[0].positions[pair[0]]

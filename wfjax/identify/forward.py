@@ -351,7 +351,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
     delays = impacts - impacts[0] - offsets
     ref = flats[0]
     vehicle = Vehicle(tuple(positions), flats=tuple(flats), flat_wheel=0,
-                      flat_delays=tuple(delays), repeat_flats=bool(repeat_flats))
+                      flat_delays=tuple(delays), repeat_flats=repeat_flats)
     sc = Scenario.of(ref, contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)
@@ -484,7 +484,7 @@ def coupled_batch(groups, positions, speed: float, detector: Detector,
         return np.zeros((0, positions.size, n_bays)), np.zeros((0, positions.size))
     f0, _, d0 = cases[0]
     vehicle = Vehicle(tuple(positions), flats=tuple(f0), flat_wheel=0, flat_delays=tuple(d0),
-                      repeat_flats=bool(repeat_flats))
+                      repeat_flats=repeat_flats)
     sc = Scenario.of(f0[0], contact, wheel=wheel, track=track, material=material, config=config,
                      vehicle=vehicle, detector=detector, roughness=roughness)
     prog = compile_scenario(sc, cache_dir)

@@ -30,7 +30,8 @@ from . import rules as rules_mod
 from .inference import CorrectionMixture, Prior, WheelPosterior, posterior
 from .passage import Passage
 
-__all__ = ["identify", "Identification", "WheelResult", "GROUP_GAP", "MISFIT_P"]
+__all__ = ["identify", "Identification", "WheelResult", "GROUP_GAP", "MISFIT_P",
+           "correction_roughness"]
 
 GROUP_GAP = 4.0  # m: wheels closer than this are coupled (a bogie)
 MISFIT_P = 1e-3  # posterior-predictive p-value below which a passage is not explained
@@ -187,6 +188,16 @@ def _configurations(g: list[int], modes: dict, n_max: int) -> dict:
     return out
 
 
+def correction_roughness(seed: int = 0):
+    """The rail roughness [one :class:`wfjax.Roughness` realisation of the ISO 3095 limit,
+    ``forward.ROUGHNESS_SPAN`` m centred on x = 0] of the neighbour corrections' runs of
+    ``identify(seed=seed)``."""
+    from ..scenario import roughness as rough_mod
+
+    return rough_mod.generate(rough_mod.ISO3095_LIMIT, int(seed) + 7919, fwd.ROUGHNESS_SPAN,
+                              x_start=-fwd.ROUGHNESS_SPAN / 2)
+
+
 def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list:
     """Per wheel a :class:`CorrectionMixture` of [n_bays] N, the neighbours' effect on its
     readings: the wheel **round** in its bogie with its neighbours at their estimates, minus
@@ -203,11 +214,8 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     wheel's own modelled readings. The runs go as one batch per layout
     (:func:`wfjax.identify.forward.coupled_batch`), the wheels alone as one more: a train's
     bogies are not looped over."""
-    from ..scenario import roughness as rough_mod
-
     det = passage.detector()
-    rough = rough_mod.generate(rough_mod.ISO3095_LIMIT, settings["seed"] + 7919,
-                               fwd.ROUGHNESS_SPAN, x_start=-fwd.ROUGHNESS_SPAN / 2)
+    rough = correction_roughness(settings["seed"])
     out: list = [None] * passage.n_wheels
     kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"])
     k, n_max = settings["passage_index"], int(settings.get("phase_modes", 4))
