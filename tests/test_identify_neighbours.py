@@ -40,6 +40,48 @@ def test_phase_modes_point_mass_and_two_bumps():
     np.testing.assert_allclose(ps, [1.0])
 
 
+def test_blur_phase_is_a_periodic_gaussian():
+    """A point mass blurred by sigma: the normal's mass within 1 and 2 sigma (0.683, 0.954),
+    symmetric, also across the circumference's ends; sigma 0 leaves the posterior as is."""
+    circ = 2.8
+    x = np.arange(2800) * 1e-3
+    w = np.zeros(x.size)
+    w[10] = 1.0  # at 0.010 m: the blur wraps to the far end
+    b = pipeline.blur_phase(x, w, 0.05, circ)
+    d = np.abs((x - 0.01 + circ / 2) % circ - circ / 2)
+    assert b.sum() == pytest.approx(1.0)
+    for k, normal in ((1, 0.6827), (2, 0.9545)):  # the grid's edge points count half
+        inside = b[d < k * 0.05 - 1e-9].sum() + 0.5 * b[np.abs(d - k * 0.05) < 1e-9].sum()
+        assert inside == pytest.approx(normal, abs=5e-4)
+    assert b[2800 - 30] == pytest.approx(b[50], rel=1e-9)  # -0.04 m and +0.04 m
+    np.testing.assert_allclose(pipeline.blur_phase(x, 2 * w, 0.0, circ), w)
+
+
+def test_blurred_neighbour_runs_beside_its_mode(monkeypatch):
+    """A neighbour whose phase posterior is a point mass, blurred by 5 cm: its modes
+    (2 cm half width) run at and beside the point, 3 cm apart, until 0.95 of the blurred
+    posterior is held, the point's the most probable."""
+    seen = []
+
+    def fake(groups, positions, speed, det, **kw):
+        seen.extend(impacts[1] for _, impacts in groups if len(impacts) > 1)
+        return (np.full((len(groups), len(positions), det.n_bays), 120e3),
+                np.zeros((len(groups), len(positions))))
+
+    monkeypatch.setattr(fwd, "coupled_batch", fake)
+    passage = Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, np.full((2, 5), 120e3))
+    x = np.arange(280) * 0.01
+    one = np.zeros(280)
+    one[50] = 1.0
+    settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0,
+                    phase_modes=8, phase_mode_width=0.02, phase_error=0.05)
+    out = pipeline._corrections(passage, [_post(x, one, 0.0), _post(x, one, 0.06)],
+                                settings, 0.45)
+    impacts = np.sort(np.array(seen))
+    np.testing.assert_allclose(impacts, 0.5 + 0.03 * np.arange(-3, 4), atol=1e-9)
+    assert out[0].weights[0] == max(out[0].weights) and out[0].weights.sum() == pytest.approx(1)
+
+
 def test_one_configuration_is_the_plain_correction():
     """A mixture of one configuration (a neighbour whose phase posterior is a point mass),
     or of two equal ones, gives the posterior of the plain additive correction."""
@@ -105,7 +147,8 @@ def test_corrections_run_every_neighbour_mode(monkeypatch):
     one, two = np.zeros(280), np.zeros(280)
     one[50] = 1.0
     two[50], two[200] = 0.25, 0.75
-    settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0)
+    settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0,
+                    phase_mode_width=0.1, phase_error=0.0, phase_modes=4)
     round_post = _post(x, one, 0.0)
     out = pipeline._corrections(passage, [round_post, _post(x, one, 0.06)],
                                 settings | {"phase_modes": 4}, 0.45)
@@ -160,7 +203,7 @@ def test_corrections_cover_a_neighbours_kinds(monkeypatch):
     one = np.zeros(280)
     one[50] = 1.0
     settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0,
-                    phase_modes=8)
+                    phase_modes=8, phase_mode_width=0.1, phase_error=0.0)
     round_post = _post(x, one, 0.0)
     out = pipeline._corrections(passage, [round_post, _two_kinds(0.3, x, one)], settings,
                                 0.45)

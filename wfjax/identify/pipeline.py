@@ -37,6 +37,10 @@ GROUP_GAP = 4.0  # m: wheels closer than this are coupled (a bogie)
 MISFIT_P = 1e-3  # posterior-predictive p-value below which a passage is not explained
 ROUND_LENGTH = 0.015  # m: a bogie none of whose wheels has P(l >= this) >= 0.5 is not corrected
 KIND_MIN_P = 0.2  # a neighbour's kind (new, rounded) below this probability is not run
+# m: a flat wheel's phase posterior blurred by this is calibrated (its ranks of the true
+# impact closest to uniform, Kolmogorov-Smirnov 0.066 of 285 wheel-passages, 0.150 unblurred;
+# benchmarks/identify_phase_error.py on the Hertz study's seed 41, docs/identify.md)
+PHASE_ERROR = 0.05
 
 
 @dataclasses.dataclass
@@ -130,15 +134,19 @@ def kind_modes(post: WheelPosterior, radius: float, min_p: float = KIND_MIN_P) -
 
 
 def neighbour_modes(post: WheelPosterior, passage: int, radius: float, n_max: int,
-                    width: float) -> tuple[np.ndarray, np.ndarray, list]:
+                    width: float, phase_error: float = 0.0
+                    ) -> tuple[np.ndarray, np.ndarray, list]:
     """A probably flat neighbour's modes for the correction: (impact coordinates [M] m,
-    probabilities [M], flats [M]), the product of its phase modes (:func:`phase_modes`) and
-    its kind modes (:func:`kind_modes`), most probable first, the first ``n_max`` kept
-    (``n_max`` 1: its posterior mode, the correction before 2026-12-04)."""
+    probabilities [M], flats [M]), the product of its phase modes (:func:`phase_modes` of
+    its phase posterior blurred by ``phase_error`` [m], :func:`blur_phase`) and its kind
+    modes (:func:`kind_modes`), most probable first, the first ``n_max`` kept (``n_max`` 1:
+    its posterior mode, the correction before 2026-12-04)."""
     if n_max <= 1:
         return (np.array([post.best[2][passage]]), np.ones(1),
                 [_estimate_flat(post, radius)])
-    xs, ps = phase_modes(post.phases[passage], post.phase_weights[passage], n_max, width)
+    x = post.phases[passage]
+    xs, ps = phase_modes(x, blur_phase(x, post.phase_weights[passage], phase_error,
+                                       circumference(radius)), n_max, width)
     joint = sorted(((x, p * q, f) for x, p in zip(xs, ps, strict=True)
                     for f, q in kind_modes(post, radius)), key=lambda m: -m[1])[:n_max]
     total = sum(m[1] for m in joint)
@@ -167,6 +175,19 @@ def phase_modes(phases, weights, n_max: int = 4, half_width: float = 0.1,
         left &= ~near
     ms = np.asarray(ms)
     return np.asarray(xs), ms / ms.sum()
+
+
+def blur_phase(phases, weights, sigma: float, circ: float) -> np.ndarray:
+    """A phase posterior ``weights`` [P] on impact coordinates ``phases`` [P] m, blurred by a
+    periodic Gaussian of standard deviation ``sigma`` [m] over the circumference ``circ``
+    [m] (the phase error its own readings leave unmodelled, :data:`PHASE_ERROR`); [P], sum 1.
+    ``sigma`` 0: the posterior itself."""
+    x, w = np.asarray(phases, float), np.asarray(weights, float)
+    if sigma <= 0:
+        return w / np.sum(w)
+    d = (x[:, None] - x[None, :] + circ / 2) % circ - circ / 2
+    out = np.exp(-0.5 * (d / sigma) ** 2) @ w
+    return out / np.sum(out)
 
 
 def _configurations(g: list[int], modes: dict, n_max: int) -> dict:
@@ -218,7 +239,7 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     rough = correction_roughness(settings["seed"])
     out: list = [None] * passage.n_wheels
     kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"])
-    k, n_max = settings["passage_index"], int(settings.get("phase_modes", 4))
+    k, n_max = settings["passage_index"], int(settings["phase_modes"])
     flat = {i: posts[i].p_length_at_least(ROUND_LENGTH) >= 0.5
             for i in range(passage.n_wheels)}
     todo = [(g, i) for g in _groups(passage.positions) if len(g) > 1 for i in g
@@ -227,8 +248,8 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
         return out
     wheels = sorted({j for g, _ in todo for j in g})
     smooth = fwd.flat_of("new", 0.004, 1.0, radius)
-    width = float(settings.get("phase_mode_width", 0.1))
-    modes = {i: neighbour_modes(posts[i], k, radius, n_max if flat[i] else 1, width)
+    width, blur = float(settings["phase_mode_width"]), float(settings["phase_error"])
+    modes = {i: neighbour_modes(posts[i], k, radius, n_max if flat[i] else 1, width, blur)
              for i in wheels}
     mine = sorted({i for _, i in todo})
     alone, _ = fwd.coupled_batch([([smooth], [modes[i][0][0]]) for i in mine], [0.0],
@@ -268,7 +289,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
              flag_probability: float = 0.9, line_speed: float | None = None,
              force_level: float = 350e3, user_rule=None, coupling_iterations: int = 1,
              phase_modes: int = 8, phase_mode_width: float = 0.02,
-             table_options: dict | None = None,
+             phase_error: float = PHASE_ERROR, table_options: dict | None = None,
              wheel: Wheel | None = None, seed: int = 0, cache_dir=None,
              progress=None) -> Identification:
     """Every wheel's flat from detector ``passages`` (:func:`wfjax.identify.read_passages`).
@@ -289,6 +310,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         phase_modes: the most modes of a neighbour (:func:`neighbour_modes`: phase x kind)
             the correction is marginalised over (1: its posterior mode only).
         phase_mode_width: the half width [m] of one phase mode (:func:`phase_modes`).
+        phase_error: the standard deviation [m] of the Gaussian blur of a neighbour's phase
+            posterior before its modes are taken (:func:`blur_phase`, :data:`PHASE_ERROR`).
         table_options: keyword arguments of :func:`wfjax.identify.forward.build_table`.
         progress: ``progress(stage: str, done, total)`` or None.
 
@@ -320,7 +343,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
                 for p, f in zip(passages, factors, strict=True)]
     posts = wheel_posteriors(corr)
     settings = dict(contact=contact, seed=seed, cache_dir=cache_dir, phase_modes=phase_modes,
-                    phase_mode_width=phase_mode_width)
+                    phase_mode_width=phase_mode_width, phase_error=phase_error)
     for it in range(coupling_iterations if n > 1 else 0):
         for k, p in enumerate(passages):
             c = _corrections(p, posts, settings | {"passage_index": k}, float(wheel.radius))
@@ -337,6 +360,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         flag_length_m=flag_length, flag_probability=flag_probability, line_speed_ms=line,
         force_level_N=force_level, coupling_iterations=coupling_iterations,
         phase_modes=phase_modes, phase_mode_width_m=phase_mode_width,
+        phase_error_m=phase_error,
         misfit_p=MISFIT_P, seed=seed, site_factors=[f.tolist() for f in factors],
         table_options={k: v for k, v in opts.items() if k not in ("wheel", "cache_dir")},
         user_rule=None if user_rule is None else dataclasses.asdict(user_rule)),
