@@ -177,6 +177,7 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
     """Wagon ``k``: its flats, one passage at each of ``args.speeds_kmh`` over one of
     ``args.sites`` detector sites, identified together; (per-wheel rows, timings [s])."""
     from wfjax.identify import identify
+    from wfjax.identify.pipeline import PHASE_ERROR
 
     flats = draw_flats(rng)
     site = int(rng.integers(args.sites))
@@ -189,7 +190,7 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
     res = identify(passages, coupling_iterations=args.coupling,
                    contact=getattr(args, "identify_contact", "hertz-trajectory"),
                    phase_modes=getattr(args, "phase_modes", 8),
-                   phase_mode_width=getattr(args, "mode_width_m", 0.02))
+                   phase_error=getattr(args, "phase_error_m", PHASE_ERROR))
     t2 = time.perf_counter()
     rows = [score_wheel(t, w) | {"wagon": k, "site": site} | passes(i, passages, truths)
             for i, (t, w) in enumerate(zip(truths[0], res.wheels, strict=True))]
@@ -314,6 +315,8 @@ def write_docs(text: str, section: str = "study") -> None:
 
 
 def main(argv=None) -> int:
+    from wfjax.identify.pipeline import PHASE_ERROR
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flats", type=int, default=100, help="flats to score (default 100)")
     ap.add_argument("--max-wagons", type=int, default=1000)
@@ -331,10 +334,10 @@ def main(argv=None) -> int:
     ap.add_argument("--identify-contact", default="hertz-trajectory",
                     help="the identification's contact law (3d: response tables of every "
                     "flat's exact 3D table; identify(contact=...))")
-    ap.add_argument("--phase-modes", type=int, default=8, help="a neighbour's phase modes "
+    ap.add_argument("--phase-modes", type=int, default=8, help="a neighbour's configurations "
                     "its correction is marginalised over (1: its most probable phase)")
-    ap.add_argument("--mode-width-m", type=float, default=0.02,
-                    help="the half width of one phase mode [m]")
+    ap.add_argument("--phase-error-m", type=float, default=PHASE_ERROR,
+                    help="the blur of a neighbour's phase posterior [m] (identify(phase_error))")
     ap.add_argument("--docs", action="store_true")
     ap.add_argument("--docs-section", default="study", help="the docs/identify.md markers "
                     "--docs writes between (study3d: the 3D-law study's)")

@@ -252,7 +252,7 @@ def test_command_writes_outputs(tmp_path, capsys, monkeypatch):
 
 
 def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
-    """--phase-modes and --phase-mode-width-mm reach identify() (in its units: m)."""
+    """--phase-modes and --phase-error-mm reach identify() (in its units: m)."""
     import wfjax.identify as identify_pkg
     from wfjax.cli import main
 
@@ -267,8 +267,8 @@ def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
     path = _csv(tmp_path, passages_csv([Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, y)]))
     with pytest.raises(SystemExit):
         main(["identify", "--readings", str(path), "--out", str(tmp_path / "out"),
-              "--phase-modes", "1", "--phase-mode-width-mm", "35"])
-    assert seen["phase_modes"] == 1 and seen["phase_mode_width"] == pytest.approx(0.035)
+              "--phase-modes", "1", "--phase-error-mm", "30"])
+    assert seen["phase_modes"] == 1 and seen["phase_error"] == pytest.approx(0.03)
 
 
 def test_site_factors_pooled_over_passages_of_one_site():

@@ -24,20 +24,30 @@ def _table(slope=0.6e6):
                              np.arange(4) * 0.65 / 4, reads, reads[..., 0])
 
 
-def test_phase_modes_point_mass_and_two_bumps():
+def test_phase_points_are_the_posteriors_strata():
+    """A point mass: one point of probability 1. Two point masses 0.3 and 0.7: 10 strata put
+    3 and 7 tenths on them; 4 strata 1 and 3 quarters. A normal on a fine grid: 8 strata
+    are its quantiles at (i + 1/2) / 8, each of probability 1/8."""
+    from scipy.stats import norm
+
     x = np.arange(280) * 0.01
     w = np.zeros(280)
     w[97] = 1.0
-    xs, ps = pipeline.phase_modes(x, w)
-    np.testing.assert_allclose(xs, [0.97])
-    np.testing.assert_allclose(ps, [1.0])
-    w = np.exp(-0.5 * ((x - 0.5) / 0.02) ** 2) * 0.7 + np.exp(-0.5 * ((x - 2.0) / 0.02) ** 2)
-    xs, ps = pipeline.phase_modes(x, w, n_max=4)
-    assert xs[0] == pytest.approx(2.0) and xs[1] == pytest.approx(0.5)
-    np.testing.assert_allclose(ps, [1 / 1.7, 0.7 / 1.7], rtol=1e-6)
-    xs, ps = pipeline.phase_modes(x, w, n_max=1)  # one mode: the most probable phase
-    np.testing.assert_allclose(xs, [2.0])
-    np.testing.assert_allclose(ps, [1.0])
+    for n in (1, 8):
+        xs, ps = pipeline.phase_points(x, w, n)
+        np.testing.assert_allclose(xs, [0.97])
+        np.testing.assert_allclose(ps, [1.0])
+    w = np.zeros(280)
+    w[50], w[200] = 0.3, 0.7
+    for n, p in ((10, [0.7, 0.3]), (4, [0.75, 0.25])):
+        xs, ps = pipeline.phase_points(x, w, n)
+        np.testing.assert_allclose(xs, [2.0, 0.5])
+        np.testing.assert_allclose(ps, p)
+    x = np.arange(2800) * 1e-3
+    xs, ps = pipeline.phase_points(x, norm.pdf(x, 1.4, 0.05), 8)
+    np.testing.assert_allclose(np.sort(xs), 1.4 + 0.05 * norm.ppf((np.arange(8) + 0.5) / 8),
+                               atol=1.5e-3)
+    np.testing.assert_allclose(ps, np.full(8, 1 / 8))
 
 
 def test_blur_phase_is_a_periodic_gaussian():
@@ -57,10 +67,11 @@ def test_blur_phase_is_a_periodic_gaussian():
     np.testing.assert_allclose(pipeline.blur_phase(x, 2 * w, 0.0, circ), w)
 
 
-def test_blurred_neighbour_runs_beside_its_mode(monkeypatch):
-    """A neighbour whose phase posterior is a point mass, blurred by 5 cm: its modes
-    (2 cm half width) run at and beside the point, 3 cm apart, until 0.95 of the blurred
-    posterior is held, the point's the most probable."""
+def test_blurred_neighbour_runs_at_the_blurs_strata(monkeypatch):
+    """A neighbour whose phase posterior is a point mass, blurred by 5 cm: its 8 runs are at
+    the normal's stratified quantiles about the point, each of probability 1/8."""
+    from scipy.stats import norm
+
     seen = []
 
     def fake(groups, positions, speed, det, **kw):
@@ -70,16 +81,16 @@ def test_blurred_neighbour_runs_beside_its_mode(monkeypatch):
 
     monkeypatch.setattr(fwd, "coupled_batch", fake)
     passage = Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, np.full((2, 5), 120e3))
-    x = np.arange(280) * 0.01
-    one = np.zeros(280)
-    one[50] = 1.0
+    x = np.arange(2800) * 1e-3
+    one = np.zeros(x.size)
+    one[500] = 1.0
     settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0,
-                    phase_modes=8, phase_mode_width=0.02, phase_error=0.05)
+                    phase_modes=8, phase_error=0.05)
     out = pipeline._corrections(passage, [_post(x, one, 0.0), _post(x, one, 0.06)],
                                 settings, 0.45)
-    impacts = np.sort(np.array(seen))
-    np.testing.assert_allclose(impacts, 0.5 + 0.03 * np.arange(-3, 4), atol=1e-9)
-    assert out[0].weights[0] == max(out[0].weights) and out[0].weights.sum() == pytest.approx(1)
+    np.testing.assert_allclose(np.sort(seen), 0.5 + 0.05 * norm.ppf((np.arange(8) + 0.5) / 8),
+                               atol=1.5e-3)
+    np.testing.assert_allclose(out[0].weights, np.full(8, 1 / 8))
 
 
 def test_one_configuration_is_the_plain_correction():
@@ -128,9 +139,9 @@ def _post(phases, phase_w, length):
 def test_corrections_run_every_neighbour_mode(monkeypatch):
     """The corrections' plumbing, with a stand-in for the coupled runs whose wheel j reads
     1 kN x (the sum of the other wheels' impact coordinates [m]) in every bay: a neighbour
-    with one phase mode gives the single-phase correction; with two modes, one configuration
-    each, at the modes' impacts, with their probabilities; the corrected wheel is round in
-    its runs."""
+    with one phase point gives the single-phase correction; with two (0.25 and 0.75 of its
+    posterior), one configuration each, at their impacts, with their probabilities; the
+    corrected wheel is round in its runs."""
     calls = []
 
     def fake(groups, positions, speed, det, **kw):
@@ -148,7 +159,7 @@ def test_corrections_run_every_neighbour_mode(monkeypatch):
     one[50] = 1.0
     two[50], two[200] = 0.25, 0.75
     settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0,
-                    phase_mode_width=0.1, phase_error=0.0, phase_modes=4)
+                    phase_error=0.0, phase_modes=4)
     round_post = _post(x, one, 0.0)
     out = pipeline._corrections(passage, [round_post, _post(x, one, 0.06)],
                                 settings | {"phase_modes": 4}, 0.45)
@@ -203,7 +214,7 @@ def test_corrections_cover_a_neighbours_kinds(monkeypatch):
     one = np.zeros(280)
     one[50] = 1.0
     settings = dict(seed=0, contact="hertz-trajectory", cache_dir=None, passage_index=0,
-                    phase_modes=8, phase_mode_width=0.1, phase_error=0.0)
+                    phase_modes=8, phase_error=0.0)
     round_post = _post(x, one, 0.0)
     out = pipeline._corrections(passage, [round_post, _two_kinds(0.3, x, one)], settings,
                                 0.45)

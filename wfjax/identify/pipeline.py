@@ -8,11 +8,12 @@ estimates, and round alone, batched over the bogies
 (:func:`wfjax.identify.forward.coupled_batch`: a train is a batch of bogies, each on its own
 track window); their difference, the neighbours' effect on the wheel's readings, is added
 to that wheel's prediction and its grid posterior recomputed. A neighbour's flat is not
-one estimate: the coupled runs cover its few most probable phase modes
-(:func:`phase_modes`) and, where its kind is uncertain, the most probable flat of each kind
-(:func:`kind_modes`), and each wheel's likelihood is marginalised over them with the
-modes' probabilities (:class:`wfjax.identify.inference.CorrectionMixture`). No joint grid
-over the wheels is ever formed.
+one estimate: the coupled runs cover its phase posterior, blurred by the phase error its
+readings leave (:func:`blur_phase`), at a few stratified points (:func:`phase_points`) and,
+where its kind is uncertain, the most probable flat of each kind (:func:`kind_modes`), and
+each wheel's likelihood is marginalised over them with their probabilities
+(:class:`wfjax.identify.inference.CorrectionMixture`). No joint grid over the wheels is ever
+formed.
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ def kind_modes(post: WheelPosterior, radius: float, min_p: float = KIND_MIN_P) -
     """[(flat, probability)], most probable first, sum 1: for each kind (new, rounded) with
     P(kind) >= ``min_p``, its most probable grid flat (shape and length). A wheel whose
     posterior is split between a short new and a long rounded flat has two, as its phase
-    posterior may have several modes (:func:`phase_modes`)."""
+    posterior may have several modes (:func:`phase_points`)."""
     out = []
     for kind in ("new", "rounded"):
         p = post.p_kind(kind)
@@ -134,47 +135,43 @@ def kind_modes(post: WheelPosterior, radius: float, min_p: float = KIND_MIN_P) -
 
 
 def neighbour_modes(post: WheelPosterior, passage: int, radius: float, n_max: int,
-                    width: float, phase_error: float = 0.0
-                    ) -> tuple[np.ndarray, np.ndarray, list]:
-    """A probably flat neighbour's modes for the correction: (impact coordinates [M] m,
-    probabilities [M], flats [M]), the product of its phase modes (:func:`phase_modes` of
-    its phase posterior blurred by ``phase_error`` [m], :func:`blur_phase`) and its kind
-    modes (:func:`kind_modes`), most probable first, the first ``n_max`` kept (``n_max`` 1:
-    its posterior mode, the correction before 2026-12-04)."""
+                    phase_error: float = 0.0) -> tuple[np.ndarray, np.ndarray, list]:
+    """A probably flat neighbour's configurations for the correction: (impact coordinates
+    [M] m, probabilities [M], flats [M]), M <= ``n_max``, the product of its kind modes
+    (:func:`kind_modes`, K of them) and ``n_max // K`` phase points per kind
+    (:func:`phase_points` of its phase posterior blurred by ``phase_error`` [m],
+    :func:`blur_phase`), most probable first (``n_max`` 1: its posterior mode, the
+    correction before 2026-12-04)."""
     if n_max <= 1:
         return (np.array([post.best[2][passage]]), np.ones(1),
                 [_estimate_flat(post, radius)])
+    kinds = kind_modes(post, radius)
     x = post.phases[passage]
-    xs, ps = phase_modes(x, blur_phase(x, post.phase_weights[passage], phase_error,
-                                       circumference(radius)), n_max, width)
-    joint = sorted(((x, p * q, f) for x, p in zip(xs, ps, strict=True)
-                    for f, q in kind_modes(post, radius)), key=lambda m: -m[1])[:n_max]
-    total = sum(m[1] for m in joint)
-    return (np.array([m[0] for m in joint]), np.array([m[1] / total for m in joint]),
+    xs, ps = phase_points(x, blur_phase(x, post.phase_weights[passage], phase_error,
+                                        circumference(radius)), max(n_max // len(kinds), 1))
+    joint = sorted(((x, p * q, f) for x, p in zip(xs, ps, strict=True) for f, q in kinds),
+                   key=lambda m: -m[1])
+    return (np.array([m[0] for m in joint]), np.array([m[1] for m in joint]),
             [m[2] for m in joint])
 
 
-def phase_modes(phases, weights, n_max: int = 4, half_width: float = 0.1,
-                mass: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
-    """The few most probable modes of a wheel's phase posterior: (impact coordinates [M] m,
-    probabilities [M], sum 1), M <= ``n_max``.
+def phase_points(phases, weights, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A wheel's phase posterior as at most ``n`` points: (impact coordinates [M] m,
+    probabilities [M], sum 1), M <= ``n``, most probable first.
 
-    Greedy: the most probable grid point, its mode's mass the posterior within
-    ``half_width`` [m] of it; those points removed, again, until ``n_max`` modes or
-    ``mass`` of the posterior is held. The first mode is the posterior's most probable
-    phase; a point mass gives one mode of probability 1."""
+    Stratified: the posterior's quantiles at (i + 1/2) / n, i = 0..n-1, along the
+    circumference cut where the posterior is least, each of probability 1 / n; quantiles on
+    one grid point merge. An unbiased average over the phase where a neighbour's effect
+    steps within centimetres (a gate edge), which its few most probable points are not; a
+    point mass gives one point of probability 1."""
     x, w = np.asarray(phases, float), np.asarray(weights, float)
-    w = w / np.sum(w)
-    left = np.ones(x.size, bool)
-    xs, ms = [], []
-    while len(xs) < max(int(n_max), 1) and sum(ms) < mass and left.any():
-        i = int(np.argmax(np.where(left, w, -1.0)))
-        near = left & (np.abs(x - x[i]) <= half_width + 1e-12)
-        xs.append(float(x[i]))
-        ms.append(float(w[near].sum()))
-        left &= ~near
-    ms = np.asarray(ms)
-    return np.asarray(xs), ms / ms.sum()
+    n = max(int(n), 1)
+    order = np.roll(np.arange(x.size), -int(np.argmin(w)))
+    cdf = np.cumsum(w[order]) / np.sum(w)
+    idx = order[np.minimum(np.searchsorted(cdf, (np.arange(n) + 0.5) / n), x.size - 1)]
+    keys, counts = np.unique(idx, return_counts=True)
+    first = np.argsort(-counts, kind="stable")
+    return x[keys[first]], counts[first] / n
 
 
 def blur_phase(phases, weights, sigma: float, circ: float) -> np.ndarray:
@@ -222,11 +219,11 @@ def correction_roughness(seed: int = 0):
 def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list:
     """Per wheel a :class:`CorrectionMixture` of [n_bays] N, the neighbours' effect on its
     readings: the wheel **round** in its bogie with its neighbours at their estimates, minus
-    the wheel round alone, over the neighbours' phase modes (:func:`phase_modes` of their
-    posteriors in this passage, ``settings["phase_modes"]`` at most), each neighbour's flat
-    at its posterior mode; None for a wheel none of whose neighbours probably has a flat
-    (P(l >= :data:`ROUND_LENGTH`) >= 0.5: a round wheel barely moves its neighbours'
-    readings).
+    the wheel round alone, over the neighbours' phase points (:func:`phase_points` of their
+    posteriors in this passage blurred by ``settings["phase_error"]``, and its kinds:
+    ``settings["phase_modes"]`` configurations at most, :func:`neighbour_modes`); None for
+    a wheel none of whose neighbours probably has a flat (P(l >= :data:`ROUND_LENGTH`) >=
+    0.5: a round wheel barely moves its neighbours' readings).
 
     The wheel is round in these runs, not at its own estimate: a neighbour's impact that
     rings while the wheel stands in a gate reads as a flat of its own at iteration 0, and
@@ -248,8 +245,8 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
         return out
     wheels = sorted({j for g, _ in todo for j in g})
     smooth = fwd.flat_of("new", 0.004, 1.0, radius)
-    width, blur = float(settings["phase_mode_width"]), float(settings["phase_error"])
-    modes = {i: neighbour_modes(posts[i], k, radius, n_max if flat[i] else 1, width, blur)
+    blur = float(settings["phase_error"])
+    modes = {i: neighbour_modes(posts[i], k, radius, n_max if flat[i] else 1, blur)
              for i in wheels}
     mine = sorted({i for _, i in todo})
     alone, _ = fwd.coupled_batch([([smooth], [modes[i][0][0]]) for i in mine], [0.0],
@@ -288,8 +285,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
              model: float = 0.02, prior: Prior | None = None, flag_length: float = 0.02,
              flag_probability: float = 0.9, line_speed: float | None = None,
              force_level: float = 350e3, user_rule=None, coupling_iterations: int = 1,
-             phase_modes: int = 8, phase_mode_width: float = 0.02,
-             phase_error: float = PHASE_ERROR, table_options: dict | None = None,
+             phase_modes: int = 8, phase_error: float = PHASE_ERROR,
+             table_options: dict | None = None,
              wheel: Wheel | None = None, seed: int = 0, cache_dir=None,
              progress=None) -> Identification:
     """Every wheel's flat from detector ``passages`` (:func:`wfjax.identify.read_passages`).
@@ -307,11 +304,12 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
             first passage's speed).
         user_rule: a :class:`wfjax.identify.rules.RuleSet` or None.
         coupling_iterations: neighbour-correction sweeps (0: wheels independent).
-        phase_modes: the most modes of a neighbour (:func:`neighbour_modes`: phase x kind)
-            the correction is marginalised over (1: its posterior mode only).
-        phase_mode_width: the half width [m] of one phase mode (:func:`phase_modes`).
+        phase_modes: the most configurations of a flat neighbour (:func:`neighbour_modes`:
+            phase points x kinds) the correction is marginalised over (1: its posterior
+            mode only).
         phase_error: the standard deviation [m] of the Gaussian blur of a neighbour's phase
-            posterior before its modes are taken (:func:`blur_phase`, :data:`PHASE_ERROR`).
+            posterior before its phase points are taken (:func:`blur_phase`,
+            :data:`PHASE_ERROR`).
         table_options: keyword arguments of :func:`wfjax.identify.forward.build_table`.
         progress: ``progress(stage: str, done, total)`` or None.
 
@@ -343,7 +341,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
                 for p, f in zip(passages, factors, strict=True)]
     posts = wheel_posteriors(corr)
     settings = dict(contact=contact, seed=seed, cache_dir=cache_dir, phase_modes=phase_modes,
-                    phase_mode_width=phase_mode_width, phase_error=phase_error)
+                    phase_error=phase_error)
     for it in range(coupling_iterations if n > 1 else 0):
         for k, p in enumerate(passages):
             c = _corrections(p, posts, settings | {"passage_index": k}, float(wheel.radius))
@@ -359,8 +357,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         contact=contact, noise=noise, model=model, prior=dataclasses.asdict(prior),
         flag_length_m=flag_length, flag_probability=flag_probability, line_speed_ms=line,
         force_level_N=force_level, coupling_iterations=coupling_iterations,
-        phase_modes=phase_modes, phase_mode_width_m=phase_mode_width,
-        phase_error_m=phase_error,
+        phase_modes=phase_modes, phase_error_m=phase_error,
         misfit_p=MISFIT_P, seed=seed, site_factors=[f.tolist() for f in factors],
         table_options={k: v for k, v in opts.items() if k not in ("wheel", "cache_dir")},
         user_rule=None if user_rule is None else dataclasses.asdict(user_rule)),
