@@ -59,7 +59,7 @@ def compare(kind: str, factor: float, length: float, kmh: float, every: int = 3)
     radius = float(Wheel().radius)
     circumference, ls, n_j = 2 * math.pi * radius, 0.65, fwd.N_OFFSETS
     step, v, det = ls / n_j, kmh / 3.6, Detector(5, 0)
-    flats = [fwd.flat_of("new", 4e-3, 0.0, radius), fwd.flat_of(kind, length, factor, radius)]
+    flats = [fwd.round_wheel(radius), fwd.flat_of(kind, length, factor, radius)]
     single = [fwd.coupled_batch([([f], [u]) for u in np.arange(n_j) * step], [0.0], v, det,
                                 repeat_flats=False)[0][:, 0] for f in flats]  # [J, 5] each
     reads = np.stack(single)[None, :, :, None, :]  # [S=1, L=2 (round, flat), J, R=1, 5]

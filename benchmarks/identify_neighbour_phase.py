@@ -35,7 +35,7 @@ def scan(passages, truths, wheel: int, neighbour: int, dx: np.ndarray) -> list[d
 
     radius = float(Wheel().radius)
     rough = correction_roughness()  # identify()'s, seed 0
-    smooth = fwd.flat_of("new", 0.004, 1.0, radius)
+    smooth = fwd.round_wheel(radius)
     pair = sorted((wheel, neighbour))
     layout = np.asarray(passages[0].positions)[pair] - passages[0].positions[pair[0]]
     out = []

@@ -356,7 +356,7 @@ def test_coupled_batch_equals_coupled_runs():
     from wfjax.scenario.sensors import Detector
 
     r, det = float(Wheel().radius), Detector(5, -1)
-    smooth = fwd.flat_of("new", 0.004, 1.0, r)
+    smooth = fwd.round_wheel(r)
     groups = [([fwd.flat_of("new", 0.06, 1.0, r), smooth], [0.3, 0.9]),
               ([smooth, smooth], [0.5, 1.7]),
               ([smooth, fwd.flat_of("rounded", 0.08, 1.8, r)], [1.0, 0.2])]

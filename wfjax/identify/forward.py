@@ -39,12 +39,12 @@ from ..scenario.windows import batch_windows
 from .table3d import PROGRAMS as _PROGRAMS
 from .table3d import stacked_laws, table_batch_3d
 
-__all__ = ["SMOOTH_DEPTH", "SHAPES", "TABLE_LENGTHS", "TABLE_BAYS", "ResponseTable", "flat_of",
-           "build_table", "coupled_readings", "coupled_batch", "identification_config",
-           "extent_bound"]
+__all__ = ["SMOOTH_LENGTH", "round_wheel", "SHAPES", "TABLE_LENGTHS", "TABLE_BAYS",
+           "ResponseTable", "flat_of", "build_table", "coupled_readings", "coupled_batch",
+           "identification_config", "extent_bound"]
 
 _log = logging.getLogger(__name__)
-SMOOTH_DEPTH = 5e-6  # m: a round wheel's stand-in flat (new, l0 = 4 mm): no impact
+SMOOTH_LENGTH = 4e-3  # m: a round wheel's stand-in flat (new, depth 4.4 um at R 0.45 m): no impact
 SHAPES = (("new", 0.0), ("rounded", 1.6), ("rounded", 1.8), ("rounded", 2.0))  # (kind, l/l0)
 TABLE_LENGTHS = np.array([5, 12, 20, 28, 36, 45, 55, 65, 75, 87, 100, 115, 130]) * 1e-3  # m
 # bays the table holds: the impact bay and the 4 after it. A flat strikes every 2 pi R
@@ -82,6 +82,12 @@ def flat_of(kind: str, length, length_factor: float, wheel_radius: float,
     depth = (length / length_factor) ** 2 / (8 * wheel_radius)
     return Flat("rounded", depth=depth, length=length, wheel_radius=wheel_radius,
                 extent_bound=extent_bound)
+
+
+def round_wheel(wheel_radius: float) -> Flat:
+    """A round wheel's stand-in :class:`Flat` (new, :data:`SMOOTH_LENGTH`) of radius
+    ``wheel_radius`` [m]: the loop needs a flat on every wheel."""
+    return flat_of("new", SMOOTH_LENGTH, 1.0, wheel_radius)
 
 
 def extent_bound(wheel_radius: float, shapes=SHAPES, lengths=TABLE_LENGTHS) -> float:
@@ -325,8 +331,7 @@ def coupled_readings(flats, impacts, positions, speed: float, detector: Detector
     on one track, every wheel with its own flat, in one run.
 
     Args:
-        flats: [n] :class:`Flat` per wheel (a round wheel: ``flat_of("new", 4e-3, ...)`` or
-            any flat of depth :data:`SMOOTH_DEPTH`).
+        flats: [n] :class:`Flat` per wheel (a round wheel: :func:`round_wheel`).
         impacts: [n] rail coordinate [m] where each wheel's flat strikes (x = 0 the sleeper at
             the start of bay 0), within the detector's reach.
         positions: [n] distance of each wheel behind the group's leading wheel [m].

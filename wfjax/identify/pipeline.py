@@ -244,7 +244,7 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     if not todo:  # no wheel has a neighbour with a flat: no correction
         return out
     wheels = sorted({j for g, _ in todo for j in g})
-    smooth = fwd.flat_of("new", 0.004, 1.0, radius)
+    smooth = fwd.round_wheel(radius)
     blur = float(settings["phase_error"])
     modes = {i: neighbour_modes(posts[i], k, radius, n_max if flat[i] else 1, blur)
              for i in wheels}

@@ -72,7 +72,7 @@ def _layouts(positions, groups):
 def _truth_flat(t: dict, radius: float):
     """The flat of a wheel's truth (a round wheel: a new 4 mm flat, no impact)."""
     if t["kind"] == "none":
-        return fwd.flat_of("new", 0.004, 1.0, radius)
+        return fwd.round_wheel(radius)
     return fwd.flat_of(t["kind"], t["length"], t["factor"], radius)
 
 
