@@ -380,12 +380,10 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("identify", "coupling_iterations", "int", "", 0, 5, commands=("identify",),
            flag="--coupling-iterations", doc="neighbour-correction sweeps (default 1)"),
     Option("identify", "phase_modes", "int", "", 1, 8, commands=("identify",), flag="--phase-modes",
-           doc="a flat neighbour's configurations (phase points x kinds) the correction "
-               "averages (default 8)"),
-    Option("identify", "phase_error", "float", "m", 0.0, 0.3, factor=1e-3,
-           doc="standard deviation of the blur of a neighbour's phase posterior before its "
-               "phase points are run (default 50 mm; 0: none)", commands=("identify",),
-           flag="--phase-error-mm", flag_unit="mm"),
+           doc="a flat neighbour's configurations (phase x kind) averaged (default 8)"),
+    Option("identify", "phase_error", "float", "m", 0.0, 0.3, factor=1e-3, flag_unit="mm",
+           doc="blur (standard deviation) of a neighbour's phase posterior (default 50 mm)",
+           commands=("identify",), flag="--phase-error-mm"),
     Option("identify", "realisations", "int", "", 1, 64, commands=("identify",),
            flag="--table-realisations", doc="rail roughness realisations of the table (default 3)"),
     Option("identify", "seed", "int", "", 0, 2**31 - 1, commands=("identify",),

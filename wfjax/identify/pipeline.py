@@ -307,9 +307,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         phase_modes: the most configurations of a flat neighbour (:func:`neighbour_modes`:
             phase points x kinds) the correction is marginalised over (1: its posterior
             mode only).
-        phase_error: the standard deviation [m] of the Gaussian blur of a neighbour's phase
-            posterior before its phase points are taken (:func:`blur_phase`,
-            :data:`PHASE_ERROR`).
+        phase_error: the blur [m] of a neighbour's phase posterior (:func:`blur_phase`).
         table_options: keyword arguments of :func:`wfjax.identify.forward.build_table`.
         progress: ``progress(stage: str, done, total)`` or None.
 
