@@ -17,13 +17,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 from pathlib import Path
 
 import numpy as np
+from identify_study import kept_passages  # benchmarks/, the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
-PASSAGE_FILE = "wagon-s41-ss31-n4-v60_100_140-{k}.pkl"
 
 
 def scan(passages, truths, wheel: int, neighbour: int, dx: np.ndarray) -> list[dict]:
@@ -65,8 +64,7 @@ def main() -> None:
     ap.add_argument("--span", type=float, default=0.16)
     ap.add_argument("--passages", required=True, metavar="DIR")
     args = ap.parse_args()
-    with open(Path(args.passages) / PASSAGE_FILE.format(k=args.wagon), "rb") as f:
-        passages, truths = pickle.load(f)
+    passages, truths = kept_passages(args.passages, args.wagon)
     dx = np.arange(-args.span, args.span + 1e-9, 0.02)
     rows = scan(passages, truths, args.wheel, args.neighbour, dx)
     out = ROOT / "benchmarks" / "results" / "identify_neighbour_phase.json"

@@ -26,14 +26,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import pickle
 import time
 from pathlib import Path
 
 import numpy as np
+from identify_study import kept_passages  # benchmarks/, the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
-PASSAGE_FILE = "wagon-s41-ss31-n4-v60_100_140-{k}.pkl"
 WITHIN = (0.01, 0.02, 0.05, 0.10)  # m
 SIGMAS = (0.0, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.10, 0.15, 0.20)  # m
 
@@ -71,12 +70,13 @@ def blur_table(posteriors: list, circ: float) -> list[dict]:
     return out
 
 
-def wheel_rows(k: int, passages, truths, res, circ: float, keep: list) -> list[dict]:
-    """Per flat wheel (truth length > 0) and passage of wagon ``k``: its phase figures;
-    appends (grid [m], posterior, truth [m]) to ``keep``."""
-    rows = []
+def wheel_rows(k: int, passages, truths, res, circ: float,
+               min_p_flat: float) -> tuple[list[dict], list]:
+    """Per flat wheel (truth length > 0, P(l >= 15 mm) >= ``min_p_flat``) and passage of
+    wagon ``k``: (its phase figures, its (grid [m], posterior, truth [m]))."""
+    rows, keep = [], []
     for i, w in enumerate(res.wheels):
-        if truths[0][i]["length"] <= 0:
+        if truths[0][i]["length"] <= 0 or w.post.p_length_at_least(0.015) < min_p_flat:
             continue
         for p in range(len(passages)):
             x, wt = np.asarray(w.post.phases[p]), np.asarray(w.post.phase_weights[p])
@@ -91,7 +91,7 @@ def wheel_rows(k: int, passages, truths, res, circ: float, keep: list) -> list[d
                          "p_flat": w.post.p_length_at_least(0.015), "error_m": err,
                          "rank": rank(x, wt, truth, circ)} | {f"mass_within_{d * 100:g}cm":
                                           float(wt[off <= d + 1e-9].sum()) for d in WITHIN})
-    return rows
+    return rows, keep
 
 
 def summary(rows: list[dict]) -> dict:
@@ -121,16 +121,15 @@ def main() -> None:
     circ = 2 * math.pi * float(Wheel().radius)
     rows, keep, t0 = [], [], time.perf_counter()
     for k in range(args.wagons):
-        path = Path(args.passages) / PASSAGE_FILE.format(k=k)
-        if not path.exists():
+        try:
+            passages, truths = kept_passages(args.passages, k)
+        except FileNotFoundError:  # a study kept in part
             continue
-        passages, truths = pickle.loads(path.read_bytes())
-        res = identify(passages, coupling_iterations=0)
-        mine: list = []
-        every = wheel_rows(k, passages, truths, res, circ, mine)
-        new = [r for r in every if r["p_flat"] >= args.min_p_flat]
-        keep += [m for m, r in zip(mine, every, strict=True) if r["p_flat"] >= args.min_p_flat]
+        new, posteriors = wheel_rows(k, passages, truths,
+                                     identify(passages, coupling_iterations=0), circ,
+                                     args.min_p_flat)
         rows += new
+        keep += posteriors
         print(f"wagon {k + 1}: " + ", ".join(f"{r['wheel']}@{r['speed_kmh']} "
                                               f"{r['error_m'] * 100:+.1f} cm" for r in new),
               flush=True)

@@ -259,6 +259,19 @@ def _cached_passages(args, k: int):
     return pickle.loads(path.read_bytes())
 
 
+def kept_passages(folder, k: int, seed: int = 41, site_seed: int = 31, sites: int = 4,
+                  speeds_kmh: str = "60,100,140") -> tuple[list, list]:
+    """(passages, per passage the wheels' truth) of wagon ``k`` (from 0) of a Hertz study
+    kept in ``folder`` by ``--passages`` (the study's seeds and sites; default: the docs'
+    seed 41 study). FileNotFoundError where that wagon was not kept."""
+    args = argparse.Namespace(passages=str(folder), seed=seed, site_seed=site_seed,
+                              sites=sites, speeds_kmh=speeds_kmh)
+    kept = _cached_passages(args, k)
+    if kept is None:
+        raise FileNotFoundError(f"wagon {k} not kept in {folder}: {_passage_file(args, k)}")
+    return kept
+
+
 def _store_passages(args, k: int, passages, truth) -> None:
     import pickle
 

@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 import time
 from pathlib import Path
 
 import numpy as np
+from identify_study import kept_passages  # benchmarks/, the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
-PASSAGE_FILE = "wagon-s41-ss31-n4-v60_100_140-{k}.pkl"
 
 
 def joined(own, round_own, c) -> tuple[np.ndarray, np.ndarray]:
@@ -70,10 +69,10 @@ def main() -> None:
     args = ap.parse_args()
     rows, t0 = [], time.perf_counter()
     for k in range(args.wagons):
-        path = Path(args.passages) / PASSAGE_FILE.format(k=k)
-        if not path.exists():
+        try:
+            passages, truths = kept_passages(args.passages, k)
+        except FileNotFoundError:  # a study kept in part
             continue
-        passages, truths = pickle.loads(path.read_bytes())
         for pair in ([0, 1], [2, 3]):
             if all(truths[0][j]["length"] > 0 for j in pair):
                 rows += bogie_rows(k, passages, truths, pair)
