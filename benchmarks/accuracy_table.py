@@ -6,8 +6,9 @@ Run: ``python benchmarks/accuracy_table.py [--quick] [--only LABEL ...]``. Write
 table of ``docs/convergence.md``.
 
 Reference: 26 rail elements per bay, track modes to 20 kHz, time step 6.25 us and travel step
-0.25 mm, 70 bays (45.5 m) with three absorbing sleepers at each end
-(``Track.absorbing_sleepers``; row "reference, clamped ends" without), contact element 1 mm.
+0.25 mm, 70 bays (45.5 m) with the fitted passive end networks (``Track.end_network``; since
+2026-12-05, late: the rows "reference, absorbing ends", three absorbing sleepers at each end,
+the reference before, and "reference, clamped ends"), contact element 1 mm.
 Each row changes the settings named in its label and keeps the rest of the reference, except
 the rows labelled "default", which are whole configurations: today's (``SimConfig``'s auto
 settings, which a run resolves by what it reads: a detector's reading gets 20 kHz, 25 us,
@@ -53,46 +54,54 @@ from wfjax.scenario import sensors as sensor_mod
 
 REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
        "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3, "precision": "float64",
-       "absorbing_sleepers": 3}
+       "absorbing_sleepers": 0, "end_network": True}  # since 2026-12-05, late: end networks
+ABSORBING = {"absorbing_sleepers": 3, "end_network": False}  # the ends before
 OLD = {"elements_per_bay": 8, "track_max_frequency": 10e3, "time_step": 25e-6,
-       "travel_step": 1e-3, "n_bays": 70, "absorbing_sleepers": 0}  # before 2026-12-03
+       "travel_step": 1e-3, "n_bays": 70, "absorbing_sleepers": 0,
+       "end_network": False}  # before 2026-12-03
 NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
-       "precision": "float32", "time_step": 40e-6, "absorbing_sleepers": 3}  # today's force
+       "precision": "float32", "time_step": 40e-6, **ABSORBING}  # today's force
 # settings: float32 forward runs and 40 us since 2026-12-04, absorbing ends since the evening
 # the package's defaults: SimConfig's auto settings, which a run resolves by what it reads
 # (since 2026-12-05 12 kHz, 40 us, float32; a detector's reading 15 kHz, 25 us, float64 on at
 # least 36 bays)
 DEFAULT = {**NEW, "track_max_frequency": "auto", "time_step": "auto", "precision": "auto"}
+NETWORK = {**DEFAULT, "absorbing_sleepers": 0, "end_network": True, "n_bays": 18}
 ROWS = {  # label -> changes to REF
     "reference": {},
-    "reference, clamped ends": {"absorbing_sleepers": 0},
+    "reference, absorbing ends": ABSORBING,
+    "default with end networks (18 bays, as the guards lengthen a sweep; reading: 36 bays)":
+        NETWORK,
+    "default with end networks, 14 bays": {**NETWORK, "n_bays": 14},
+    "reference, clamped ends": {"absorbing_sleepers": 0, "end_network": False},
     "default (26 el., 24 bays; 12 kHz, 40 us / 1 mm, float32; reading: 15 kHz, 25 us, "
     "float64, 36 bays)": DEFAULT,
-    "default, clamped ends": {**DEFAULT, "absorbing_sleepers": 0},
+    "default, clamped ends": {**DEFAULT, "absorbing_sleepers": 0, "end_network": False},
     "26 el., 15 kHz, 40 us / 1 mm, 24 bays, float32": NEW,
     "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float32": {**NEW, "time_step": 25e-6},
     "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float64": {**NEW, "time_step": 25e-6,
                                                        "precision": "float64"},
     "old default (8 el., 10 kHz, 25 us / 1 mm, 70 bays)": OLD,
-    "step 50 us / 2 mm": {"time_step": 50e-6, "travel_step": 2e-3},
-    "step 100 us / 4 mm": {"time_step": 100e-6, "travel_step": 4e-3},
-    "step 200 us / 8 mm": {"time_step": 200e-6, "travel_step": 8e-3},
-    "modes 2 kHz": {"track_max_frequency": 2e3},
-    "modes 5 kHz": {"track_max_frequency": 5e3},
-    "modes 10 kHz": {"track_max_frequency": 10e3},
-    "modes 15 kHz": {"track_max_frequency": 15e3},
-    "bays 16": {"n_bays": 16},
-    "bays 20": {"n_bays": 20},
-    "bays 24": {"n_bays": 24},
-    "bays 36": {"n_bays": 36},
-    "mesh 2": {"elements_per_bay": 2},
-    "mesh 4": {"elements_per_bay": 4},
-    "mesh 8": {"elements_per_bay": 8},
-    "mesh 16": {"elements_per_bay": 16},
-    "step 25 us / 1 mm": {"time_step": 25e-6, "travel_step": 1e-3},
-    "step 12.5 us / 0.5 mm": {"time_step": 12.5e-6, "travel_step": 0.5e-3},
-    "bays 50": {"n_bays": 50},
-    "element 2 mm": {"contact_element": 2e-3},
+    "step 50 us / 2 mm, absorbing ends": {**ABSORBING, "time_step": 50e-6, "travel_step": 2e-3},
+    "step 100 us / 4 mm, absorbing ends": {**ABSORBING, "time_step": 100e-6, "travel_step": 4e-3},
+    "step 200 us / 8 mm, absorbing ends": {**ABSORBING, "time_step": 200e-6, "travel_step": 8e-3},
+    "modes 2 kHz, absorbing ends": {**ABSORBING, "track_max_frequency": 2e3},
+    "modes 5 kHz, absorbing ends": {**ABSORBING, "track_max_frequency": 5e3},
+    "modes 10 kHz, absorbing ends": {**ABSORBING, "track_max_frequency": 10e3},
+    "modes 15 kHz, absorbing ends": {**ABSORBING, "track_max_frequency": 15e3},
+    "bays 16, absorbing ends": {**ABSORBING, "n_bays": 16},
+    "bays 20, absorbing ends": {**ABSORBING, "n_bays": 20},
+    "bays 24, absorbing ends": {**ABSORBING, "n_bays": 24},
+    "bays 36, absorbing ends": {**ABSORBING, "n_bays": 36},
+    "mesh 2, absorbing ends": {**ABSORBING, "elements_per_bay": 2},
+    "mesh 4, absorbing ends": {**ABSORBING, "elements_per_bay": 4},
+    "mesh 8, absorbing ends": {**ABSORBING, "elements_per_bay": 8},
+    "mesh 16, absorbing ends": {**ABSORBING, "elements_per_bay": 16},
+    "step 25 us / 1 mm, absorbing ends": {**ABSORBING, "time_step": 25e-6, "travel_step": 1e-3},
+    "step 12.5 us / 0.5 mm, absorbing ends": {**ABSORBING, "time_step": 12.5e-6,
+                                              "travel_step": 0.5e-3},
+    "bays 50, absorbing ends": {**ABSORBING, "n_bays": 50},
+    "element 2 mm, absorbing ends": {**ABSORBING, "contact_element": 2e-3},
     "16 el., 10 kHz, 25 us / 1 mm, 70 bays": {**OLD, "elements_per_bay": 16},
     "8 el., 15 kHz, 25 us / 1 mm, 70 bays": {**OLD, "track_max_frequency": 15e3},
     "26 el., 12 kHz, 25 us / 1 mm, 30 bays": {**OLD, "elements_per_bay": 26,
@@ -153,7 +162,8 @@ def settings(label: str) -> dict:
 def model_inputs(s: dict):
     """(Track, SimConfig) of the settings ``s`` (``"auto"``: SimConfig's auto setting)."""
     track = wf.Track.comparison(elements_per_bay=s["elements_per_bay"], n_bays=s["n_bays"],
-                                absorbing_sleepers=s["absorbing_sleepers"])
+                                absorbing_sleepers=s["absorbing_sleepers"],
+                                end_network=s.get("end_network", False))
     auto = {k: None if s[k] == "auto" else s[k] for k in ("time_step", "track_max_frequency")}
     config = wf.SimConfig(max_time_step=auto["time_step"], max_travel_step=s["travel_step"],
                           track_max_frequency=auto["track_max_frequency"],
@@ -251,12 +261,15 @@ def _rel(a, b) -> float:
 
 
 def measure(labels, quick: bool, path: pathlib.Path) -> dict:
-    """Run every row of ``labels`` not yet in ``path`` (JSON, updated after each row)."""
+    """Run every row of ``labels`` not yet in ``path`` with its settings (JSON, updated after
+    each row)."""
     done = json.loads(path.read_text()) if path.exists() else {}
     for label in labels:
-        if label in done and done[label].get("quick") == quick:
+        s = settings(label)
+        kept = done.get(label, {})
+        if kept.get("quick") == quick and {"end_network": False, **kept["settings"]} == s:
             continue
-        s, t0 = settings(label), time.perf_counter()
+        t0 = time.perf_counter()
         done[label] = {"settings": s, "quick": quick, "fig7": run_fig7(s, quick),
                        "sharp": run_sharp(s, quick), "receptances": run_receptances(s)}
         done[label]["seconds"] = time.perf_counter() - t0

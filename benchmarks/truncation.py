@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse.linalg
 
 import wfjax as wf
+from wfjax.model import beam as beam_mod
 from wfjax.model import fe as fe_mod
 from wfjax.model import track as track_mod
 from wfjax.scenario import sensors as sensor_mod
@@ -38,7 +39,7 @@ def direct(track, quantity: str) -> np.ndarray:
     if quantity == "rail_disp":
         obs = fe_mod.load_vector(fe, X_SENSORS).toarray()
     else:  # the element's end shear: the first row of its stiffness times its DOFs
-        ke, _, _ = fe_mod.element_matrices(track.bending_stiffness, track.shear_stiffness,
+        ke, _, _ = beam_mod.element_matrices(track.bending_stiffness, track.shear_stiffness,
                                            track.rail_mass, track.rail_rotary_inertia,
                                            fe.element_length)
         obs = np.zeros((b.size, X_SENSORS.size))

@@ -7,6 +7,7 @@ import scipy.sparse.linalg
 
 import wfjax as wf
 from wfjax.contact.laws import prepare
+from wfjax.model import beam as beam_mod
 from wfjax.model import fe as fe_mod
 from wfjax.model import geometry, sleepers, supports
 from wfjax.model import track as track_mod
@@ -52,7 +53,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
         return fe_mod.load_vector(fe, x).toarray()
 
     def own(x):  # each load's deflection inside its element (exact Timoshenko statics)
-        return fe_mod.element_interior_compliance(track, track_mod.element_fraction(fe, x))
+        return beam_mod.element_interior_compliance(track, track_mod.element_fraction(fe, x))
 
     hang = supports.hanging_sleepers(track)
     arrays = sleepers.support_arrays(track)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import wfjax as wf
+from wfjax.model import beam as beam_mod
 from wfjax.model import fe as fe_mod
 from wfjax.model import track as track_mod
 from wfjax.model.fe import END_GRADING, end_grading
@@ -28,7 +29,7 @@ def test_the_rail_is_damped_over_the_absorbing_zone_only():
         track = wf.Track(n_bays=10, elements_per_bay=4, absorbing_sleepers=n)
         fe = fe_mod.assemble(track)
         ne, nr = 40, fe.n_rail_dof
-        _, me, _ = fe_mod.element_matrices(track.bending_stiffness, track.shear_stiffness,
+        _, me, _ = beam_mod.element_matrices(track.bending_stiffness, track.shear_stiffness,
                                            track.rail_mass, track.rail_rotary_inertia,
                                            fe.element_length)
         eta = (fe_mod.end_rail_damping((np.arange(ne) + 0.5) * fe.element_length, 6.5, 2.6)

@@ -12,6 +12,7 @@ import wfjax as wf
 from wfjax.contact.laws import prepare
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.model import beam as beam_mod
 from wfjax.model import fe as fe_mod
 from wfjax.model import sleepers, supports
 from wfjax.model import track as track_mod
@@ -49,7 +50,7 @@ def _direct_static(track, x_wheel, load):
         f = np.linalg.solve(np.eye(idx.size) + (k_b * active)[:, None] * (e.T @ g),
                             k_b * active * (e.T @ u_p - gap))
     u = u_p - g @ f
-    own = fe_mod.element_interior_compliance(  # each load's deflection inside its element
+    own = beam_mod.element_interior_compliance(  # each load's deflection inside its element
         track, track_mod.element_fraction(fe, np.atleast_1d(x_wheel)))
     rail = b.T @ u + own * np.atleast_1d(load)
     return (rail[0] if np.ndim(x_wheel) == 0 else rail), e.T @ u, f

@@ -12,7 +12,7 @@ import pytest
 import wfjax
 from wfjax.model import periodic as P
 from wfjax.model import track as T
-from wfjax.model.fe import track_numbers
+from wfjax.model.beam import track_numbers
 
 LS = 0.65
 

@@ -15,6 +15,7 @@ from wfjax import params
 from wfjax.loop.observers import DetectorReadings
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
+from wfjax.model import beam as beam_mod
 from wfjax.model import fe as fe_mod
 from wfjax.model import track as T
 from wfjax.model.vehicle import Vehicle
@@ -49,7 +50,7 @@ def fields_on_mesh(track, u, xs):
     """Shear and moment at ``xs`` from the nodal solution ``u`` of ``track``'s FE model
     (element nodal forces; no particular solution: loads sit on nodes of this mesh)."""
     fe = fe_mod.assemble(track)
-    ke, _, _ = fe_mod.element_matrices(track.bending_stiffness, track.shear_stiffness,
+    ke, _, _ = beam_mod.element_matrices(track.bending_stiffness, track.shear_stiffness,
                                   track.rail_mass, track.rail_rotary_inertia, fe.element_length)
     full = np.concatenate([[0, 0], u[:fe.n_rail_dof], [0, 0]])
     e = np.floor((xs - fe.node_x[0]) / fe.element_length + 1e-9).astype(int)
@@ -114,7 +115,7 @@ def test_transfer_receptance_matches_direct_solve(quantity, elements, max_freque
     if quantity == "rail_disp":
         obs = fe_mod.load_vector(fe, x_s).toarray()
     else:
-        ke, _, _ = fe_mod.element_matrices(tr.bending_stiffness, tr.shear_stiffness, tr.rail_mass,
+        ke, _, _ = beam_mod.element_matrices(tr.bending_stiffness, tr.shear_stiffness, tr.rail_mass,
                                       tr.rail_rotary_inertia, fe.element_length)
         obs = np.zeros((b.size, x_s.size))
         for i, xi in enumerate(x_s):

@@ -15,6 +15,7 @@ import scipy.sparse.linalg
 
 import wfjax
 from wfjax import _cache
+from wfjax.model import beam as beam_mod
 from wfjax.model import fe as fe_mod
 from wfjax.model import sleepers
 from wfjax.model import supports as S
@@ -42,7 +43,7 @@ def _direct_static(track, x):
     fe = fe_mod.assemble(track)
     b = fe_mod.load_vector(fe, x).toarray()
     u = scipy.sparse.linalg.splu(fe.stiffness.tocsc()).solve(b)
-    own = fe_mod.element_interior_compliance(track, T.element_fraction(fe, x))
+    own = beam_mod.element_interior_compliance(track, T.element_fraction(fe, x))
     return np.einsum("ij,ij->j", b, u) + own
 
 
@@ -75,7 +76,7 @@ def test_uniform_track_unchanged():
     # rounding differs between LAPACK builds/CPUs by ~1e-9 of it (seen 7.7e-10 on AMD EPYC)
     # since 2026-12-03 the residual also holds the load's in-element deflection; the rest
     # is the number of before
-    own = fe_mod.element_interior_compliance(tr, T.element_fraction(fe_mod.assemble(tr),
+    own = beam_mod.element_interior_compliance(tr, T.element_fraction(fe_mod.assemble(tr),
                                                                     np.asarray(m.residual_x)))
     np.testing.assert_allclose(np.asarray(m.residual) - own, residual, rtol=1e-8)
     np.testing.assert_allclose(np.asarray(m.residual_x), np.linspace(0, LS, 9), rtol=1e-15)
@@ -213,8 +214,8 @@ def test_modal_model_cached_per_support_realisation(tmp_path):
     again = T.modal_model(S.scatter(tr, 0, cv=0.2), cache_dir=tmp_path)
     assert len(list(tmp_path.iterdir())) == 3
     np.testing.assert_array_equal(np.asarray(ma.poles), np.asarray(again.poles))
-    ka = _cache.key_hash("k", fe_mod.track_numbers(a))
-    assert ka != _cache.key_hash("k", fe_mod.track_numbers(b))
+    ka = _cache.key_hash("k", beam_mod.track_numbers(a))
+    assert ka != _cache.key_hash("k", beam_mod.track_numbers(b))
 
 
 def test_sensor_seat_force_uses_the_pad_under_the_sensor():

@@ -15,6 +15,7 @@ from wfjax.contact.laws import prepare
 from wfjax.loop.observers import Sensors
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import cross_table, structure
+from wfjax.model import beam as beam_mod
 from wfjax.model import fe as fe_mod
 from wfjax.model import supports
 from wfjax.model import track as track_mod
@@ -93,7 +94,7 @@ def _direct_static(track, positions, loads):
     fe = fe_mod.assemble(track)
     b = fe_mod.load_vector(fe, positions).toarray()
     u = scipy.sparse.linalg.spsolve(fe.stiffness.tocsc(), b @ loads)
-    own = fe_mod.element_interior_compliance(track, track_mod.element_fraction(fe, positions))
+    own = beam_mod.element_interior_compliance(track, track_mod.element_fraction(fe, positions))
     return b.T @ u + own * loads
 
 

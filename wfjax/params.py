@@ -164,7 +164,7 @@ def _check_per_sleeper(name: str, value: Any, unit: str, n_sleepers: int) -> Non
         )
 
 
-@pytree(static=("n_bays", "elements_per_bay", "absorbing_sleepers"))
+@pytree(static=("n_bays", "elements_per_bay", "absorbing_sleepers", "end_network"))
 class Track(Validated):
     """Discretely supported track of Table 2 (Nielsen & Igeland 1995).
 
@@ -197,6 +197,12 @@ class Track(Validated):
             everywhere else, and the wheels and sensors keep their margins from the
             absorbing zone, :func:`wfjax.scenario.guards.end_margin`); 0: the plain clamped
             ends of the paper's finite track.
+        end_network (static): continue the rail at both ends by a fitted passive network, the
+            semi-infinite track's boundary stiffness (:mod:`wfjax.model.ends`): the ends
+            reflect nothing, so the receptances come within 0.6 % of the infinite track's
+            beside the pinned-pinned band edge. Needs scalar supports and
+            ``absorbing_sleepers = 0``; a track other than the default is fitted on first
+            use (about a minute) and cached.
 
     Supports that vary from sleeper to sleeper: each of the five support fields
     (:data:`SUPPORT_FIELDS`) is a scalar (every sleeper alike, Table 2) or a float array
@@ -243,6 +249,9 @@ class Track(Validated):
     absorbing_sleepers: int = option(3, low=0, high=40,
                                      doc="sleepers at each end with damping graded up to 8x "
                                          "(absorbs the ends' reflections; 0: plain clamped)")
+    end_network: bool = option(False, doc="continue the rail at both ends by a fitted passive "
+                                          "network of the semi-infinite track (non-reflecting "
+                                          "ends; needs absorbing_sleepers = 0)")
 
     def __post_init__(self):
         lows = {f.name: f.metadata["low"] for f in dataclasses.fields(self)}
@@ -252,6 +261,11 @@ class Track(Validated):
                 raise ValueError(
                     f"Track.{name} must be an integer >= {low}, got {value!r}"
                 )
+        if not isinstance(self.end_network, (bool, np.bool_)):
+            raise ValueError(f"Track.end_network must be true or false, got {self.end_network!r}")
+        if self.end_network and int(self.absorbing_sleepers):
+            raise ValueError(f"Track.end_network replaces the absorbing ends: give "
+                             f"absorbing_sleepers = 0, got {self.absorbing_sleepers!r}")
         for name, unit in positive_fields(self).items():
             value = getattr(self, name)
             if not is_concrete(value):

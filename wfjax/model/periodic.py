@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 
 from ..params import Track
-from .fe import (
+from .beam import (
     element_interior_compliance,
     element_matrices,
     element_shapes,

@@ -42,15 +42,9 @@ from .. import _cache
 from .._parallel import dense_threads
 from .._xla import to_device
 from ..params import Track
-from .fe import (
-    FEModel,
-    assemble,
-    element_interior_compliance,
-    fraction_in_element,
-    load_vector,
-    shape_functions,
-    track_numbers,
-)
+from . import ends as ends_mod
+from .beam import element_interior_compliance, fraction_in_element, shape_functions, track_numbers
+from .fe import FEModel, assemble, element_dofs, load_vector
 from .modal import complex_modes, discrete_step_coefficients, real_times_complex
 from .periodic import periodic_receptance
 from .sleepers import is_mirror_symmetric, is_uniform
@@ -281,19 +275,25 @@ def _mirror_bases(fe: FEModel, n_bays: int) -> list[scipy.sparse.csc_matrix]:
 
     The clamped track is mirror symmetric about the middle sleeper when ``n_bays`` is even:
     w(x) -> w(-x), theta(x) -> -theta(-x). Symmetric and antisymmetric modes then decouple
-    (also through the damping), which halves the eigenproblems (4-8x faster). For odd
-    ``n_bays`` the identity basis is returned.
+    (also through the damping), which halves the eigenproblems (4-8x faster). End networks
+    mirror into each other (the left one is the right's image). For odd ``n_bays`` the
+    identity basis is returned.
     """
     n_dof = fe.stiffness.shape[0]
     if n_bays % 2:
         return [scipy.sparse.identity(n_dof, format="csc")]
-    n_nodes = fe.node_x.size
-    node = np.arange(1, n_nodes - 1)
-    rail_p = np.stack([2 * (n_nodes - 1 - node) - 2, 2 * (n_nodes - 1 - node) - 1], 1).ravel()
-    rail_s = np.tile([1.0, -1.0], node.size)
-    j = np.arange(1, n_bays)
-    perm = np.concatenate([rail_p, fe.n_rail_dof + (n_bays - j) - 1])
-    sign = np.concatenate([rail_s, np.ones(j.size)])
+    perm, sign = np.arange(n_dof), np.ones(n_dof)
+    nodes = fe.node_x.size
+    mirrored = fe.rail_dofs.reshape(nodes, 2)[::-1].ravel()  # node j's partner: N - j
+    free = fe.rail_dofs >= 0
+    perm[fe.rail_dofs[free]] = mirrored[free]
+    sign[fe.rail_dofs[free]] = np.tile([1.0, -1.0], nodes)[free]
+    sleepers = fe.n_rail_dof + np.arange(n_bays - 1)
+    perm[sleepers] = sleepers[::-1]
+    n_aux = (n_dof - sleepers[-1] - 5) // 2  # end networks: left aux i <-> right aux i
+    if n_aux > 0:
+        aux = sleepers[-1] + 5 + np.arange(n_aux)
+        perm[aux], perm[aux + n_aux] = aux + n_aux, aux
     bases = []
     for parity in (1.0, -1.0):
         rows, cols, vals = [], [], []
@@ -351,8 +351,8 @@ def _point_compliance_banded(fe: FEModel, x: np.ndarray) -> np.ndarray:
     e = np.clip(np.floor((x - fe.node_x[0]) / fe.element_length).astype(int), 0, n_el - 1)
     xi = (x - fe.node_x[e]) / fe.element_length
     nf = np.stack(shape_functions(xi, fe.phi, fe.element_length), axis=1)  # [n_x, 4]
-    g = np.stack([2 * e, 2 * e + 1, 2 * e + 2, 2 * e + 3], axis=1) - 2
-    ok = (g >= 0) & (g < fe.n_rail_dof)
+    g = element_dofs(fe, e)  # [n_x, 4]
+    ok = g >= 0
     nf = np.where(ok, nf, 0.0)
     pg = pos[np.where(ok, g, 0)]  # permuted positions [n_x, 4]
     first_free = pg[np.arange(g.shape[0]), np.argmax(ok, axis=1)]
@@ -417,10 +417,11 @@ def _modal_arrays(track: Track, max_frequency: float, n_residual: int) -> dict[s
     poles = poles[order]
     weights = np.concatenate([p[1] for p in parts])[order]
     u = np.concatenate([p[2] for p in parts], axis=1)[:, order]  # [n_dof, n_modes]
-    n_nodes = fe.node_x.size
-    shapes = np.zeros((poles.size, n_nodes, 2), dtype=complex)
-    shapes[:, 1:-1, :] = u[: fe.n_rail_dof].T.reshape(poles.size, n_nodes - 2, 2)
-    sleeper_shapes = u[fe.n_rail_dof:].T  # [n_modes, n_sleepers]
+    free = fe.rail_dofs >= 0
+    shapes = np.zeros((poles.size, fe.rail_dofs.size), dtype=complex)
+    shapes[:, free] = u[fe.rail_dofs[free]].T
+    shapes = shapes.reshape(poles.size, fe.node_x.size, 2)
+    sleeper_shapes = u[fe.n_rail_dof:fe.n_rail_dof + nb - 1].T  # [n_modes, n_sleepers]
 
     # static correction of the truncated modes: across the central bay (uniform track,
     # periodic), else along the whole rail in absolute coordinates
@@ -498,6 +499,8 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
                "absorbing_sleepers": int(track.absorbing_sleepers),
                "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 5}
+        if track.end_network:
+            key["end_network"] = ends_mod.stored()["fit"] if ends_mod.is_stored(track) else True
         if not is_uniform(track):
             key["supports"] = "per-sleeper arrays; residual along the rail"
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)

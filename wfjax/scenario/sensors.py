@@ -53,6 +53,7 @@ import numpy as np
 import scipy.sparse.linalg
 
 from ..fields import pytree
+from ..model import beam as beam_mod
 from ..model import fe as fe_mod
 from ..model import track as track_mod
 from ..model.sleepers import support_arrays
@@ -175,7 +176,7 @@ def _observation_functionals(track: Track, fe, quantities, x, sleeper, elem, loc
     [rows] and whether it is a seat force (pad stiffness and damping applied) [rows]."""
     n_dof, n_rail = fe.stiffness.shape[0], fe.n_rail_dof
     ne = int(track.elements_per_bay)
-    ke, _, _ = fe_mod.element_matrices(
+    ke, _, _ = beam_mod.element_matrices(
         float(track.bending_stiffness), float(track.shear_stiffness), float(track.rail_mass),
         float(track.rail_rotary_inertia), fe.element_length)
 
@@ -186,8 +187,8 @@ def _observation_functionals(track: Track, fe, quantities, x, sleeper, elem, loc
 
     def element_functional(e, coeffs):
         o = np.zeros(n_dof)
-        g = np.array([2 * e, 2 * e + 1, 2 * e + 2, 2 * e + 3]) - 2
-        ok = (g >= 0) & (g < n_rail)
+        g = fe_mod.element_dofs(fe, e)
+        ok = g >= 0
         o[g[ok]] = coeffs[ok]
         return o
 
@@ -223,11 +224,13 @@ def _modal_rows(model, fe, o, kinds, damp, kp, cp):
     n_m, n_nodes, _ = shapes.shape
     u = np.concatenate([shapes[:, 1:-1, :].reshape(n_m, -1),
                         np.asarray(model.sleeper_shapes)], axis=1).T  # [dof, m]
+    o = o[:u.shape[0]]  # the rail's interior nodes and the sleepers (sensors keep off the ends)
     c = u.T @ o  # [m, rows] complex: o . u_r
     scale = np.where(damp, kp, 1.0)
     rows = wts[:, None] * c * lam[:, None] ** kinds[None, :]
     rows = rows * scale + np.where(damp, cp, 0.0) * wts[:, None] * c * lam[:, None]
-    static = scipy.sparse.linalg.splu(fe.stiffness.tocsc()).solve(o)
+    static = scipy.sparse.linalg.splu(fe.stiffness.tocsc()).solve(
+        np.pad(o, ((0, fe.stiffness.shape[0] - o.shape[0]), (0, 0))))[:o.shape[0]]
     static -= np.real(u @ (wts[:, None] * c / (-lam[:, None])))
     feed = np.real(u @ (wts[:, None] * c * lam[:, None] ** np.maximum(kinds - 1, 0)[None, :]))
     direct = np.where(kinds[None, :] == 0, static, feed)
@@ -265,7 +268,7 @@ def _load_terms(spec: SensorSpec, model, force, x) -> jax.Array:
     le = model.node_x[1] - model.node_x[0]
     s_f = x - spec.element_x0
     inside = (s_f >= 0) & (s_f < le)
-    n1, n2, _, _ = fe_mod.shape_functions(jnp.clip(s_f / le, 0.0, 1.0), model.element_phi,
+    n1, n2, _, _ = beam_mod.shape_functions(jnp.clip(s_f / le, 0.0, 1.0), model.element_phi,
                                              le)
     beyond = spec.local_s > s_f
     v_p = force * (n1 - beyond)

@@ -1,0 +1,210 @@
+"""Non-reflecting track ends: a fitted passive network that continues the rail beyond each end
+of the finite track as the semi-infinite track would (``Track.end_network``).
+
+The exact end of a finite track is the semi-infinite track's boundary stiffness K_R(omega)
+[2 x 2 on the end node's w, theta] (:mod:`wfjax.model.periodic`, cyclic reduction). A
+time-domain model needs it as degrees of freedom: :data:`N_AUX` internal DOFs joined to the end
+node, with stiffness, damping and mass matrices K, C, M [(2 + N_AUX)^2] each written as
+L L^T (positive semi-definite: the network is passive and cannot destabilise the track), and
+K_fit(omega) the Schur complement of K + i omega C - omega^2 M onto the end node. The factors
+are fitted (L-BFGS, gradients by jax) to the relative Frobenius error of K_fit against K_R
+(theta scaled by :data:`THETA_SCALE`) on 10-2500 Hz, dense around the pinned-pinned band edge,
+and, weighted :data:`HF_WEIGHT`, on 2.5-20 kHz. The left end carries the mirror image
+(theta -> -theta).
+
+The default track's network is stored with the package (``end_network_default.json``: 6,000
+iterations from a random start, ``benchmarks/end_network.py``); any other track's is fitted
+from it on first use (about a minute on 2 cores) and cached on disk. A fit must come within
+:data:`FIT_TOLERANCE` of K_R beside the band edge (:func:`fit_error`), or the track is refused.
+Why and how well (the receptances within 0.6 % of the infinite track's beside +-5 Hz of the
+band edge, where clamped or absorbing ends leave 28-63 %): ``docs/convergence.md``, "A fitted
+passive end network".
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import pathlib
+
+import numpy as np
+
+from .. import _cache
+from ..params import Track
+from . import periodic as P
+from .sleepers import is_uniform
+
+__all__ = ["N_AUX", "FIT_TOLERANCE", "network", "network_stiffness", "boundary_stiffness",
+           "band_edge", "fit", "fit_error", "is_stored", "matrices", "stored"]
+
+N_AUX = 24  # the network's internal DOFs per end
+THETA_SCALE = 0.1  # m: theta entries scaled to be comparable with w's
+SCALES = (1e8, 1e4, 1.0)  # K [N/m], C [N s/m], M [kg] of a unit factor
+HF_WEIGHT = 0.02  # the fit's weight on 2.5-20 kHz (the impact's band: forces, not receptances)
+FIT_TOLERANCE = 0.02  # the fit's largest relative error on 10-2500 Hz beside the band edge
+EDGE_EXCLUDED = 5.0  # [Hz] either side of the band edge left out of the tolerance (a run's
+# window resolves about 1 / T: 20-50 Hz; no finite track resolves the edge's singular peak)
+WARM_ITERATIONS = 800  # a fit from the stored network: iterations per round
+WARM_ROUNDS = 5  # rounds before a fit that stays above FIT_TOLERANCE is refused
+STORED = pathlib.Path(__file__).with_name("end_network_default.json")
+
+
+def matrices(factors, n: int = N_AUX + 2, xp=np):
+    """(K [N/m], C [N s/m], M [kg]) [n, n] of the network from its stacked lower-triangular
+    factors ``factors`` [3 n (n + 1) / 2] (L_K, L_C, L_M): each ``SCALES[i] L L^T``."""
+    tri = np.tril_indices(n)
+    nt = tri[0].size
+    out = []
+    for i, s in enumerate(SCALES):
+        part = factors[i * nt:(i + 1) * nt]
+        if xp is np:
+            lower = np.zeros((n, n))
+            lower[tri] = part
+        else:
+            lower = xp.zeros((n, n)).at[tri].set(part)
+        out.append(s * lower @ lower.T)
+    return tuple(out)
+
+
+def network_stiffness(mats, w, xp=np):
+    """[n_f, 2, 2] the network's dynamic stiffness at its end node [N/m, N, N m], at angular
+    frequencies ``w`` [n_f] [rad/s], from its ``(K, C, M)``."""
+    k, c, m = mats
+    s = k[None] + 1j * w[:, None, None] * c[None] - (w**2)[:, None, None] * m[None]
+    return s[:, :2, :2] - s[:, :2, 2:] @ xp.linalg.solve(s[:, 2:, 2:], s[:, 2:, :2])
+
+
+def boundary_stiffness(track: Track, f) -> np.ndarray:
+    """[n_f, 2, 2] the right semi-infinite track's boundary stiffness at ``f`` [Hz]: the force
+    at its first node (a sleeper's, the sleeper included) that holds it at u_0."""
+    k, m, c, _ = P._cell_matrices(P._numbers(track), int(track.elements_per_bay))
+    out = []
+    for fi in np.atleast_1d(np.asarray(f, dtype=float)):
+        w = 2 * math.pi * fi
+        out.append(P._right_stiffness(P._condensed(k - w * w * m + 1j * w * c)))
+    return np.array(out)
+
+
+@functools.lru_cache(maxsize=16)
+def _band_edge(key: tuple) -> float:
+    track = Track(**dict(key))
+    f = np.arange(800.0, 1300.0, 1.0) * (0.65 / float(track.sleeper_spacing)) ** 2
+    for step in (0.01, 1e-4):  # refine around the peak (within one step of the coarse grid)
+        peak = f[np.argmax(np.abs(P.periodic_receptance(track, f, 0.3, 1.0)))]
+        f = peak + np.arange(-100, 100) * step
+    return float(f[np.argmax(np.abs(P.periodic_receptance(track, f, 0.3, 1.0)))])
+
+
+def band_edge(track: Track) -> float:
+    """[Hz] the pinned-pinned band edge: where the infinite track's transfer receptance
+    0.3 -> 1.0 m peaks, the rail's pinned-pinned wave stops travelling and |H| grows as
+    |f - f_edge|^-1/2 (943.32 Hz on the default track)."""
+    return _band_edge(_key(track))
+
+
+def _key(track: Track) -> tuple:
+    p = P._numbers(track)
+    return tuple(sorted({**{k: float(v) for k, v in p.items()},
+                         "elements_per_bay": int(track.elements_per_bay)}.items()))
+
+
+def _grid(edge: float) -> tuple[np.ndarray, np.ndarray]:
+    """The fit's frequencies [Hz] (10-2500 Hz, 0.25 Hz steps within 50 Hz of ``edge``, then
+    2.5-20 kHz) and their weights."""
+    near = np.concatenate([np.arange(-243, -43, 1.0), np.arange(-43, 57, 0.25),
+                           np.arange(57, 357, 1.0)]) + edge
+    band = np.unique(np.concatenate([np.geomspace(10, near[0], 150), near,
+                                     np.geomspace(near[-1], 2500, 100)]))
+    f = np.concatenate([band, np.geomspace(2500, 20000, 300)[1:]])
+    return f, np.where(f <= 2500, 1.0, HF_WEIGHT)
+
+
+def _relative_error(track: Track, f):
+    """A function of the factors: the relative Frobenius error [n_f] of the network's
+    stiffness against the track's K_R at ``f`` [Hz] (jax)."""
+    import jax.numpy as jnp
+
+    t = np.diag([1.0, 1.0 / THETA_SCALE])
+    target = np.einsum("ij,fjk,kl->fil", t, boundary_stiffness(track, f), t)
+    norm = jnp.asarray(np.linalg.norm(target, axis=(1, 2)))
+    w = jnp.asarray(2 * np.pi * f)
+
+    def rel_err(x):
+        kf = jnp.einsum("ij,fjk,kl->fil", t,
+                        network_stiffness(matrices(x, xp=jnp), w, xp=jnp), t)
+        return jnp.sqrt(jnp.sum(jnp.abs(kf - target) ** 2, axis=(1, 2))) / norm
+
+    return rel_err
+
+
+def fit_error(track: Track, factors) -> float:
+    """The network's largest relative error against K_R on 10-2500 Hz, leaving out
+    +-``EDGE_EXCLUDED`` Hz around the band edge (what :data:`FIT_TOLERANCE` bounds)."""
+    edge = band_edge(track)
+    f = np.geomspace(10, 2500, 600)
+    f = np.unique(np.concatenate([f, edge + np.arange(-100, 100.01, 0.25)]))
+    f = f[np.abs(f - edge) > EDGE_EXCLUDED]
+    return float(np.max(np.asarray(_relative_error(track, f)(np.asarray(factors)))))
+
+
+def fit(track: Track, start, iterations: int):
+    """Factors [3 n (n + 1) / 2] of the network fitted to ``track``'s K_R from ``start``
+    (factors), at most ``iterations`` L-BFGS iterations."""
+    import jax
+    import jax.numpy as jnp
+    import scipy.optimize
+
+    f, weight = _grid(band_edge(track))
+    rel_err, weight = _relative_error(track, f), jnp.asarray(weight)
+    value_grad = jax.jit(jax.value_and_grad(
+        lambda x: jnp.sum(weight * rel_err(x) ** 2) / jnp.sum(weight)))
+    res = scipy.optimize.minimize(lambda x: tuple(np.asarray(v) for v in value_grad(x)),
+                                  np.asarray(start, dtype=float), jac=True, method="L-BFGS-B",
+                                  options={"maxiter": int(iterations), "maxcor": 50,
+                                           "ftol": 1e-15, "gtol": 1e-12})
+    return np.asarray(res.x)
+
+
+@functools.cache
+def stored() -> dict:
+    """The stored default network: ``factors``, the ``track`` numbers it was fitted to (with
+    ``elements_per_bay``) and its fit's figures."""
+    return json.loads(STORED.read_text())
+
+
+def _fitted(track: Track) -> np.ndarray:
+    x = np.asarray(stored()["factors"], dtype=float)
+    for _ in range(WARM_ROUNDS):
+        x = fit(track, x, WARM_ITERATIONS)
+        err = fit_error(track, x)
+        if err <= FIT_TOLERANCE:
+            return x
+    raise ValueError(
+        f"Track.end_network: no passive network within {FIT_TOLERANCE:.0%} of this track's "
+        f"semi-infinite continuation ({err:.1%} after {WARM_ROUNDS * WARM_ITERATIONS} "
+        f"iterations from the default's): use end_network=False (absorbing_sleepers=3)")
+
+
+def is_stored(track: Track) -> bool:
+    """Whether ``track``'s rail, supports and mesh are those of the stored network."""
+    return dict(_key(track)) == stored()["track"]
+
+
+def network(track: Track, cache_dir=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(K [N/m], C [N s/m], M [kg]) [N_AUX + 2]^2 of the right end's network of ``track`` (its
+    first two DOFs the end node's w, theta): the stored default's when the track's rail,
+    supports and mesh are the default's, else fitted from it and cached on disk.
+
+    Raises ValueError for per-sleeper supports (no semi-infinite continuation to fit) and for
+    a fit that stays above :data:`FIT_TOLERANCE`."""
+    if not is_uniform(track):
+        raise ValueError("Track.end_network needs the same supports at every sleeper (a "
+                         "per-sleeper track has no semi-infinite continuation to fit): use "
+                         "end_network=False")
+    if is_stored(track):
+        return matrices(np.asarray(stored()["factors"], dtype=float))
+    key = dict(_key(track))
+    arrays = _cache.load_or_build("end-network", {**key, "n_aux": N_AUX, "scheme": 1},
+                                  lambda: {"factors": _fitted(track)}, cache_dir)
+    return matrices(np.asarray(arrays["factors"], dtype=float))
