@@ -29,7 +29,9 @@ Sets (R_R = 0.45 m, ``Track.comparison()``):
   0.3 -> -0.45 m), from the modal model with its static correction.
 
 Receptances whose sensor the guards refuse on a row's track (closer than
-``wfjax.scenario.guards.sensor_margin`` to the ends: rows "bays 16" and "bays 20") are NaN.
+``wfjax.scenario.guards.sensor_margin`` to the ends: rows "bays 16" and "bays 20") are NaN;
+rows with ``"lengthen"`` measure them on the track a run with those sensors gets
+(``guards.holding_instruments``).
 
 Errors: max and min force, seat force and detector reading run by run, relative to the
 reference run's value, the largest over the set (min force: relative to the static wheel load,
@@ -50,6 +52,7 @@ import numpy as np
 import wfjax as wf
 from wfjax.model import track as track_mod
 from wfjax.params import READING_BAYS
+from wfjax.scenario import guards
 from wfjax.scenario import sensors as sensor_mod
 
 REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
@@ -66,7 +69,8 @@ NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
 # (since 2026-12-05 12 kHz, 40 us, float32; a detector's reading 15 kHz, 25 us, float64 on at
 # least 36 bays)
 DEFAULT = {**NEW, "track_max_frequency": "auto", "time_step": "auto", "precision": "auto"}
-NETWORK = {**DEFAULT, "absorbing_sleepers": 0, "end_network": True, "n_bays": 18}
+NETWORK = {**DEFAULT, "absorbing_sleepers": 0, "end_network": True, "n_bays": 18,
+           "lengthen": True}  # receptances on the track a run with their sensors gets
 ROWS = {  # label -> changes to REF
     "reference": {},
     "reference, absorbing ends": ABSORBING,
@@ -212,8 +216,10 @@ def run_sharp(s: dict, quick: bool) -> dict:
 def run_receptances(s: dict) -> dict:
     """Complex receptances [n_f] as [re, im] lists: displacement [m/N], shear [N/N]."""
     track, config = model_inputs(s)
+    if s.get("lengthen"):  # as a run with these sensors lengthens the track
+        track = guards.holding_instruments(track, [0.3, 1.0, -0.45])
     model = track_mod.modal_model(track, max_frequency=config.resolved().track_max_frequency)
-    out = {}
+    out = {"n_bays": int(track.n_bays)}
     for name, (quantity, xf, xr) in RECEPTANCES.items():
         try:
             h = sensor_mod.transfer_receptance(track, model, FREQS, xf, xr, quantity)

@@ -1,0 +1,112 @@
+"""Non-reflecting track ends (``Track.end_network``, :mod:`wfjax.model.ends`): the fitted
+passive network against the infinite periodic track, the modal model against direct solves,
+the time loop against a long track."""
+
+import numpy as np
+import pytest
+
+import wfjax as wf
+from wfjax.model import ends
+from wfjax.model import periodic as P
+from wfjax.model import supports as S
+from wfjax.model import track as T
+from wfjax.model import vehicle as V
+
+F40 = np.geomspace(20.0, 2000.0, 40)  # the accuracy table's receptance frequencies [Hz]
+EDGE = 943.3214  # the default track's pinned-pinned band edge [Hz]
+BESIDE = EDGE + np.array([-20.0, -10.0, -6.0, 6.0, 10.0, 20.0])
+
+
+def network_track(**kw) -> wf.Track:
+    return wf.Track(**{"absorbing_sleepers": 0, "end_network": True, **kw})
+
+
+def test_stored_network_is_passive_and_fits_the_default_track():
+    """K, C, M symmetric positive semi-definite (a passive network), and the stored fit within
+    the tolerance that every other track's fit must meet."""
+    assert ends.is_stored(wf.Track()) and ends.is_stored(network_track(n_bays=10))
+    for a in ends.network(network_track()):
+        assert np.allclose(a, a.T, rtol=0, atol=1e-9 * np.abs(a).max())
+        assert np.linalg.eigvalsh(a).min() >= -1e-9 * np.abs(a).max()
+    assert ends.fit_error(wf.Track(), ends.stored()["factors"]) <= ends.FIT_TOLERANCE
+    assert ends.band_edge(wf.Track()) == pytest.approx(EDGE, abs=2e-4)
+
+
+def test_direct_receptance_is_the_infinite_tracks():
+    """12 bays with the networks (direct solves, no modes) within 0.6 % of the infinite
+    periodic track on the 40 frequencies and within 1 % beside the band edge; the same 12 bays
+    with absorbing ends are not (so the test tells the ends apart)."""
+    xr = np.array([0.3, 1.0])
+    ref = P.periodic_receptance(wf.Track(), np.r_[F40, BESIDE], 0.3, xr)
+    net = T.receptance(network_track(n_bays=12), np.r_[F40, BESIDE], 0.3, xr)
+    err = np.abs(net / ref - 1).max(axis=1)
+    assert err[:40].max() < 0.006 and err[40:].max() < 0.01
+    absorbing = T.receptance(wf.Track(n_bays=12), np.r_[F40, BESIDE], 0.3, xr)
+    assert np.abs(absorbing / ref - 1).max() > 0.05
+
+
+def test_modal_model_with_networks_is_stable_and_matches_direct_solves():
+    """The complex modes decay, and the modal receptance (12 kHz, the static correction) is
+    the direct solve's within 0.3 % to 2 kHz."""
+    track = network_track(n_bays=14)
+    model = T.modal_model(track, max_frequency=12e3, use_cache=False)
+    assert float(np.max(np.real(model.poles))) < -0.5
+    f = np.r_[F40, BESIDE]
+    for xr in (0.3, 1.0):
+        modal = V.transfer_receptance(track, model, f, 0.3, xr)
+        direct = T.receptance(track, f, 0.3, xr)
+        assert np.abs(modal / direct - 1).max() < 0.003
+
+
+def test_mirror_bases_decouple_the_networks_track():
+    """The symmetric and antisymmetric bases (the networks mirrored into each other) are
+    orthonormal, span every DOF, and decouple K, M and C: the mirror map is a symmetry of the
+    track with its networks."""
+    fe = T.assemble(network_track(n_bays=8))
+    sym, anti = T._mirror_bases(fe, 8)
+    both = T.scipy.sparse.hstack([sym, anti]).toarray()
+    np.testing.assert_allclose(both.T @ both, np.eye(fe.stiffness.shape[0]), atol=1e-12)
+    for a in (fe.stiffness, fe.mass, fe.damping):
+        assert np.abs((sym.T @ a @ anti).toarray()).max() <= 1e-12 * abs(a).max()
+    assert sym.shape[1] - anti.shape[1] == 1  # the middle sleeper is its own image
+
+
+def test_short_track_with_networks_gives_the_long_tracks_forces():
+    """A new flat's max and min forces on the guards' shortest track with networks against
+    70 bays with networks: the ends reflect nothing the wheel feels (within 0.01 %, 0.02 kN)."""
+    flat, speeds = wf.Flat.new(0.9e-3), np.array([40.0, 120.0]) / 3.6
+    runs = [wf.sweep(flat, speeds, 3, contact="hertz-trajectory", track=network_track(n_bays=n),
+                     progress=False) for n in (4, 70)]
+    assert runs[0].settings["n_bays"] < 30
+    np.testing.assert_allclose(runs[0].max_force, runs[1].max_force, rtol=1e-4)
+    np.testing.assert_allclose(runs[0].min_force, runs[1].min_force, atol=20.0)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: wf.Track(end_network=True), "absorbing_sleepers = 0"),
+    (lambda: network_track(end_network="yes"), "end_network must be true or false"),
+    (lambda: ends.network(S.with_supports(network_track(), pad_stiffness=np.linspace(1e8, 1.4e8, 23))),
+     "same supports at every sleeper"),
+])
+def test_bad_end_networks_are_refused_in_one_line(make, match):
+    with pytest.raises(ValueError, match=match) as info:
+        make()
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.slow
+def test_another_track_is_fitted_within_tolerance_and_cached(tmp_path, monkeypatch):
+    """Soft pads (60 MN/m): fitted from the stored network (about a minute), within the
+    tolerance, its direct receptance within 1 % of its infinite track's beside the band edge,
+    and cached (the second call fits nothing)."""
+    monkeypatch.setenv("WFJAX_CACHE_DIR", str(tmp_path))
+    track = network_track(n_bays=12, pad_stiffness=60e6)
+    mats = ends.network(track)
+    assert [p.name.split("-")[:2] for p in tmp_path.iterdir()] == [["end", "network"]]
+    monkeypatch.setattr(ends, "fit", None)  # a second fit would fail
+    for a, b in zip(mats, ends.network(track), strict=True):
+        np.testing.assert_array_equal(a, b)
+    f = np.r_[F40, ends.band_edge(track) + BESIDE - EDGE]
+    xr = np.array([0.3, 1.0])
+    ref = P.periodic_receptance(track, f, 0.3, xr)
+    assert np.abs(T.receptance(track, f, 0.3, xr) / ref - 1).max() < 0.01
