@@ -43,6 +43,7 @@ frequency of |H - H_ref| / |H_ref|.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import pathlib
 import time
@@ -77,6 +78,14 @@ ROWS = {  # label -> changes to REF
     "default with end networks (18 bays, as the guards lengthen a sweep; reading: 36 bays)":
         NETWORK,
     "default with end networks, 14 bays": {**NETWORK, "n_bays": 14},
+    **{f"default with end networks, margins 0.5 / beta, reading on at least {n} bays": {
+        **NETWORK, "n_bays": 4, "guards": {
+            "NETWORK_END_FACTOR": 0.5, "NETWORK_SENSOR_END_FACTOR": 0.5,
+            "NETWORK_READING_BAYS": n}} for n in (4, 14, 20, 26)},
+    **{f"default with end networks, margins 0.5 / beta, sensors {f:g} / beta": {
+        **NETWORK, "n_bays": 4, "guards": {
+            "NETWORK_END_FACTOR": 0.5, "NETWORK_SENSOR_END_FACTOR": f,
+            "NETWORK_READING_BAYS": 4}} for f in (1.0, 2.0, 3.0, 4.0, 6.0)},
     "reference, clamped ends": {"absorbing_sleepers": 0, "end_network": False},
     "default (26 el., 24 bays; 12 kHz, 40 us / 1 mm, float32; reading: 15 kHz, 25 us, "
     "float64, 36 bays)": DEFAULT,
@@ -205,7 +214,7 @@ def run_sharp(s: dict, quick: bool) -> dict:
     seat = np.asarray(r.sensor_max)[0, :, :, 0, :].max(axis=-1)
     out = {"speeds_kmh": speeds.tolist(), "max_force": np.asarray(r.max_force)[0].tolist(),
            "min_force": np.asarray(r.min_force)[0].tolist(), "seat_force": seat.tolist()}
-    if s["n_bays"] < READING_BAYS and s["track_max_frequency"] != "auto":
+    if s["n_bays"] < READING_BAYS and s["track_max_frequency"] != "auto":  # not a default
         out["reading"] = np.full(np.shape(seat), np.nan).tolist()
     else:
         d = wf.sweep(flat, speeds / 3.6, positions, detector=wf.Detector(), **kw)
@@ -266,6 +275,20 @@ def _rel(a, b) -> float:
     return float(np.max(np.abs(a - b) / np.abs(b)))
 
 
+@contextlib.contextmanager
+def candidate_guards(values: dict):
+    """Within the block, the guards' constants ``values`` (name -> value) replace
+    ``wfjax.scenario.guards``'s: rows that measure a candidate bound."""
+    kept = {name: getattr(guards, name) for name in values}
+    for name, value in values.items():
+        setattr(guards, name, value)
+    try:
+        yield
+    finally:
+        for name, value in kept.items():
+            setattr(guards, name, value)
+
+
 def measure(labels, quick: bool, path: pathlib.Path) -> dict:
     """Run every row of ``labels`` not yet in ``path`` with its settings (JSON, updated after
     each row)."""
@@ -276,8 +299,9 @@ def measure(labels, quick: bool, path: pathlib.Path) -> dict:
         if kept.get("quick") == quick and {"end_network": False, **kept["settings"]} == s:
             continue
         t0 = time.perf_counter()
-        done[label] = {"settings": s, "quick": quick, "fig7": run_fig7(s, quick),
-                       "sharp": run_sharp(s, quick), "receptances": run_receptances(s)}
+        with candidate_guards(s.get("guards", {})):
+            done[label] = {"settings": s, "quick": quick, "fig7": run_fig7(s, quick),
+                           "sharp": run_sharp(s, quick), "receptances": run_receptances(s)}
         done[label]["seconds"] = time.perf_counter() - t0
         print(f"{label}: {done[label]['seconds']:.0f} s", flush=True)
         path.parent.mkdir(parents=True, exist_ok=True)

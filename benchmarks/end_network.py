@@ -29,6 +29,10 @@ Section ``time``: the time-domain model with the network (``Track(end_network=Tr
 the absorbing ends and clamped, against 70 bays with absorbing ends; and the network's modal
 receptance beside the band edge.
 
+Section ``speed``: warm seconds of the Fig. 7 set and of the sharp set with a detector on the
+default track and with end networks from 4 bays (the guards' margins for end networks,
+``benchmarks/network_margins.py``), alternated.
+
 Section ``edge``: the band edge's figures (:func:`edge_figures`).
 
 Section ``warm``: fits for other tracks (softer and stiffer pads, softer ballast, closer
@@ -252,6 +256,40 @@ def warm() -> dict:
     return out
 
 
+SPEED_TRACKS = {"absorbing ends (default)": {},
+                "end networks, n_bays=4": {"n_bays": 4, "absorbing_sleepers": 0,
+                                           "end_network": True}}
+
+
+def speed(rounds: int = 3) -> dict:
+    """Warm seconds (median of ``rounds``, the tracks alternated) of the Fig. 7 set (3D,
+    rounded and new 0.9 mm flats, 20-300 km/h, 5 positions: 290 runs) and of the sharp set
+    with the 3-bay detector (new 0.9 mm, 120-200 km/h, 10 positions), on the default track
+    and with end networks from 4 bays (lengthened by the guards); their bays and modes."""
+    flats = [wf.Flat.rounded(0.9e-3, 0.1), wf.Flat.new(0.9e-3)]
+    jobs = {"fig7": lambda tr: wf.sweep(flats, np.arange(20, 301, 10) / 3.6, 5, track=tr,
+                                         progress=False),
+            "detector": lambda tr: wf.sweep(flats[1], np.array([120, 160, 200]) / 3.6, 10,
+                                             contact="hertz-trajectory", track=tr,
+                                             detector=wf.Detector(), progress=False)}
+    out = {}
+    for job, run in jobs.items():
+        times = {label: [] for label in SPEED_TRACKS}
+        for label, kw in SPEED_TRACKS.items():  # warm-up: compile, tables, modal models
+            r = run(wf.Track.comparison(**kw))
+            out.setdefault(job, {})[label] = {"n_bays": r.settings["n_bays"],
+                                              "n_modes": r.settings["n_modes"]}
+        for _ in range(rounds):
+            for label, kw in SPEED_TRACKS.items():
+                t0 = time.perf_counter()
+                run(wf.Track.comparison(**kw))
+                times[label].append(time.perf_counter() - t0)
+        for label in SPEED_TRACKS:
+            out[job][label]["warm_s"] = round(float(np.median(times[label])), 2)
+        print(job, out[job], flush=True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sections", default="fit,time")
@@ -280,6 +318,9 @@ def main() -> None:
         out.write_text(json.dumps(result, indent=1))
     if "warm" in a.sections:
         result["warm"] = warm()
+        out.write_text(json.dumps(result, indent=1))
+    if "speed" in a.sections:
+        result["speed"] = speed()
         out.write_text(json.dumps(result, indent=1))
     if "time" in a.sections:
         result["time_domain"] = time_domain()

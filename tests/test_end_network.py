@@ -11,6 +11,7 @@ from wfjax.model import periodic as P
 from wfjax.model import supports as S
 from wfjax.model import track as T
 from wfjax.model import vehicle as V
+from wfjax.scenario import guards as G
 
 F40 = np.geomspace(20.0, 2000.0, 40)  # the accuracy table's receptance frequencies [Hz]
 EDGE = 943.3214  # the default track's pinned-pinned band edge [Hz]
@@ -82,10 +83,25 @@ def test_short_track_with_networks_gives_the_long_tracks_forces():
     np.testing.assert_allclose(runs[0].min_force, runs[1].min_force, atol=20.0)
 
 
+def test_guards_keep_shorter_margins_from_end_networks():
+    """Wheels keep 0.5 / beta and sensors 3 / beta from end networks (against 3 and 8.5 from
+    clamped ends, and the absorbing zone), a detector's track at least 24 bays (36), so a
+    networked track is lengthened less."""
+    net, absorbing = network_track(n_bays=4), wf.Track(n_bays=4)
+    beta = 1 / G.decay_length(net)
+    assert G.end_margin(net) * beta == pytest.approx(G.NETWORK_END_FACTOR)
+    assert G.sensor_margin(net) * beta == pytest.approx(G.NETWORK_SENSOR_END_FACTOR)
+    assert G.end_margin(net) < G.end_margin(absorbing)
+    assert G.sensor_margin(net) < G.sensor_margin(absorbing)
+    det = wf.Detector()
+    assert G.holding_instruments(net, None, det).n_bays == G.NETWORK_READING_BAYS
+    assert G.holding_instruments(absorbing, None, det).n_bays >= wf.params.READING_BAYS
+
+
 @pytest.mark.parametrize("make, match", [
     (lambda: wf.Track(end_network=True), "absorbing_sleepers = 0"),
     (lambda: network_track(end_network="yes"), "end_network must be true or false"),
-    (lambda: ends.network(S.with_supports(network_track(), pad_stiffness=np.linspace(1e8, 1.4e8, 23))),
+    (lambda: S.with_supports(network_track(), pad_stiffness=np.linspace(1e8, 1.4e8, 23)),
      "same supports at every sleeper"),
 ])
 def test_bad_end_networks_are_refused_in_one_line(make, match):

@@ -116,7 +116,7 @@ def test_track_end_guard_for_one_wheel_and_the_sensor_range():
     # per-sleeper supports fix the track's length: a sensor too near its ends is refused
     fixed = wf.supports.with_supports(track, pad_stiffness=np.full(track.n_bays - 1,
                                                                    track.pad_stiffness))
-    words = rf"allowed range .*\({G.sensor_margin(track):.2f} m clear of the clamped"
+    words = rf"allowed range .*\({G.sensor_margin(track):.2f} m clear of the ends"
     with pytest.raises(ValueError, match=f"sensor position {-outside:g} m is outside the {words}"):
         Scenario.of(wf.Flat.new(0.9e-3), "3d", track=fixed, sensors=[-outside])
 

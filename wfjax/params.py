@@ -29,6 +29,7 @@ from .fields import (
     positive_fields,
     pytree,
 )
+from .track_checks import MAX_BALLAST_GAP, check_ends, check_per_sleeper
 
 __all__ = ["Material", "Wheel", "Track", "Flat", "SimConfig", "kmh", "mm", "FLAT_KINDS",
            "SUPPORT_FIELDS", "loop_precision", "FORCE_SETTINGS", "READING_SETTINGS"]
@@ -138,32 +139,6 @@ class Wheel(Validated):
 SUPPORT_FIELDS = ("pad_stiffness", "pad_damping", "sleeper_mass", "ballast_stiffness",
                   "ballast_damping", "ballast_gap")
 """Track fields that may vary from sleeper to sleeper (scalar or ``[n_bays - 1]`` array)."""
-_ZERO_ALLOWED = ("pad_damping", "ballast_stiffness", "ballast_damping", "ballast_gap")
-MAX_BALLAST_GAP = 0.05  # m: a void deeper than 50 mm under a sleeper is a data error
-
-
-def _check_per_sleeper(name: str, value: Any, unit: str, n_sleepers: int) -> None:
-    """Check one per-sleeper support array: length, finiteness, sign (one-line errors)."""
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (n_sleepers,):
-        raise ValueError(
-            f"Track.{name} must be a scalar or an array of n_bays - 1 = {n_sleepers} values "
-            f"(one per interior sleeper), got shape {arr.shape}"
-        )
-    zero_ok = name in _ZERO_ALLOWED
-    bad = ~np.isfinite(arr) | ((arr < 0) if zero_ok else (arr <= 0))
-    if name == "ballast_gap":
-        bad |= arr > MAX_BALLAST_GAP
-        unit = f"m, at most {MAX_BALLAST_GAP}"
-    if np.any(bad):
-        i = int(np.flatnonzero(bad)[0])
-        rng = f"[0, inf) {unit}" if zero_ok else f"(0, inf) {unit}"
-        raise ValueError(
-            f"Track.{name}[{i}] must be finite and {'>=' if zero_ok else '>'} 0 {unit}, got "
-            f"{arr[i]!r} (allowed range: {rng})"
-        )
-
-
 @pytree(static=("n_bays", "elements_per_bay", "absorbing_sleepers", "end_network"))
 class Track(Validated):
     """Discretely supported track of Table 2 (Nielsen & Igeland 1995).
@@ -261,21 +236,17 @@ class Track(Validated):
                 raise ValueError(
                     f"Track.{name} must be an integer >= {low}, got {value!r}"
                 )
-        if not isinstance(self.end_network, (bool, np.bool_)):
-            raise ValueError(f"Track.end_network must be true or false, got {self.end_network!r}")
-        if self.end_network and int(self.absorbing_sleepers):
-            raise ValueError(f"Track.end_network replaces the absorbing ends: give "
-                             f"absorbing_sleepers = 0, got {self.absorbing_sleepers!r}")
+        check_ends(self, SUPPORT_FIELDS)
         for name, unit in positive_fields(self).items():
             value = getattr(self, name)
             if not is_concrete(value):
                 continue
             if name in SUPPORT_FIELDS and np.ndim(value) > 0:
-                _check_per_sleeper(name, value, unit, int(self.n_bays) - 1)
+                check_per_sleeper(name, value, unit, int(self.n_bays) - 1)
             else:
                 check_positive("Track", name, value, unit)
         if is_concrete(self.ballast_gap):
-            _check_per_sleeper("ballast_gap", np.broadcast_to(
+            check_per_sleeper("ballast_gap", np.broadcast_to(
                 np.asarray(self.ballast_gap, dtype=float), (int(self.n_bays) - 1,)), "m",
                 int(self.n_bays) - 1)
 

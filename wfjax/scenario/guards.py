@@ -14,7 +14,8 @@ Each bound is a scale of the case at hand times a constant read off the accuracy
   the highest kept mode (:func:`bending_wavelength`);
 - contact element (3D and 2D contact): no longer than ``ELEMENT_FACTOR`` 2a;
 - track length: every wheel's path at least ``END_FACTOR / beta`` from the clamped rail ends,
-  every sensor ``SENSOR_END_FACTOR / beta`` (:func:`wfjax.scenario.sensors.check_positions`),
+  every sensor ``SENSOR_END_FACTOR / beta`` (:func:`wfjax.scenario.sensors.check_positions`;
+  ``NETWORK_END_FACTOR`` and ``NETWORK_SENSOR_END_FACTOR`` from end networks),
   1/beta the decay length of the rail on its supports (:func:`decay_length`), and both off
   the absorbing sleepers (``Track.absorbing_sleepers``, :func:`absorbing_length`).
 """
@@ -40,6 +41,14 @@ MESH_FACTOR = 3.0  # rail elements per bending wavelength at the highest kept mo
 ELEMENT_FACTOR = 0.15  # contact element / 2a
 END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
 SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
+# the same to end networks (Track.end_network), which reflect nothing: wheel paths 0.5 / beta
+# (forces as at 3 / beta, within 0.022 % of 70 bays from 0.25 / beta), sensors 3 / beta
+# (receptances within 0.58 % of the reference, 1.50 % at 1 / beta), a detector on at least
+# 24 bays (its reading within 0.24 % of 70 bays' at 40-200 km/h, 0.38-0.47 % on 10-14);
+# benchmarks/network_margins.py and accuracy_table.py, docs/convergence.md "End networks"
+NETWORK_END_FACTOR = 0.5
+NETWORK_SENSOR_END_FACTOR = 3.0
+NETWORK_READING_BAYS = 24
 RECEPTANCE_BAYS = 140  # direct point receptances within 0.5 % of an 800-bay track's, 20 Hz -
 # 2 kHz outside the pinned-pinned band 900-990 Hz, where no finite track converges pointwise
 # (benchmarks/receptance_length.py)
@@ -105,10 +114,12 @@ def holding_instruments(track: Track, sensors, detector=None) -> Track:
     """``track`` lengthened (scalar supports only) so that every sensor [m] and bridge of
     ``detector`` (a :class:`wfjax.scenario.sensors.Detector`) keeps :func:`sensor_margin`
     from the clamped ends, and to at least :data:`wfjax.params.READING_BAYS` bays with a
-    detector; non-finite positions are left to the sensors' own check."""
+    detector (:data:`NETWORK_READING_BAYS` with end networks); non-finite positions are
+    left to the sensors' own check."""
     x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
-    if detector is not None and extendable(track) and int(track.n_bays) < READING_BAYS:
-        track = dataclasses.replace(track, n_bays=READING_BAYS)
+    least = NETWORK_READING_BAYS if track.end_network else READING_BAYS
+    if detector is not None and extendable(track) and int(track.n_bays) < least:
+        track = dataclasses.replace(track, n_bays=least)
     if detector is not None:
         a, b = detector.gauges(float(track.sleeper_spacing))
         x += [float(a[0]), float(b[-1])]
@@ -149,16 +160,20 @@ def absorbing_length(track: Track) -> float:
 
 
 def end_margin(track: Track) -> float:
-    """The distance [m] every wheel's path keeps from the clamped ends: END_FACTOR decay
-    lengths, and off the absorbing sleepers (:func:`absorbing_length`)."""
-    return max(END_FACTOR * decay_length(track), absorbing_length(track))
+    """The distance [m] every wheel's path keeps from the ends: END_FACTOR decay lengths from
+    clamped ends (NETWORK_END_FACTOR from end networks), and off the absorbing sleepers
+    (:func:`absorbing_length`)."""
+    factor = NETWORK_END_FACTOR if track.end_network else END_FACTOR
+    return max(factor * decay_length(track), absorbing_length(track))
 
 
 def sensor_margin(track: Track) -> float:
-    """The distance [m] every sensor keeps from the clamped ends (longer than the wheels':
-    a seat force or a shear feels the ends' reflections more than the contact force), and
-    off the absorbing sleepers."""
-    return max(SENSOR_END_FACTOR * decay_length(track), absorbing_length(track))
+    """The distance [m] every sensor keeps from the ends (longer than the wheels': a seat
+    force or a shear feels the ends' reflections more than the contact force;
+    NETWORK_SENSOR_END_FACTOR decay lengths from end networks), and off the absorbing
+    sleepers."""
+    factor = NETWORK_SENSOR_END_FACTOR if track.end_network else SENSOR_END_FACTOR
+    return max(factor * decay_length(track), absorbing_length(track))
 
 
 def step_findings(config: SimConfig, speeds, sc: Scales) -> list[str]:

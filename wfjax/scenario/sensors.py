@@ -89,7 +89,7 @@ def check_positions(positions, track: Track, name: str = "sensor position") -> n
     for xi in x:
         if not math.isfinite(xi) or abs(xi) > half:
             raise ValueError(f"{name} {float(xi):g} m is outside the allowed range [-{half:g}, "
-                             f"{half:g}] m ({sensor_margin(track):.2f} m clear of the clamped "
+                             f"{half:g}] m ({sensor_margin(track):.2f} m clear of the "
                              f"ends of the {track.n_bays}-bay track, where their reflections "
                              "have decayed; docs/convergence.md)")
     return x
