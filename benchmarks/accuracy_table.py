@@ -70,14 +70,19 @@ NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
 # (since 2026-12-05 12 kHz, 40 us, float32; a detector's reading 15 kHz, 25 us, float64 on at
 # least 36 bays)
 DEFAULT = {**NEW, "track_max_frequency": "auto", "time_step": "auto", "precision": "auto"}
+CLAMPED_MARGINS = {"NETWORK_END_FACTOR": 3.0, "NETWORK_SENSOR_END_FACTOR": 8.5,
+                   "NETWORK_READING_BAYS": 36}  # the guards' constants from clamped ends
 NETWORK = {**DEFAULT, "absorbing_sleepers": 0, "end_network": True, "n_bays": 18,
            "lengthen": True}  # receptances on the track a run with their sensors gets
 ROWS = {  # label -> changes to REF
     "reference": {},
     "reference, absorbing ends": ABSORBING,
-    "default with end networks (18 bays, as the guards lengthen a sweep; reading: 36 bays)":
-        NETWORK,
-    "default with end networks, 14 bays": {**NETWORK, "n_bays": 14},
+    "default with end networks (from 4 bays, the guards' margins for end networks; "
+    "reading: 24 bays)": {**NETWORK, "n_bays": 4},
+    "default with end networks, the clamped ends' margins (18 bays; reading: 36 bays)": {
+        **NETWORK, "guards": CLAMPED_MARGINS},
+    "default with end networks, the clamped ends' margins, 14 bays": {
+        **NETWORK, "n_bays": 14, "guards": CLAMPED_MARGINS},
     **{f"default with end networks, margins 0.5 / beta, reading on at least {n} bays": {
         **NETWORK, "n_bays": 4, "guards": {
             "NETWORK_END_FACTOR": 0.5, "NETWORK_SENSOR_END_FACTOR": 0.5,

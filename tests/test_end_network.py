@@ -73,13 +73,14 @@ def test_mirror_bases_decouple_the_networks_track():
 
 
 def test_short_track_with_networks_gives_the_long_tracks_forces():
-    """A new flat's max and min forces on the guards' shortest track with networks against
-    70 bays with networks: the ends reflect nothing the wheel feels (within 0.01 %, 0.02 kN)."""
+    """A new flat's max and min forces on the guards' shortest track with networks (wheel
+    paths 0.5 / beta from them) against 70 bays with networks: the ends reflect nothing the
+    wheel feels (within 0.05 %, 0.02 kN; benchmarks/network_margins.py: 0.022 %)."""
     flat, speeds = wf.Flat.new(0.9e-3), np.array([40.0, 120.0]) / 3.6
     runs = [wf.sweep(flat, speeds, 3, contact="hertz-trajectory", track=network_track(n_bays=n),
                      progress=False) for n in (4, 70)]
-    assert runs[0].settings["n_bays"] < 30
-    np.testing.assert_allclose(runs[0].max_force, runs[1].max_force, rtol=1e-4)
+    assert runs[0].settings["n_bays"] <= 12
+    np.testing.assert_allclose(runs[0].max_force, runs[1].max_force, rtol=5e-4)
     np.testing.assert_allclose(runs[0].min_force, runs[1].min_force, atol=20.0)
 
 
