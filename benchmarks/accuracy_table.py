@@ -283,15 +283,17 @@ def _rel(a, b) -> float:
 @contextlib.contextmanager
 def candidate_guards(values: dict):
     """Within the block, the guards' constants ``values`` (name -> value) replace
-    ``wfjax.scenario.guards``'s: rows that measure a candidate bound."""
-    kept = {name: getattr(guards, name) for name in values}
+    ``wfjax.scenario.guards``'s (``NETWORK_READING_BAYS``: ``wfjax.params``'s): rows that
+    measure a candidate bound."""
+    owner = {name: guards if hasattr(guards, name) else wf.params for name in values}
+    kept = {name: getattr(owner[name], name) for name in values}
     for name, value in values.items():
-        setattr(guards, name, value)
+        setattr(owner[name], name, value)
     try:
         yield
     finally:
         for name, value in kept.items():
-            setattr(guards, name, value)
+            setattr(owner[name], name, value)
 
 
 def measure(labels, quick: bool, path: pathlib.Path) -> dict:

@@ -11,7 +11,7 @@ min-force difference [kN] per f, and the bays.
 Detector: the same flat at 40, 120 and 200 km/h, 5 positions, with the 3-bay detector (the
 reading's settings), on a track lengthened from 4 bays to keep every bridge ``f / beta``
 from the ends (``guards.NETWORK_SENSOR_END_FACTOR = f``, no least length:
-``guards.NETWORK_READING_BAYS = 4``): the largest reading difference [%] per f, the bays and
+``wfjax.params.NETWORK_READING_BAYS = 4``): the largest reading difference [%] per f, the bays and
 the modes.
 
 Sensors: seat force on the impact bay's two sleepers (0.01 and 0.64 m) and shear at its
@@ -73,7 +73,7 @@ def detector() -> dict:
     speeds, det = [40.0, 120.0, 200.0], wf.Detector()
     guards.NETWORK_END_FACTOR = WHEEL_CHOSEN
     ref = _sweep(_track(70), speeds, det)
-    guards.NETWORK_READING_BAYS = 4
+    wf.params.NETWORK_READING_BAYS = 4
     out = {}
     for f in SENSOR_FACTORS:
         guards.NETWORK_SENSOR_END_FACTOR = f

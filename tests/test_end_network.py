@@ -95,7 +95,7 @@ def test_guards_keep_shorter_margins_from_end_networks():
     assert G.end_margin(net) < G.end_margin(absorbing)
     assert G.sensor_margin(net) < G.sensor_margin(absorbing)
     det = wf.Detector()
-    assert G.holding_instruments(net, None, det).n_bays == G.NETWORK_READING_BAYS
+    assert G.holding_instruments(net, None, det).n_bays == wf.params.NETWORK_READING_BAYS
     assert G.holding_instruments(absorbing, None, det).n_bays >= wf.params.READING_BAYS
 
 

@@ -47,6 +47,7 @@ MAX_SPEED = 150.0  # m/s (540 km/h): the speed range of every entry point, (0, M
 FORCE_SETTINGS = {"track_max_frequency": 12e3, "max_time_step": 40e-6}
 READING_SETTINGS = {"track_max_frequency": 15e3, "max_time_step": 25e-6, "precision": "float64"}
 READING_BAYS = 36
+NETWORK_READING_BAYS = 24  # the same with end networks (scenario.guards, docs/convergence.md)
 
 
 def loop_precision(precision: str, gradients: bool = False, direct: bool = False) -> str:
@@ -218,7 +219,8 @@ class Track(Validated):
     n_bays: int = option(24, low=4, high=1000,
                          doc="least number of sleeper bays of the finite track model "
                              "(lengthened to what the case's wheels and sensors need; "
-                             f"a detector's to {READING_BAYS})")
+                             f"a detector's to {READING_BAYS}, {NETWORK_READING_BAYS} with end "
+                             "networks)")
     elements_per_bay: int = option(26, low=1, high=64, doc="rail beam elements per sleeper bay",
                                    flag="--elements-per-bay", flag_commands=("receptance",))
     absorbing_sleepers: int = option(3, low=0, high=40,

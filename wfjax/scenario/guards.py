@@ -30,6 +30,7 @@ import warnings
 
 import numpy as np
 
+from .. import params as P
 from ..contact.geometry3d import elliptic_hertz
 from ..params import READING_BAYS, SUPPORT_FIELDS, Material, SimConfig, Track, Wheel
 
@@ -44,11 +45,11 @@ SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
 # the same to end networks (Track.end_network), which reflect nothing: wheel paths 0.5 / beta
 # (forces as at 3 / beta, within 0.022 % of 70 bays from 0.25 / beta), sensors 3 / beta
 # (receptances within 0.58 % of the reference, 1.50 % at 1 / beta), a detector on at least
-# 24 bays (its reading within 0.24 % of 70 bays' at 40-200 km/h, 0.38-0.47 % on 10-14);
+# params.NETWORK_READING_BAYS = 24 (its reading within 0.24 % of 70 bays' at 40-200 km/h,
+# 0.38-0.47 % on 10-14);
 # benchmarks/network_margins.py and accuracy_table.py, docs/convergence.md "End networks"
 NETWORK_END_FACTOR = 0.5
 NETWORK_SENSOR_END_FACTOR = 3.0
-NETWORK_READING_BAYS = 24
 RECEPTANCE_BAYS = 140  # direct point receptances within 0.5 % of an 800-bay track's, 20 Hz -
 # 2 kHz outside the pinned-pinned band 900-990 Hz, where no finite track converges pointwise
 # (benchmarks/receptance_length.py)
@@ -114,10 +115,10 @@ def holding_instruments(track: Track, sensors, detector=None) -> Track:
     """``track`` lengthened (scalar supports only) so that every sensor [m] and bridge of
     ``detector`` (a :class:`wfjax.scenario.sensors.Detector`) keeps :func:`sensor_margin`
     from the clamped ends, and to at least :data:`wfjax.params.READING_BAYS` bays with a
-    detector (:data:`NETWORK_READING_BAYS` with end networks); non-finite positions are
-    left to the sensors' own check."""
+    detector (:data:`wfjax.params.NETWORK_READING_BAYS` with end networks); non-finite
+    positions are left to the sensors' own check."""
     x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
-    least = NETWORK_READING_BAYS if track.end_network else READING_BAYS
+    least = P.NETWORK_READING_BAYS if track.end_network else READING_BAYS
     if detector is not None and extendable(track) and int(track.n_bays) < least:
         track = dataclasses.replace(track, n_bays=least)
     if detector is not None:
