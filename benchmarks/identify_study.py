@@ -290,12 +290,17 @@ def run(args, checkpoint=None) -> tuple[list, dict]:
     rng = np.random.default_rng(args.seed)
     rows, t0 = [], time.perf_counter()
     times = {"simulate_s": 0.0, "identify_s": 0.0, "identify_per_wagon_s": []}
-    k = 0
+    k, chosen = 0, _chosen(args)
     while k < getattr(args, "skip_wagons", 0):  # drawn as before, neither simulated nor scored
-        draw_flats(rng)
-        rng.integers(args.sites)
+        _skip_wagon(rng, args)
         k += 1
     while sum(r["kind"] != "none" for r in rows) < args.flats and k < args.max_wagons:
+        if chosen is not None and k not in chosen:
+            if k > max(chosen):
+                break
+            _skip_wagon(rng, args)
+            k += 1
+            continue
         wrows, t = run_wagon(k, rng, args)
         rows += wrows
         times["simulate_s"] += t["simulate_s"]
@@ -316,6 +321,18 @@ def run(args, checkpoint=None) -> tuple[list, dict]:
         if checkpoint and k % 5 == 0:
             checkpoint(rows, times, k)
     return rows, times
+
+
+def _chosen(args) -> set[int] | None:
+    """The wagons ``--wagons`` names (their rows' ``wagon`` numbers), or None: every one."""
+    spec = getattr(args, "wagons", None)
+    return None if not spec else {int(w) for w in str(spec).split(",")}
+
+
+def _skip_wagon(rng, args) -> None:
+    """Draw a wagon as :func:`run_wagon` would, and neither simulate nor score it."""
+    draw_flats(rng)
+    rng.integers(args.sites)
 
 
 def write_docs(text: str, section: str = "study") -> None:
@@ -351,6 +368,10 @@ def main(argv=None) -> int:
                     "its correction is marginalised over (1: its most probable phase)")
     ap.add_argument("--phase-error-m", type=float, default=PHASE_ERROR,
                     help="the blur of a neighbour's phase posterior [m] (identify(phase_error))")
+    ap.add_argument("--wagons", help="only these wagons, comma-separated, numbered as the "
+                    "results' 'wagon' field (from 0); the others are drawn and skipped, so "
+                    "each gets the flats and site of the whole run (a subset's figures, e.g. "
+                    "its time per wagon, can be rerun)")
     ap.add_argument("--docs", action="store_true")
     ap.add_argument("--docs-section", default="study", help="the docs/identify.md markers "
                     "--docs writes between (study3d: the 3D-law study's)")

@@ -372,3 +372,29 @@ def test_coupled_batch_equals_coupled_runs():
     assert fwd._bogie_batch._cache_size() == programs
     np.testing.assert_array_equal(again[::-1], peaks)
 
+
+
+def test_study_wagons_option_draws_the_whole_runs_wagons(monkeypatch):
+    """benchmarks/identify_study.py --wagons: the chosen wagons get the flats and site they
+    get in the whole run (the others drawn and skipped), and nothing after the last."""
+    import argparse
+
+    import bench_scripts
+
+    study = bench_scripts.load("identify_study")
+    seen = {}
+
+    def fake_run_wagon(k, rng, args):
+        seen[k] = (study.draw_flats(rng), int(rng.integers(args.sites)))
+        row = {"kind": "new", "length": 0.05, "length_median": 0.05, "flagged": True}
+        return [row], {"simulate_s": 0.0, "identify_s": 0.0}
+
+    monkeypatch.setattr(study, "run_wagon", fake_run_wagon)
+    args = argparse.Namespace(flats=100, max_wagons=8, sites=4, seed=41, wagons=None)
+    study.run(args)
+    whole = dict(seen)
+    seen.clear()
+    study.run(argparse.Namespace(**{**vars(args), "wagons": "2,5"}))
+    assert sorted(seen) == [2, 5]
+    for k in (2, 5):
+        assert repr(seen[k]) == repr(whole[k])
