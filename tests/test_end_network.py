@@ -84,6 +84,18 @@ def test_short_track_with_networks_gives_the_long_tracks_forces():
     np.testing.assert_allclose(runs[0].min_force, runs[1].min_force, atol=20.0)
 
 
+def test_a_bogie_on_a_networked_track_keeps_its_wheels_on_the_rail():
+    """A bogie's track is lengthened to hold its wheels a bay past their paths, which the
+    absorbing ends' longer margin always did (with end networks' 0.5 / beta a 10-bay track
+    was refused), and its forces are a 24-bay track's within 0.05 %."""
+    veh, speeds = V.Vehicle.preset("bogie"), np.array([40.0, 120.0]) / 3.6
+    runs = [wf.sweep(wf.Flat.new(0.9e-3), speeds, 3, contact="hertz-trajectory",
+                     track=network_track(n_bays=n), vehicle=veh, progress=False)
+            for n in (4, 24)]
+    assert runs[0].settings["n_bays"] == 12
+    np.testing.assert_allclose(runs[0].max_force, runs[1].max_force, rtol=5e-4)
+
+
 def test_guards_keep_shorter_margins_from_end_networks():
     """Wheels keep 0.5 / beta and sensors 3 / beta from end networks (against 3 and 8.5 from
     clamped ends, and the absorbing zone), a detector's track at least 24 bays (36), so a

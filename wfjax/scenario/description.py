@@ -202,7 +202,10 @@ class Scenario:
         paths = [self.path(w, speeds, positions) for w in windows]
         lo = min(p[0] for p in paths) + offsets.min()
         hi = max(p[1] for p in paths) + offsets.max()
-        track = guards.at_least(self.track, max(hi, -lo) + guards.end_margin(self.track))
+        # a vehicle's runs also hold its wheels a bay past the path (check_settings)
+        on_rail = hi + float(self.track.sleeper_spacing) if self.per_wheel else hi
+        track = guards.at_least(self.track, max(max(hi, -lo) + guards.end_margin(self.track),
+                                                on_rail))
         return self if track is self.track else dataclasses.replace(self, track=track)
 
     def run_settings(self, n_modes: int) -> dict:
