@@ -417,3 +417,16 @@ def test_cli_refuses_bad_vehicles_with_one_line(tmp_path, capsys, argv, words):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and words in err, err
     assert not out.exists()
+
+
+def test_off_the_rail_names_a_length_that_holds_the_wheels():
+    """check_on_track's one line names the least even n_bays that holds the wheels' span
+    either side of x = 0 (it named one that could be the refused length), and that length
+    passes."""
+    from wfjax.model.vehicle import check_on_track
+
+    veh, track = wf.Vehicle.preset("bogie"), wf.Track(n_bays=10)
+    with pytest.raises(ValueError, match=r"beyond the rail .* use track.n_bays >= 12$") as e:
+        check_on_track(veh, track, 0.69, 3.54)  # the wheels over [-1.81, 3.54] m
+    assert "\n" not in str(e.value)
+    check_on_track(veh, wf.Track(n_bays=12), 0.69, 3.54)

@@ -210,7 +210,7 @@ def check_on_track(vehicle: Vehicle, track: Track, x_ref_start: float,
         raise ValueError(
             f"the wheels travel over [{lo:.2f}, {hi:.2f}] m, beyond the rail of track.n_bays = "
             f"{int(track.n_bays)} ([{-half:.2f}, {half:.2f}] m): use track.n_bays >= "
-            f"{required_bays(vehicle, x_ref_end - x_ref_start, track, 0.0)}")
+            f"{2 * math.ceil(max(-lo, hi) / float(track.sleeper_spacing) - 1e-9)}")
 
 
 def required_bays(vehicle: Vehicle, travel: float, track: Track, margin: float) -> int:
