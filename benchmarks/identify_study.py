@@ -138,7 +138,8 @@ def _truth_option(meta: dict) -> str:
     for key in ("truth_contact", "identify_contact"):
         law = meta.get(key, "hertz-trajectory")
         out += "" if law == "hertz-trajectory" else f" --{key.replace('_', '-')} {law}"
-    return out + (f" --skip-wagons {meta['skip_wagons']}" if meta.get("skip_wagons") else "")
+    out += f" --skip-wagons {meta['skip_wagons']}" if meta.get("skip_wagons") else ""
+    return out + (f" --wagons {meta['wagons_chosen']}" if meta.get("wagons_chosen") else "")
 
 
 def markdown(summary: dict, metas: list[dict]) -> str:
@@ -325,7 +326,7 @@ def run(args, checkpoint=None) -> tuple[list, dict]:
 
 def _chosen(args) -> set[int] | None:
     """The wagons ``--wagons`` names (their rows' ``wagon`` numbers), or None: every one."""
-    spec = getattr(args, "wagons", None)
+    spec = getattr(args, "wagons_chosen", None)
     return None if not spec else {int(w) for w in str(spec).split(",")}
 
 
@@ -368,7 +369,7 @@ def main(argv=None) -> int:
                     "its correction is marginalised over (1: its most probable phase)")
     ap.add_argument("--phase-error-m", type=float, default=PHASE_ERROR,
                     help="the blur of a neighbour's phase posterior [m] (identify(phase_error))")
-    ap.add_argument("--wagons", help="only these wagons, comma-separated, numbered as the "
+    ap.add_argument("--wagons", dest="wagons_chosen", help="only these wagons, comma-separated, numbered as the "
                     "results' 'wagon' field (from 0); the others are drawn and skipped, so "
                     "each gets the flats and site of the whole run (a subset's figures, e.g. "
                     "its time per wagon, can be rerun)")
@@ -391,8 +392,7 @@ def main(argv=None) -> int:
     def save(rows, times, wagons):
         summary = summarise(rows)
         meta = {k: v for k, v in vars(args).items() if k not in ("docs", "out")}
-        meta |= {"wagons": wagons, "date": time.strftime("%Y-%m-%d", time.gmtime())} | {
-            k: v for k, v in times.items() if k != "identify_per_wagon_s"}
+        meta |= {"wagons": wagons, "date": time.strftime("%Y-%m-%d", time.gmtime())} | times
         meta["identify_median_s_per_wagon"] = float(np.median(times["identify_per_wagon_s"]))
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps({"meta": meta, "summary": summary,

@@ -390,11 +390,11 @@ def test_study_wagons_option_draws_the_whole_runs_wagons(monkeypatch):
         return [row], {"simulate_s": 0.0, "identify_s": 0.0}
 
     monkeypatch.setattr(study, "run_wagon", fake_run_wagon)
-    args = argparse.Namespace(flats=100, max_wagons=8, sites=4, seed=41, wagons=None)
+    args = argparse.Namespace(flats=100, max_wagons=8, sites=4, seed=41, wagons_chosen=None)
     study.run(args)
     whole = dict(seen)
     seen.clear()
-    study.run(argparse.Namespace(**{**vars(args), "wagons": "2,5"}))
+    study.run(argparse.Namespace(**{**vars(args), "wagons_chosen": "2,5"}))
     assert sorted(seen) == [2, 5]
     for k in (2, 5):
         assert repr(seen[k]) == repr(whole[k])
