@@ -369,7 +369,8 @@ def main(argv=None) -> int:
                     "its correction is marginalised over (1: its most probable phase)")
     ap.add_argument("--phase-error-m", type=float, default=PHASE_ERROR,
                     help="the blur of a neighbour's phase posterior [m] (identify(phase_error))")
-    ap.add_argument("--wagons", dest="wagons_chosen", help="only these wagons, comma-separated, numbered as the "
+    ap.add_argument("--wagons", dest="wagons_chosen", metavar="LIST",
+                    help="only these wagons, comma-separated, numbered as the "
                     "results' 'wagon' field (from 0); the others are drawn and skipped, so "
                     "each gets the flats and site of the whole run (a subset's figures, e.g. "
                     "its time per wagon, can be rerun)")
