@@ -111,6 +111,20 @@ def test_guards_keep_shorter_margins_from_end_networks():
     assert G.holding_instruments(absorbing, None, det).n_bays >= wf.params.READING_BAYS
 
 
+def test_a_fit_that_stays_above_tolerance_is_refused_in_one_line(monkeypatch, tmp_path):
+    """Another track's network is fitted in rounds from the stored one; one that stays above
+    FIT_TOLERANCE after them is refused in one line naming the way out, and nothing is
+    cached."""
+    calls = []
+    monkeypatch.setattr(ends, "fit", lambda tr, x, it: calls.append(it) or np.asarray(x))
+    monkeypatch.setattr(ends, "fit_error", lambda tr, x: 2 * ends.FIT_TOLERANCE)
+    with pytest.raises(ValueError, match="use end_network=False") as info:
+        ends.network(network_track(pad_stiffness=60e6), cache_dir=tmp_path)
+    assert "\n" not in str(info.value) and "4.0%" in str(info.value)
+    assert calls == [ends.WARM_ITERATIONS] * ends.WARM_ROUNDS
+    assert not list(tmp_path.glob("end-network-*"))
+
+
 @pytest.mark.parametrize("make, match", [
     (lambda: wf.Track(end_network=True), "absorbing_sleepers = 0"),
     (lambda: network_track(end_network="yes"), "end_network must be true or false"),
