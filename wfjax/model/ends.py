@@ -48,6 +48,9 @@ EDGE_EXCLUDED = 5.0  # [Hz] either side of the band edge left out of the toleran
 WARM_ITERATIONS = 800  # a fit from the stored network: iterations per round
 WARM_ROUNDS = 5  # rounds before a fit that stays above FIT_TOLERANCE is refused
 STORED = pathlib.Path(__file__).with_name("end_network_default.json")
+FIT_KEY = {"n_aux": N_AUX, "tolerance": FIT_TOLERANCE, "hf_weight": HF_WEIGHT, "scheme": 1}
+"""What a fitted network's cache entries (its own and its track's modal model) are keyed by
+beside the track's numbers: a change of the fit's procedure refits."""
 
 
 def matrices(factors, n: int = N_AUX + 2, xp=np):
@@ -205,6 +208,6 @@ def network(track: Track, cache_dir=None) -> tuple[np.ndarray, np.ndarray, np.nd
     if is_stored(track):
         return matrices(np.asarray(stored()["factors"], dtype=float))
     key = dict(_key(track))
-    arrays = _cache.load_or_build("end-network", {**key, "n_aux": N_AUX, "scheme": 1},
+    arrays = _cache.load_or_build("end-network", {**key, **FIT_KEY},
                                   lambda: {"factors": _fitted(track)}, cache_dir)
     return matrices(np.asarray(arrays["factors"], dtype=float))

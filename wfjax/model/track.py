@@ -290,9 +290,10 @@ def _mirror_bases(fe: FEModel, n_bays: int) -> list[scipy.sparse.csc_matrix]:
     sign[fe.rail_dofs[free]] = np.tile([1.0, -1.0], nodes)[free]
     sleepers = fe.n_rail_dof + np.arange(n_bays - 1)
     perm[sleepers] = sleepers[::-1]
-    n_aux = (n_dof - sleepers[-1] - 5) // 2  # end networks: left aux i <-> right aux i
+    first_aux = sleepers[-1] + 5  # end networks: the end nodes' 4 DOFs, then left, right
+    n_aux = (n_dof - first_aux) // 2  # left aux i <-> right aux i
     if n_aux > 0:
-        aux = sleepers[-1] + 5 + np.arange(n_aux)
+        aux = first_aux + np.arange(n_aux)
         perm[aux], perm[aux + n_aux] = aux + n_aux, aux
     bases = []
     for parity in (1.0, -1.0):
@@ -500,7 +501,8 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
                "absorbing_sleepers": int(track.absorbing_sleepers),
                "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 5}
         if track.end_network:
-            key["end_network"] = ends_mod.stored()["fit"] if ends_mod.is_stored(track) else True
+            key["end_network"] = (ends_mod.stored()["fit"] if ends_mod.is_stored(track)
+                                  else ends_mod.FIT_KEY)
         if not is_uniform(track):
             key["supports"] = "per-sleeper arrays; residual along the rail"
         arrays = _cache.load_or_build("track-modal", key, build, cache_dir)
