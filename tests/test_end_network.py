@@ -116,8 +116,9 @@ def test_a_fit_that_stays_above_tolerance_is_refused_in_one_line(monkeypatch, tm
     FIT_TOLERANCE after them is refused in one line naming the way out, and nothing is
     cached."""
     calls = []
-    monkeypatch.setattr(ends, "fit", lambda tr, x, it: calls.append(it) or np.asarray(x))
-    monkeypatch.setattr(ends, "fit_error", lambda tr, x: 2 * ends.FIT_TOLERANCE)
+    monkeypatch.setattr(ends, "_fitter",
+                        lambda tr: lambda x, it: calls.append(it) or np.asarray(x))
+    monkeypatch.setattr(ends, "_error_of", lambda tr: lambda x: 2 * ends.FIT_TOLERANCE)
     with pytest.raises(ValueError, match="use end_network=False") as info:
         ends.network(network_track(pad_stiffness=60e6), cache_dir=tmp_path)
     assert "\n" not in str(info.value) and "4.0%" in str(info.value)
@@ -149,7 +150,7 @@ def test_another_track_is_fitted_within_tolerance_and_cached(tmp_path, monkeypat
     assert track.n_bays == 12
     mats = ends.network(track)
     assert [p.name.split("-")[:2] for p in tmp_path.iterdir()] == [["end", "network"]]
-    monkeypatch.setattr(ends, "fit", None)  # a second fit would fail
+    monkeypatch.setattr(ends, "_fitter", None)  # a second fit would fail
     for a, b in zip(mats, ends.network(track), strict=True):
         np.testing.assert_array_equal(a, b)
     f = np.r_[F40, ends.band_edge(track) + BESIDE - EDGE]

@@ -141,19 +141,25 @@ def _relative_error(track: Track, f):
     return rel_err
 
 
-def fit_error(track: Track, factors) -> float:
-    """The network's largest relative error against K_R on 10-2500 Hz, leaving out
-    +-``EDGE_EXCLUDED`` Hz around the band edge (what :data:`FIT_TOLERANCE` bounds)."""
+def _error_of(track: Track):
+    """``factors -> `` the network's largest relative error against ``track``'s K_R on
+    10-2500 Hz, leaving out +-``EDGE_EXCLUDED`` Hz around the band edge (K_R computed once)."""
     edge = band_edge(track)
     f = np.geomspace(10, 2500, 600)
     f = np.unique(np.concatenate([f, edge + np.arange(-100, 100.01, 0.25)]))
-    f = f[np.abs(f - edge) > EDGE_EXCLUDED]
-    return float(np.max(np.asarray(_relative_error(track, f)(np.asarray(factors)))))
+    rel_err = _relative_error(track, f[np.abs(f - edge) > EDGE_EXCLUDED])
+    return lambda factors: float(np.max(np.asarray(rel_err(np.asarray(factors)))))
 
 
-def fit(track: Track, start, iterations: int):
-    """Factors [3 n (n + 1) / 2] of the network fitted to ``track``'s K_R from ``start``
-    (factors), at most ``iterations`` L-BFGS iterations."""
+def fit_error(track: Track, factors) -> float:
+    """The network's largest relative error against K_R on 10-2500 Hz, leaving out
+    +-``EDGE_EXCLUDED`` Hz around the band edge (what :data:`FIT_TOLERANCE` bounds)."""
+    return _error_of(track)(factors)
+
+
+def _fitter(track: Track):
+    """``(start, iterations) -> factors``: L-BFGS on ``track``'s K_R, its targets and compiled
+    objective built once for every round."""
     import jax
     import jax.numpy as jnp
     import scipy.optimize
@@ -162,11 +168,22 @@ def fit(track: Track, start, iterations: int):
     rel_err, weight = _relative_error(track, f), jnp.asarray(weight)
     value_grad = jax.jit(jax.value_and_grad(
         lambda x: jnp.sum(weight * rel_err(x) ** 2) / jnp.sum(weight)))
-    res = scipy.optimize.minimize(lambda x: tuple(np.asarray(v) for v in value_grad(x)),
-                                  np.asarray(start, dtype=float), jac=True, method="L-BFGS-B",
-                                  options={"maxiter": int(iterations), "maxcor": 50,
-                                           "ftol": 1e-15, "gtol": 1e-12})
-    return np.asarray(res.x)
+
+    def run(start, iterations: int) -> np.ndarray:
+        res = scipy.optimize.minimize(lambda x: tuple(np.asarray(v) for v in value_grad(x)),
+                                      np.asarray(start, dtype=float), jac=True,
+                                      method="L-BFGS-B",
+                                      options={"maxiter": int(iterations), "maxcor": 50,
+                                               "ftol": 1e-15, "gtol": 1e-12})
+        return np.asarray(res.x)
+
+    return run
+
+
+def fit(track: Track, start, iterations: int):
+    """Factors [3 n (n + 1) / 2] of the network fitted to ``track``'s K_R from ``start``
+    (factors), at most ``iterations`` L-BFGS iterations."""
+    return _fitter(track)(start, iterations)
 
 
 @functools.cache
@@ -178,9 +195,10 @@ def stored() -> dict:
 
 def _fitted(track: Track) -> np.ndarray:
     x = np.asarray(stored()["factors"], dtype=float)
+    run, error = _fitter(track), _error_of(track)
     for _ in range(WARM_ROUNDS):
-        x = fit(track, x, WARM_ITERATIONS)
-        err = fit_error(track, x)
+        x = run(x, WARM_ITERATIONS)
+        err = error(x)
         if err <= FIT_TOLERANCE:
             return x
     raise ValueError(
