@@ -374,6 +374,34 @@ def test_coupled_batch_equals_coupled_runs():
 
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("speed_kmh", [60.0, 140.0])
+def test_corrections_on_the_least_track_read_as_on_70_bays(speed_kmh):
+    """The neighbour corrections' track (``CORRECTION_TRACK``, lengthened by the guards to
+    what the detector's reading needs) gives a round wheel's correction (the bogie's run
+    minus the wheel alone, 80 mm new neighbour at 6 phases, either wheel first, rough rail)
+    within 0.5 % of the largest reading of the 70-bay ``TRACK``'s, and the correction
+    itself is not small (a neighbour's effect the test could miss)."""
+    from wfjax.identify.pipeline import correction_roughness
+    from wfjax.scenario.sensors import Detector
+
+    r, det, speed = 0.45, Detector(5, -2), speed_kmh / 3.6
+    smooth, flat = fwd.round_wheel(r), fwd.flat_of("new", 0.08, 1.0, r)
+    phases = np.linspace(0.0, 2 * np.pi * r, 6, endpoint=False)
+    groups = ([([smooth, flat], [0.3, ph]) for ph in phases]
+              + [([flat, smooth], [ph, 0.3]) for ph in phases])
+    kw = dict(roughness=correction_roughness(0))
+    out = {}
+    for name, track in (("least", fwd.CORRECTION_TRACK), ("70", fwd.TRACK)):
+        both, _ = fwd.coupled_batch(groups, [0.0, 2.5], speed, det, track=track, **kw)
+        alone, _ = fwd.coupled_batch([([smooth], [0.3])], [0.0], speed, det, track=track, **kw)
+        out[name] = (np.concatenate([both[:6, 0], both[6:, 1]]) - alone[0, 0], alone[0, 0])
+    scale = out["70"][1].max()
+    assert np.abs(out["70"][0]).max() > 0.1 * scale
+    assert np.abs(out["least"][0] - out["70"][0]).max() < 5e-3 * scale
+
+
+
 def test_study_wagons_option_draws_the_whole_runs_wagons(monkeypatch):
     """benchmarks/identify_study.py --wagons: the chosen wagons get the flats and site they
     get in the whole run (the others drawn and skipped), and nothing after the last."""

@@ -231,11 +231,13 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     peak is the larger of the two events, not their sum). The corrections add to the
     wheel's own modelled readings. The runs go as one batch per layout
     (:func:`wfjax.identify.forward.coupled_batch`), the wheels alone as one more: a train's
-    bogies are not looped over."""
+    bogies are not looped over. Both on :data:`wfjax.identify.forward.CORRECTION_TRACK`,
+    the identification's track at the least length the detector's reading needs."""
     det = passage.detector()
     rough = correction_roughness(settings["seed"])
     out: list = [None] * passage.n_wheels
-    kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"])
+    kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"],
+              track=fwd.CORRECTION_TRACK)
     k, n_max = settings["passage_index"], int(settings["phase_modes"])
     flat = {i: posts[i].p_length_at_least(ROUND_LENGTH) >= 0.5
             for i in range(passage.n_wheels)}
