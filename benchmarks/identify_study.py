@@ -99,6 +99,13 @@ def summarise(rows: list[dict]) -> dict:
                           "observed": k / max(len(flats), 1), "cp95": [lo, hi],
                           "calibrated": lo <= level <= hi})
     out["calibration"] = table
+    out["by_length"] = {
+        name: {"n": len(sub), "length_error": _median(
+            [abs(r["length_median"] - r["length"]) / r["length"] for r in sub]),
+               "depth_error": _median([abs(r["depth_median"] - r["depth"]) / r["depth"]
+                                       for r in sub])}
+        for name, sub in (("under_40mm", [r for r in flats if r["length"] < 0.04]),
+                          ("40mm_plus", [r for r in flats if r["length"] >= 0.04]))}
     out["by_kind"] = {}
     for kind in ("new", "rounded"):
         sub = [r for r in flats if r["kind"] == kind]
@@ -109,6 +116,15 @@ def summarise(rows: list[dict]) -> dict:
             "width": _median([(r["length_0.9"][1] - r["length_0.9"][0]) / r["length"]
                               for r in lg])}
     return out
+
+
+def _by_length_line(by: dict) -> str:
+    """The markdown line of the errors by true length (:func:`summarise`'s ``by_length``)."""
+    a, b = by["under_40mm"], by["40mm_plus"]
+    return (f"- median absolute error, flats under 40 mm ({a['n']}): length "
+            f"{100 * a['length_error']:.1f} %, depth {100 * a['depth_error']:.1f} %; "
+            f"40 mm or longer ({b['n']}): length {100 * b['length_error']:.1f} %, depth "
+            f"{100 * b['depth_error']:.1f} %")
 
 
 def _median(values) -> float:
@@ -155,6 +171,7 @@ def markdown(summary: dict, metas: list[dict]) -> str:
              f"- median absolute error of the length median: "
              f"{100 * (s['median_abs_rel_error_length'] or float('nan')):.1f} % (new "
              f"{100 * by['new']['error']:.1f} %, rounded {100 * by['rounded']['error']:.1f} %)",
+             _by_length_line(s["by_length"]),
              f"- median 90 % interval width / length, flats >= 40 mm: "
              f"{100 * (s['median_width90_over_length_40mm_plus'] or float('nan')):.0f} % (new "
              f"{100 * by['new']['width']:.0f} %, rounded {100 * by['rounded']['width']:.0f} %)",
@@ -419,9 +436,12 @@ def merge(paths: list[str], out: str, docs: bool, section: str = "study") -> int
     """Merge the results of runs (``paths``, JSON) into ``out``; with ``docs`` into
     docs/identify.md too."""
     runs = [json.loads(Path(p).read_text()) for p in paths]
-    rows = [r | {"run": i} for i, d in enumerate(runs) for r in d["wheels"]]
+    metas, rows = [], []
+    for d in runs:  # a merged run's meta is the list of its runs'
+        first = len(metas)
+        metas += d["meta"] if isinstance(d["meta"], list) else [d["meta"]]
+        rows += [r | {"run": first + r.get("run", 0)} for r in d["wheels"]]
     summary = summarise(rows)
-    metas = [d["meta"] for d in runs]
     Path(out).write_text(json.dumps({"meta": metas, "summary": summary, "wheels": rows},
                                     indent=1, default=float) + "\n")
     text = markdown(summary, metas)
