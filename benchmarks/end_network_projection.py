@@ -30,8 +30,9 @@ sleepers 0.6 m apart) and the default on 8 and 16 elements per bay.
 
 Run: ``python benchmarks/end_network_projection.py [--tracks default,pads60,...]
 [--n-aux 24,48,96] [--methods greedy,pod] [--bays 200] [--layer 0.34] [--alpha 1000]
-[--beta 1e-5] [--check-ends]`` (about 4 minutes a track on 2 cores with other jobs, 2.5 of them
-the band edge); writes ``benchmarks/results/end_network_projection.json``.
+[--beta 1e-5] [--check-ends]`` (0.5-3 minutes a track on 2 cores with other jobs, most of it
+the band edge; n_aux above about 128 takes longer); writes
+``benchmarks/results/end_network_projection.json``.
 """
 
 from __future__ import annotations
