@@ -76,7 +76,7 @@ def summarise(rows: list[dict]) -> dict:
     """Flags, errors, widths and the calibration table."""
     flats = [r for r in rows if r["kind"] != "none"]
     rounds = [r for r in rows if r["kind"] == "none"]
-    err = [abs(r["length_median"] - r["length"]) / r["length"] for r in flats]
+    err = [_error(r, "length") for r in flats]
     out = {"n_flats": len(flats), "n_round": len(rounds),
            "flagged_30mm_or_longer": [sum(r["flagged"] for r in flats if r["length"] >= 0.03),
                                       sum(1 for r in flats if r["length"] >= 0.03)],
@@ -100,10 +100,8 @@ def summarise(rows: list[dict]) -> dict:
                           "calibrated": lo <= level <= hi})
     out["calibration"] = table
     out["by_length"] = {
-        name: {"n": len(sub), "length_error": _median(
-            [abs(r["length_median"] - r["length"]) / r["length"] for r in sub]),
-               "depth_error": _median([abs(r["depth_median"] - r["depth"]) / r["depth"]
-                                       for r in sub])}
+        name: {"n": len(sub), "length_error": _median([_error(r, "length") for r in sub]),
+               "depth_error": _median([_error(r, "depth") for r in sub])}
         for name, sub in (("under_40mm", [r for r in flats if r["length"] < 0.04]),
                           ("40mm_plus", [r for r in flats if r["length"] >= 0.04]))}
     out["by_kind"] = {}
@@ -112,10 +110,15 @@ def summarise(rows: list[dict]) -> dict:
         lg = [r for r in sub if r["length"] >= 0.04]
         out["by_kind"][kind] = {
             "n": len(sub),
-            "error": _median([abs(r["length_median"] - r["length"]) / r["length"] for r in sub]),
+            "error": _median([_error(r, "length") for r in sub]),
             "width": _median([(r["length_0.9"][1] - r["length_0.9"][0]) / r["length"]
                               for r in lg])}
     return out
+
+
+def _error(row: dict, what: str) -> float:
+    """A flat's absolute relative error of its ``what`` ("length", "depth") median."""
+    return abs(row[f"{what}_median"] - row[what]) / row[what]
 
 
 def _by_length_line(by: dict) -> str:

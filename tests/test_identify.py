@@ -373,7 +373,6 @@ def test_coupled_batch_equals_coupled_runs():
     np.testing.assert_array_equal(again[::-1], peaks)
 
 
-
 @pytest.mark.slow
 @pytest.mark.parametrize("speed_kmh", [60.0, 140.0])
 def test_corrections_on_the_least_track_read_as_on_70_bays(speed_kmh):
@@ -399,7 +398,6 @@ def test_corrections_on_the_least_track_read_as_on_70_bays(speed_kmh):
     scale = out["70"][1].max()
     assert np.abs(out["70"][0]).max() > 0.1 * scale
     assert np.abs(out["least"][0] - out["70"][0]).max() < 5e-3 * scale
-
 
 
 def test_study_wagons_option_draws_the_whole_runs_wagons(monkeypatch):
