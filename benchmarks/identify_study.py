@@ -198,7 +198,7 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
     """Wagon ``k``: its flats, one passage at each of ``args.speeds_kmh`` over one of
     ``args.sites`` detector sites, identified together; (per-wheel rows, timings [s])."""
     from wfjax.identify import identify
-    from wfjax.identify.pipeline import PHASE_ERROR
+    from wfjax.identify.pipeline import PHASE_ERROR, PHASE_MODES
 
     flats = draw_flats(rng)
     site = int(rng.integers(args.sites))
@@ -210,7 +210,7 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
         return rows, {"simulate_s": t1 - t0, "identify_s": 0.0}
     res = identify(passages, coupling_iterations=args.coupling,
                    contact=getattr(args, "identify_contact", "hertz-trajectory"),
-                   phase_modes=getattr(args, "phase_modes", 8),
+                   phase_modes=getattr(args, "phase_modes", PHASE_MODES),
                    phase_error=getattr(args, "phase_error_m", PHASE_ERROR))
     t2 = time.perf_counter()
     rows = [score_wheel(t, w) | {"wagon": k, "site": site} | passes(i, passages, truths)
@@ -366,7 +366,7 @@ def write_docs(text: str, section: str = "study") -> None:
 
 
 def main(argv=None) -> int:
-    from wfjax.identify.pipeline import PHASE_ERROR
+    from wfjax.identify.pipeline import PHASE_ERROR, PHASE_MODES
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flats", type=int, default=100, help="flats to score (default 100)")
@@ -385,8 +385,9 @@ def main(argv=None) -> int:
     ap.add_argument("--identify-contact", default="hertz-trajectory",
                     help="the identification's contact law (3d: response tables of every "
                     "flat's exact 3D table; identify(contact=...))")
-    ap.add_argument("--phase-modes", type=int, default=8, help="a neighbour's configurations "
-                    "its correction is marginalised over (1: its most probable phase)")
+    ap.add_argument("--phase-modes", type=int, default=PHASE_MODES,
+                    help="a neighbour's configurations its correction is marginalised over "
+                    "(1: its most probable phase)")
     ap.add_argument("--phase-error-m", type=float, default=PHASE_ERROR,
                     help="the blur of a neighbour's phase posterior [m] (identify(phase_error))")
     ap.add_argument("--wagons", dest="wagons_chosen", metavar="LIST",

@@ -28,7 +28,7 @@ def _progress(stage: str, done: int, total: int) -> None:
 
 def _settings(case) -> dict:
     """identify()'s keyword arguments from the case (the documented defaults when unset)."""
-    from ..identify.pipeline import PHASE_ERROR
+    from ..identify.pipeline import PHASE_ERROR, PHASE_MODES
     from ..identify.rules import user_rule
 
     def get(key, default):
@@ -44,7 +44,7 @@ def _settings(case) -> dict:
                 user_rule=user_rule(case.get("identify.user_reading"),
                                     case.get("identify.user_length")),
                 coupling_iterations=get("coupling_iterations", 1),
-                phase_modes=get("phase_modes", 8),
+                phase_modes=get("phase_modes", PHASE_MODES),
                 phase_error=get("phase_error", PHASE_ERROR),
                 table_options={"n_roughness": get("realisations", 3)}, seed=get("seed", 0))
 

@@ -42,6 +42,10 @@ KIND_MIN_P = 0.2  # a neighbour's kind (new, rounded) below this probability is 
 # impact closest to uniform, Kolmogorov-Smirnov 0.066 of 285 wheel-passages, 0.150 unblurred;
 # benchmarks/identify_phase_error.py on the Hertz study's seed 41, docs/identify.md)
 PHASE_ERROR = 0.05
+# A flat neighbour's configurations (phase points x kinds) its correction averages: 16 clear
+# the Hertz study's one round wheel flagged beside a rounded 86 mm flat (P 0.92 at 8, 0.78
+# at 16; docs/identify.md "Several wheels, factorised") at about 1.4x the corrections' cost.
+PHASE_MODES = 16
 
 
 @dataclasses.dataclass
@@ -287,7 +291,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
              model: float = 0.02, prior: Prior | None = None, flag_length: float = 0.02,
              flag_probability: float = 0.9, line_speed: float | None = None,
              force_level: float = 350e3, user_rule=None, coupling_iterations: int = 1,
-             phase_modes: int = 8, phase_error: float = PHASE_ERROR,
+             phase_modes: int = PHASE_MODES, phase_error: float = PHASE_ERROR,
              table_options: dict | None = None,
              wheel: Wheel | None = None, seed: int = 0, cache_dir=None,
              progress=None) -> Identification:
