@@ -271,6 +271,31 @@ def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
     assert seen["phase_modes"] == 1 and seen["phase_error"] == pytest.approx(0.03)
 
 
+def test_command_defaults_are_identifys(tmp_path, monkeypatch):
+    """Without the flags, the command passes identify()'s own defaults (one place for each):
+    16 configurations per flat neighbour, the phase blur PHASE_ERROR."""
+    import inspect
+
+    import wfjax.identify as identify_pkg
+    from wfjax.cli import main
+    from wfjax.identify.pipeline import identify
+
+    seen, defaults = {}, inspect.signature(identify).parameters
+
+    def fake(passages, **kw):
+        seen.update(kw)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(identify_pkg, "identify", fake)
+    y = np.full((2, 5), 120e3)
+    path = _csv(tmp_path, passages_csv([Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, y)]))
+    with pytest.raises(SystemExit):
+        main(["identify", "--readings", str(path), "--out", str(tmp_path / "out")])
+    for name in ("phase_modes", "phase_error", "coupling_iterations", "seed"):
+        assert seen[name] == defaults[name].default, name
+    assert seen["phase_modes"] == 16
+
+
 def test_site_factors_pooled_over_passages_of_one_site():
     """Passages over the same bays share one site factor per bay: the median over every
     wheel of every passage of reading / the wheel's modelled reading; other bays: per
