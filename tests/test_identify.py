@@ -273,12 +273,12 @@ def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
 
 def test_command_defaults_are_identifys(tmp_path, monkeypatch):
     """Without the flags, the command passes identify()'s own defaults (one place for each):
-    16 configurations per flat neighbour, the phase blur PHASE_ERROR."""
+    PHASE_MODES configurations per flat neighbour, the phase blur PHASE_ERROR."""
     import inspect
 
     import wfjax.identify as identify_pkg
     from wfjax.cli import main
-    from wfjax.identify.pipeline import identify
+    from wfjax.identify.pipeline import PHASE_MODES, identify
 
     seen, defaults = {}, inspect.signature(identify).parameters
 
@@ -293,7 +293,7 @@ def test_command_defaults_are_identifys(tmp_path, monkeypatch):
         main(["identify", "--readings", str(path), "--out", str(tmp_path / "out")])
     for name in ("phase_modes", "phase_error", "coupling_iterations", "seed"):
         assert seen[name] == defaults[name].default, name
-    assert seen["phase_modes"] == 16
+    assert seen["phase_modes"] == PHASE_MODES
 
 
 def test_site_factors_pooled_over_passages_of_one_site():

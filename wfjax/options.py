@@ -380,7 +380,7 @@ RUN_OPTIONS: tuple[Option, ...] = (
     Option("identify", "coupling_iterations", "int", "", 0, 5, commands=("identify",),
            flag="--coupling-iterations", doc="neighbour-correction sweeps (default 1)"),
     Option("identify", "phase_modes", "int", "", 1, 32, flag="--phase-modes",
-           commands=("identify",), doc="a flat neighbour's configurations averaged (default 16)"),
+           commands=("identify",), doc="a flat neighbour's configurations averaged (default 8)"),
     Option("identify", "phase_error", "float", "m", 0.0, 0.3, factor=1e-3, flag_unit="mm",
            doc="blur (standard deviation) of a neighbour's phase posterior (default 50 mm)",
            commands=("identify",), flag="--phase-error-mm"),

@@ -44,8 +44,9 @@ KIND_MIN_P = 0.2  # a neighbour's kind (new, rounded) below this probability is 
 PHASE_ERROR = 0.05
 # A flat neighbour's configurations (phase points x kinds) its correction averages: 16 clear
 # the Hertz study's one round wheel flagged beside a rounded 86 mm flat (P 0.92 at 8, 0.78
-# at 16; docs/identify.md "Several wheels, factorised") at about 1.4x the corrections' cost.
-PHASE_MODES = 16
+# at 16) but take 1.81x the passage time (benchmarks/identify_ab.py --compare phase-modes),
+# past the 20 s a passage may take; docs/identify.md "Neighbour phase".
+PHASE_MODES = 8
 
 
 @dataclasses.dataclass
