@@ -5,8 +5,8 @@ alternately both ways, nothing else changed. ``--compare``:
 - ``track``: the neighbour corrections on the 70-bay ``forward.TRACK`` (before 2026-12-05,
   night) against ``forward.CORRECTION_TRACK`` (the same track at its least length; the
   guards lengthen it to 36 bays), 8 configurations per neighbour both ways;
-- ``phase-modes``: a neighbour's correction averaged over 8 configurations (before
-  2026-12-06) against 16 (``pipeline.PHASE_MODES``), both on ``CORRECTION_TRACK``.
+- ``phase-modes``: a neighbour's correction averaged over 8 configurations (the default,
+  ``pipeline.PHASE_MODES``) against 16 (``--phase-modes 16``), both on ``CORRECTION_TRACK``.
 
 Per wagon and way (the order alternates): one identification that compiles what it needs
 (its seconds kept as ``first_seconds``), then ``--rounds`` timed ones with the programs
