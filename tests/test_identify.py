@@ -251,8 +251,9 @@ def test_command_writes_outputs(tmp_path, capsys, monkeypatch):
     assert (out / "identify.png").stat().st_size > 1000 and (out / "case.toml").exists()
 
 
-def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
-    """--phase-modes and --phase-error-mm reach identify() (in its units: m)."""
+def _command_kwargs(tmp_path, monkeypatch, *flags) -> dict:
+    """The keyword arguments `wfjax identify --readings ... --out ... *flags` gives identify()
+    (stopped there) for a two-wheel passage."""
     import wfjax.identify as identify_pkg
     from wfjax.cli import main
 
@@ -266,8 +267,14 @@ def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
     y = np.full((2, 5), 120e3)
     path = _csv(tmp_path, passages_csv([Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, y)]))
     with pytest.raises(SystemExit):
-        main(["identify", "--readings", str(path), "--out", str(tmp_path / "out"),
-              "--phase-modes", "1", "--phase-error-mm", "30"])
+        main(["identify", "--readings", str(path), "--out", str(tmp_path / "out"), *flags])
+    return seen
+
+
+def test_command_passes_the_phase_modes(tmp_path, monkeypatch):
+    """--phase-modes and --phase-error-mm reach identify() (in its units: m)."""
+    seen = _command_kwargs(tmp_path, monkeypatch, "--phase-modes", "1",
+                           "--phase-error-mm", "30")
     assert seen["phase_modes"] == 1 and seen["phase_error"] == pytest.approx(0.03)
 
 
@@ -276,21 +283,10 @@ def test_command_defaults_are_identifys(tmp_path, monkeypatch):
     PHASE_MODES configurations per flat neighbour, the phase blur PHASE_ERROR."""
     import inspect
 
-    import wfjax.identify as identify_pkg
-    from wfjax.cli import main
     from wfjax.identify.pipeline import PHASE_MODES, identify
 
-    seen, defaults = {}, inspect.signature(identify).parameters
-
-    def fake(passages, **kw):
-        seen.update(kw)
-        raise SystemExit(0)
-
-    monkeypatch.setattr(identify_pkg, "identify", fake)
-    y = np.full((2, 5), 120e3)
-    path = _csv(tmp_path, passages_csv([Passage(100 / 3.6, np.array([0.0, 2.5]), BAYS, y)]))
-    with pytest.raises(SystemExit):
-        main(["identify", "--readings", str(path), "--out", str(tmp_path / "out")])
+    seen = _command_kwargs(tmp_path, monkeypatch)
+    defaults = inspect.signature(identify).parameters
     for name in ("phase_modes", "phase_error", "coupling_iterations", "seed"):
         assert seen[name] == defaults[name].default, name
     assert seen["phase_modes"] == PHASE_MODES
