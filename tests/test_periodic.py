@@ -117,3 +117,16 @@ def test_finite_tracks_approach_the_periodic_receptance_at_pinned_pinned():
            for n in (140, 400, 800)]
     assert err[0] > err[1] > err[2]
     assert err[2] < 0.1
+
+
+def test_boundary_stiffness_batched_over_frequency_is_each_frequencys():
+    """The cyclic reduction batched over frequencies (each chain stopping where it converged)
+    equals it run at each frequency alone, across the pinned-pinned band edge and the close
+    multipliers at 1361.5 Hz."""
+    track = wfjax.Track()
+    k, m, c, _ = P._cell_matrices(P._numbers(track), int(track.elements_per_bay))
+    w = 2 * math.pi * np.array([10.0, 300.0, 943.3, 1361.5, 5000.0, 20000.0])
+    cells = k[None] - (w**2)[:, None, None] * m[None] + 1j * w[:, None, None] * c[None]
+    batched = P._right_stiffness(P._condensed(cells))
+    alone = np.array([P._right_stiffness(P._condensed(cell)) for cell in cells])
+    np.testing.assert_allclose(batched, alone, rtol=1e-12, atol=0)

@@ -7,18 +7,20 @@ time-domain model needs it as degrees of freedom: :data:`N_AUX` internal DOFs jo
 node, with stiffness, damping and mass matrices K, C, M [(2 + N_AUX)^2] each written as
 L L^T (positive semi-definite: the network is passive and cannot destabilise the track), and
 K_fit(omega) the Schur complement of K + i omega C - omega^2 M onto the end node. The factors
-are fitted (L-BFGS, gradients by jax) to the relative Frobenius error of K_fit against K_R
-(theta scaled by :data:`THETA_SCALE`) on 10-2500 Hz, dense around the pinned-pinned band edge,
-and, weighted :data:`HF_WEIGHT`, on 2.5-20 kHz. The left end carries the mirror image
-(theta -> -theta).
+are fitted to the relative Frobenius error of K_fit against K_R (theta scaled by
+:data:`THETA_SCALE`) on 10-2500 Hz, dense around the pinned-pinned band edge, and, weighted
+:data:`HF_WEIGHT`, on 2.5-20 kHz. The left end carries the mirror image (theta -> -theta).
 
 The default track's network is stored with the package (``end_network_default.json``: 6,000
-iterations from a random start, ``benchmarks/end_network.py``); any other track's is fitted
-from it on first use (about a minute on 2 cores) and cached on disk. A fit must come within
-:data:`FIT_TOLERANCE` of K_R beside the band edge (:func:`fit_error`), or the track is refused.
+L-BFGS iterations from a random start, :func:`fit`, ``benchmarks/end_network.py``). Any other
+track's is fitted from it on first use (:func:`_fitted`: 6-23 s on 2 cores) and cached on
+disk: Levenberg-Marquardt with an analytic Jacobian (:func:`_residuals`) along a path of
+tracks from the stored one to it (:func:`_path`), the network's frequencies scaled with the
+band edge. A fit must come within :data:`FIT_TOLERANCE` of K_R beside the band edge
+(:func:`fit_error`), or the track is refused (sleepers 0.7 m apart are: 32 %).
 Why and how well (the receptances within 0.6 % of the infinite track's beside +-5 Hz of the
 band edge, where clamped or absorbing ends leave 28-63 %): ``docs/convergence.md``, "A fitted
-passive end network".
+passive end network" and "End networks".
 """
 
 from __future__ import annotations
@@ -45,29 +47,35 @@ HF_WEIGHT = 0.02  # the fit's weight on 2.5-20 kHz (the impact's band: forces, n
 FIT_TOLERANCE = 0.02  # the fit's largest relative error on 10-2500 Hz beside the band edge
 EDGE_EXCLUDED = 5.0  # [Hz] either side of the band edge left out of the tolerance (a run's
 # window resolves about 1 / T: 20-50 Hz; no finite track resolves the edge's singular peak)
-WARM_ITERATIONS = 800  # a fit from the stored network: iterations per round
-WARM_ROUNDS = 5  # rounds before a fit that stays above FIT_TOLERANCE is refused
+STEP_RATIO = 1.5  # the warm fit's path: the largest factor a track number moves by per step
+STEP_ITERATIONS = 8  # Levenberg-Marquardt steps at most per point of the path
+STALL = 0.01  # a point of the path is done when a step lowers the cost by less than this
+POLISH_ROUNDS = 8  # then rounds of POLISH_ITERATIONS steps on the track itself, each followed
+POLISH_ITERATIONS = 5  # by the tolerance's check, before a fit above it is refused
 STORED = pathlib.Path(__file__).with_name("end_network_default.json")
-FIT_KEY = {"n_aux": N_AUX, "tolerance": FIT_TOLERANCE, "hf_weight": HF_WEIGHT, "scheme": 1}
+FIT_KEY = {"n_aux": N_AUX, "tolerance": FIT_TOLERANCE, "hf_weight": HF_WEIGHT, "scheme": 2}
 """What a fitted network's cache entries (its own and its track's modal model) are keyed by
 beside the track's numbers: a change of the fit's procedure refits."""
+
+
+def _lowers(factors, n: int = N_AUX + 2, xp=np) -> list:
+    """The three lower-triangular factors [n, n] (L_K, L_C, L_M) stacked in ``factors``."""
+    tri = np.tril_indices(n)
+    nt = tri[0].size
+    if xp is np:
+        out = [np.zeros((n, n)) for _ in SCALES]
+        for i, lower in enumerate(out):
+            lower[tri] = factors[i * nt:(i + 1) * nt]
+        return out
+    return [xp.zeros((n, n)).at[tri].set(factors[i * nt:(i + 1) * nt])
+            for i in range(len(SCALES))]
 
 
 def matrices(factors, n: int = N_AUX + 2, xp=np):
     """(K [N/m], C [N s/m], M [kg]) [n, n] of the network from its stacked lower-triangular
     factors ``factors`` [3 n (n + 1) / 2] (L_K, L_C, L_M): each ``SCALES[i] L L^T``."""
-    tri = np.tril_indices(n)
-    nt = tri[0].size
-    out = []
-    for i, s in enumerate(SCALES):
-        part = factors[i * nt:(i + 1) * nt]
-        if xp is np:
-            lower = np.zeros((n, n))
-            lower[tri] = part
-        else:
-            lower = xp.zeros((n, n)).at[tri].set(part)
-        out.append(s * lower @ lower.T)
-    return tuple(out)
+    lowers = _lowers(factors, n, xp)
+    return tuple(s * lower @ lower.T for s, lower in zip(SCALES, lowers, strict=True))
 
 
 def network_stiffness(mats, w, xp=np):
@@ -82,11 +90,8 @@ def boundary_stiffness(track: Track, f) -> np.ndarray:
     """[n_f, 2, 2] the right semi-infinite track's boundary stiffness at ``f`` [Hz]: the force
     at its first node (a sleeper's, the sleeper included) that holds it at u_0."""
     k, m, c, _ = P._cell_matrices(P._numbers(track), int(track.elements_per_bay))
-    out = []
-    for fi in np.atleast_1d(np.asarray(f, dtype=float)):
-        w = 2 * math.pi * fi
-        out.append(P._right_stiffness(P._condensed(k - w * w * m + 1j * w * c)))
-    return np.array(out)
+    w = 2 * math.pi * np.atleast_1d(np.asarray(f, dtype=float))[:, None, None]
+    return P._right_stiffness(P._condensed(k - w * w * m + 1j * w * c))
 
 
 @functools.lru_cache(maxsize=16)
@@ -182,7 +187,9 @@ def _fitter(track: Track):
 
 def fit(track: Track, start, iterations: int):
     """Factors [3 n (n + 1) / 2] of the network fitted to ``track``'s K_R from ``start``
-    (factors), at most ``iterations`` L-BFGS iterations."""
+    (factors), at most ``iterations`` L-BFGS iterations: the fit from a random start that
+    made the stored network (L-BFGS finds its way from afar, where Levenberg-Marquardt
+    stalls; the warm fits of :func:`network` are Levenberg-Marquardt's)."""
     return _fitter(track)(start, iterations)
 
 
@@ -193,18 +200,119 @@ def stored() -> dict:
     return json.loads(STORED.read_text())
 
 
-def _fitted(track: Track) -> np.ndarray:
-    x = np.asarray(stored()["factors"], dtype=float)
-    run, error = _fitter(track), _error_of(track)
-    for _ in range(WARM_ROUNDS):
-        x = run(x, WARM_ITERATIONS)
-        err = error(x)
-        if err <= FIT_TOLERANCE:
+_ENTRIES = ((0, 0, 1.0), (1, 1, 1.0), (0, 1, math.sqrt(2.0)))  # a symmetric 2 x 2's
+# independent entries, weighted so that their squares sum to its squared Frobenius norm
+
+
+def _problem(track: Track, edge: float) -> tuple:
+    """``track``'s K_R on the fit's grid around ``edge`` [Hz]: (omega [n_f] [rad/s], the
+    scaled targets [n_f, 2, 2], each frequency's residual weight sqrt(w_f) / |K_R| [n_f])."""
+    f, weight = _grid(edge)
+    t = np.array([1.0, 1.0 / THETA_SCALE])
+    target = boundary_stiffness(track, f) * t[:, None] * t[None, :]
+    return 2 * np.pi * f, target, np.sqrt(weight) / np.linalg.norm(target, axis=(1, 2))
+
+
+def _residuals(factors, problem, jacobian: bool = True):
+    """The fit's residuals [6 n_f] (real and imaginary parts of the scaled entries of
+    K_fit - K_R, weighted as :func:`_relative_error`'s squared sum) and, if ``jacobian``,
+    their derivatives [6 n_f, 3 n_t] in the factors.
+
+    With S = K + i omega C - omega^2 M and X = S_aa^-1 S_ae (a: internal, e: end node),
+    K_fit = P^T S P for P = [I; -X] (complex symmetric, no conjugate), and dK_fit = P^T dS P:
+    S P vanishes on the internal rows, so X's change drops out. A factor entry L_ij moves
+    S by s (e_i L_j^T + L_j e_i^T) (L_j the j-th column of L^T), so K_fit by
+    s (p_i u_j^T + u_j p_i^T) with p = P's rows and u = (L^T P)'s: no solve per parameter."""
+    w, target, weight = problem
+    lowers = _lowers(factors)
+    k, c, m = (s * lower @ lower.T for s, lower in zip(SCALES, lowers, strict=True))
+    dyn = k[None] + 1j * w[:, None, None] * c[None] - (w**2)[:, None, None] * m[None]
+    x = np.linalg.solve(dyn[:, 2:, 2:], dyn[:, 2:, :2])
+    t = np.array([1.0, 1.0 / THETA_SCALE])
+    diff = (dyn[:, :2, :2] - dyn[:, :2, 2:] @ x) * t[:, None] * t[None, :] - target
+    gains = np.array([g for _, _, g in _ENTRIES]) * weight[:, None]
+    r = np.stack([diff[:, a, b] for a, b, _ in _ENTRIES], axis=1) * gains
+    r = np.concatenate([r.real.ravel(), r.imag.ravel()])
+    if not jacobian:
+        return r
+    p = np.concatenate([np.broadcast_to(np.eye(2), x.shape[:1] + (2, 2)), -x], axis=1)
+    rows, cols = np.tril_indices(N_AUX + 2)
+    blocks = []
+    for s, lower, along in zip(SCALES, lowers, (np.ones_like(w), 1j * w, -w * w),
+                                  strict=True):
+        u = np.einsum("ji,fjk->fik", lower, p)
+        pi, uj = p[:, rows], u[:, cols]
+        d = np.stack([pi[..., a] * uj[..., b] + uj[..., a] * pi[..., b]
+                      for a, b, _ in _ENTRIES], axis=1)
+        scaled = np.array([t[a] * t[b] for a, b, _ in _ENTRIES]) * gains
+        blocks.append(d * (s * along[:, None, None] * scaled[..., None]))
+    jac = np.concatenate(blocks, axis=2).reshape(r.size // 2, -1)
+    return r, np.concatenate([jac.real, jac.imag])
+
+
+def _levenberg_marquardt(factors, problem, iterations: int, stall: float = 0.0) -> np.ndarray:
+    """At most ``iterations`` accepted Levenberg-Marquardt steps (Marquardt's scaling by the
+    normal matrix's diagonal) on :func:`_residuals` from ``factors``; stops when a step
+    lowers the cost by less than the fraction ``stall``, or no step lowers it."""
+    x = np.asarray(factors, dtype=float)
+    r, jac = _residuals(x, problem)
+    cost, damping = r @ r, 1e-3
+    for _ in range(iterations):
+        grad, normal = jac.T @ r, jac.T @ jac
+        diag = np.diag(np.diag(normal) + 1e-300)
+        while damping < 1e12:
+            step = np.linalg.solve(normal + damping * diag, -grad)
+            trial = _residuals(x + step, problem, jacobian=False)
+            if trial @ trial < cost:
+                break
+            damping *= 4
+        else:
             return x
-    raise ValueError(
-        f"Track.end_network: no passive network within {FIT_TOLERANCE:.0%} of this track's "
-        f"semi-infinite continuation ({err:.1%} after {WARM_ROUNDS * WARM_ITERATIONS} "
-        f"iterations from the default's): use end_network=False (absorbing_sleepers=3)")
+        x, damping, stalled = x + step, max(damping / 3, 1e-12), trial @ trial > (1 - stall) * cost
+        cost = trial @ trial
+        if stalled:
+            return x
+        r, jac = _residuals(x, problem)
+    return x
+
+
+def _path(track: Track) -> list[Track]:
+    """The tracks a warm fit passes through, from the stored network's to ``track`` (its
+    mesh throughout): every number moved geometrically, none by more than
+    :data:`STEP_RATIO` per step."""
+    start, goal = stored()["track"], dict(_key(track))
+    ratios = {k: goal[k] / start[k] for k in goal
+              if k != "elements_per_bay" and start[k] > 0 and goal[k] > 0}
+    steps = max([1] + [math.ceil(abs(math.log(r)) / math.log(STEP_RATIO)) for r in
+                       ratios.values()])
+    return [Track(**{**goal, **{k: start[k] * r ** (i / steps) for k, r in ratios.items()}})
+            for i in range(1, steps + 1)]
+
+
+def _fitted(track: Track) -> np.ndarray:
+    """Factors of ``track``'s network, fitted from the stored one along :func:`_path` (each
+    point a few Levenberg-Marquardt steps), the frequencies scaled with the band edge; then
+    polished on ``track`` until within :data:`FIT_TOLERANCE`, or refused."""
+    x = np.asarray(stored()["factors"], dtype=float)
+    edge, error, path = band_edge(track), _error_of(track), _path(track)
+    nt, edges = x.size // 3, float(stored()["band_edge_Hz"]) * (
+        edge / float(stored()["band_edge_Hz"])) ** (np.arange(len(path) + 1) / len(path))
+    for point, before, at in zip(path, edges[:-1], edges[1:], strict=True):
+        x[nt:2 * nt] /= math.sqrt(at / before)  # C / beta and M / beta^2: K(omega / beta)
+        x[2 * nt:] /= at / before
+        x = _levenberg_marquardt(x, _problem(point, at), STEP_ITERATIONS, STALL)
+    problem = _problem(track, edge)
+    for _ in range(POLISH_ROUNDS):
+        if error(x) <= FIT_TOLERANCE:
+            return x
+        x = _levenberg_marquardt(x, problem, POLISH_ITERATIONS)
+    err = error(x)
+    if err > FIT_TOLERANCE:
+        raise ValueError(
+            f"Track.end_network: no passive network within {FIT_TOLERANCE:.0%} of this "
+            f"track's semi-infinite continuation ({err:.1%} after fitting from the "
+            "default's): use end_network=False (absorbing_sleepers=3)")
+    return x
 
 
 def is_stored(track: Track) -> bool:
