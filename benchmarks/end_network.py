@@ -88,7 +88,7 @@ def fit(iterations: int, seed: int, track=None, start=None) -> tuple:
             start[i * nt + diag] = np.abs(start[i * nt + diag]) + 1.0
     x = ends.fit(track, start, iterations)
     band = ends._grid(ends.band_edge(track))[0]
-    band = band[band <= 2500]
+    band = band[band <= 2500]  # the stored network's band (the warm fits': ends.BAND_TOP)
     e = np.asarray(jax.jit(ends._relative_error(track, band))(x))
     return x, float(e.max()), float(np.median(e)), float(band[np.argmax(e)])
 
