@@ -130,7 +130,8 @@ def test_a_fit_that_stays_above_tolerance_is_refused_in_one_line(monkeypatch, tm
 
 def test_the_fits_path_moves_each_number_by_at_most_the_step_ratio():
     """Pads at 60 MN/m (half the stored track's) and 240 (twice): two steps each, ending on
-    the track itself with its own mesh; the stored track's numbers with another mesh: one."""
+    the track itself with its own mesh; the stored track's numbers with another mesh: one;
+    sleepers 0.5 m apart: three (x1.1 at most per step)."""
     for pads in (60e6, 240e6):
         path = ends._path(network_track(pad_stiffness=pads, elements_per_bay=8))
         values = [120e6] + [p.pad_stiffness for p in path]
@@ -139,6 +140,21 @@ def test_the_fits_path_moves_each_number_by_at_most_the_step_ratio():
         assert max(steps) <= ends.STEP_RATIO
         assert {p.elements_per_bay for p in path} == {8}
     assert len(ends._path(network_track(elements_per_bay=8))) == 1
+    spacings = [0.65] + [p.sleeper_spacing for p in ends._path(network_track(sleeper_spacing=0.5))]
+    assert len(spacings) == 4 and spacings[-1] == pytest.approx(0.5)
+    assert max(a / b for a, b in zip(spacings, spacings[1:], strict=False)) <= 1.1 + 1e-12
+
+
+def test_the_band_edge_keeps_its_place_in_the_bays():
+    """The band edge's receptance positions scale with the sleeper spacing: the default
+    track's edge is the stored network's, and sleepers 0.5 m apart get theirs (the transfer
+    receptance peaks there on a 1 Hz grid over 600-2400 Hz), not the search's lower end."""
+    assert ends.band_edge(wf.Track()) == pytest.approx(ends.stored()["band_edge_Hz"], abs=1e-3)
+    track = wf.Track(sleeper_spacing=0.5)
+    f = np.arange(600.0, 2400.0, 1.0)
+    peak = f[np.argmax(np.abs(P.periodic_receptance(track, f, 0.3 / 1.3, 1.0 / 1.3)))]
+    assert ends.band_edge(track) == pytest.approx(peak, abs=1.0)
+    assert ends.band_edge(track) > 1352.0 + 10
 
 
 def test_the_fits_jacobian_is_the_residuals_derivative():
