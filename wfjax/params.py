@@ -178,7 +178,7 @@ class Track(Validated):
             reflect nothing, so the receptances come within 0.6 % of the infinite track's
             beside the pinned-pinned band edge. Needs scalar supports and
             ``absorbing_sleepers = 0``; a track other than the default is fitted on first
-            use (6-23 s on 2 cores) and cached.
+            use (5-30 s on 2 cores) and cached.
 
     Supports that vary from sleeper to sleeper: each of the five support fields
     (:data:`SUPPORT_FIELDS`) is a scalar (every sleeper alike, Table 2) or a float array

@@ -14,7 +14,7 @@ and, weighted :data:`HF_WEIGHT`, up to 20 kHz. The left end carries the mirror i
 
 The default track's network is stored with the package (``end_network_default.json``: 6,000
 L-BFGS iterations from a random start, :func:`fit`, ``benchmarks/end_network.py``). Any other
-track's is fitted from it on first use (:func:`_fitted`: 6-23 s on 2 cores) and cached on
+track's is fitted from it on first use (:func:`_fitted`: 5-30 s on 2 cores) and cached on
 disk: Levenberg-Marquardt with an analytic Jacobian (:func:`_residuals`) along a path of
 tracks from the stored one to it (:func:`_path`), the network's frequencies scaled with the
 band edge. A fit must come within :data:`FIT_TOLERANCE` of K_R beside the band edge
