@@ -43,6 +43,7 @@ __all__ = ["N_AUX", "FIT_TOLERANCE", "network", "network_stiffness", "boundary_s
 
 N_AUX = 24  # the network's internal DOFs per end
 THETA_SCALE = 0.1  # m: theta entries scaled to be comparable with w's
+_UNITS = np.array([1.0, 1.0 / THETA_SCALE])  # the (w, theta) rows' and columns' scaling
 SCALES = (1e8, 1e4, 1.0)  # K [N/m], C [N s/m], M [kg] of a unit factor
 BAND_TOP = 2000.0  # [Hz] the top of the fit's band and its tolerance's: the accuracy table's
 # receptances end at 2 kHz, and sleepers more than about 0.665 m apart bring a second, sharp
@@ -145,7 +146,7 @@ def _relative_error(track: Track, f):
     stiffness against the track's K_R at ``f`` [Hz] (jax)."""
     import jax.numpy as jnp
 
-    t = np.diag([1.0, 1.0 / THETA_SCALE])
+    t = np.diag(_UNITS)
     target = np.einsum("ij,fjk,kl->fil", t, boundary_stiffness(track, f), t)
     norm = jnp.asarray(np.linalg.norm(target, axis=(1, 2)))
     w = jnp.asarray(2 * np.pi * f)
@@ -222,8 +223,7 @@ def _problem(track: Track, edge: float) -> tuple:
     """``track``'s K_R on the fit's grid around ``edge`` [Hz]: (omega [n_f] [rad/s], the
     scaled targets [n_f, 2, 2], each frequency's residual weight sqrt(w_f) / |K_R| [n_f])."""
     f, weight = _grid(edge)
-    t = np.array([1.0, 1.0 / THETA_SCALE])
-    target = boundary_stiffness(track, f) * t[:, None] * t[None, :]
+    target = boundary_stiffness(track, f) * np.outer(_UNITS, _UNITS)
     return 2 * np.pi * f, target, np.sqrt(weight) / np.linalg.norm(target, axis=(1, 2))
 
 
@@ -242,8 +242,7 @@ def _residuals(factors, problem, jacobian: bool = True):
     k, c, m = (s * lower @ lower.T for s, lower in zip(SCALES, lowers, strict=True))
     dyn = k[None] + 1j * w[:, None, None] * c[None] - (w**2)[:, None, None] * m[None]
     x = np.linalg.solve(dyn[:, 2:, 2:], dyn[:, 2:, :2])
-    t = np.array([1.0, 1.0 / THETA_SCALE])
-    diff = (dyn[:, :2, :2] - dyn[:, :2, 2:] @ x) * t[:, None] * t[None, :] - target
+    diff = (dyn[:, :2, :2] - dyn[:, :2, 2:] @ x) * np.outer(_UNITS, _UNITS) - target
     gains = np.array([g for _, _, g in _ENTRIES]) * weight[:, None]
     r = np.stack([diff[:, a, b] for a, b, _ in _ENTRIES], axis=1) * gains
     r = np.concatenate([r.real.ravel(), r.imag.ravel()])
@@ -251,6 +250,7 @@ def _residuals(factors, problem, jacobian: bool = True):
         return r
     p = np.concatenate([np.broadcast_to(np.eye(2), x.shape[:1] + (2, 2)), -x], axis=1)
     rows, cols = np.tril_indices(N_AUX + 2)
+    scaled = np.array([_UNITS[a] * _UNITS[b] for a, b, _ in _ENTRIES]) * gains
     blocks = []
     for s, lower, along in zip(SCALES, lowers, (np.ones_like(w), 1j * w, -w * w),
                                   strict=True):
@@ -258,7 +258,6 @@ def _residuals(factors, problem, jacobian: bool = True):
         pi, uj = p[:, rows], u[:, cols]
         d = np.stack([pi[..., a] * uj[..., b] + uj[..., a] * pi[..., b]
                       for a, b, _ in _ENTRIES], axis=1)
-        scaled = np.array([t[a] * t[b] for a, b, _ in _ENTRIES]) * gains
         blocks.append(d * (s * along[:, None, None] * scaled[..., None]))
     jac = np.concatenate(blocks, axis=2).reshape(r.size // 2, -1)
     return r, np.concatenate([jac.real, jac.imag])
@@ -282,9 +281,8 @@ def _levenberg_marquardt(factors, problem, iterations: int, stall: float = 0.0) 
             damping *= 4
         else:
             return x
-        x, damping, stalled = x + step, max(damping / 3, 1e-12), trial @ trial > (1 - stall) * cost
-        cost = trial @ trial
-        if stalled:
+        x, damping, before, cost = x + step, max(damping / 3, 1e-12), cost, trial @ trial
+        if cost > (1 - stall) * before:
             return x
         r, jac = _residuals(x, problem)
     return x
@@ -301,7 +299,7 @@ def _path(track: Track) -> list[Track]:
     steps = max([1] + [math.ceil(abs(math.log(r)) / math.log(limits[k]) - 1e-9)
                        for k, r in ratios.items()])
     return [Track(**{**goal, **{k: start[k] * r ** (i / steps) for k, r in ratios.items()}})
-            for i in range(1, steps + 1)]
+            for i in range(1, steps)] + [Track(**goal)]
 
 
 def _fitted(track: Track) -> np.ndarray:
@@ -310,13 +308,14 @@ def _fitted(track: Track) -> np.ndarray:
     polished on ``track`` until within :data:`FIT_TOLERANCE`, or refused."""
     x = np.asarray(stored()["factors"], dtype=float)
     edge, error, path = band_edge(track), _error_of(track), _path(track)
-    nt, edges = x.size // 3, float(stored()["band_edge_Hz"]) * (
-        edge / float(stored()["band_edge_Hz"])) ** (np.arange(len(path) + 1) / len(path))
+    first = float(stored()["band_edge_Hz"])
+    nt, edges = x.size // 3, first * (edge / first) ** (np.arange(len(path) + 1) / len(path))
+    edges[-1] = edge
     for point, before, at in zip(path, edges[:-1], edges[1:], strict=True):
         x[nt:2 * nt] /= math.sqrt(at / before)  # C / beta and M / beta^2: K(omega / beta)
         x[2 * nt:] /= at / before
-        x = _levenberg_marquardt(x, _problem(point, at), STEP_ITERATIONS, STALL)
-    problem = _problem(track, edge)
+        problem = _problem(point, at)  # the last point is the track itself, at its edge
+        x = _levenberg_marquardt(x, problem, STEP_ITERATIONS, STALL)
     for _ in range(POLISH_ROUNDS):
         if error(x) <= FIT_TOLERANCE:
             return x
