@@ -6,14 +6,15 @@ Run: ``python benchmarks/accuracy_table.py [--quick] [--only LABEL ...]``. Write
 table of ``docs/convergence.md``.
 
 Reference: 26 rail elements per bay, track modes to 20 kHz, time step 6.25 us and travel step
-0.25 mm, 70 bays (45.5 m) with the fitted passive end networks (``Track.end_network``; since
+0.25 mm, 70 bays (45.5 m) with the fitted passive end networks (``Track.ends``; since
 2026-12-05, late: the rows "reference, absorbing ends", three absorbing sleepers at each end,
 the reference before, and "reference, clamped ends"), contact element 1 mm.
 Each row changes the settings named in its label and keeps the rest of the reference, except
 the rows labelled "default", which are whole configurations: today's (``SimConfig``'s auto
-settings, which a run resolves by what it reads: a detector's reading gets 20 kHz, 25 us,
-float64 and at least 36 bays, ``wfjax.params.READING_SETTINGS``; and the same with clamped
-ends) and the one before 2026-12-03 ("old default").
+settings, which a run resolves by what it reads: a detector's reading gets 15 kHz, 25 us,
+float64, ``wfjax.params.READING_SETTINGS``; end networks from 4 bays since 2026-12-06), the
+one before it (absorbing ends on 24 bays; and the same with clamped ends) and the one before
+2026-12-03 ("old default").
 
 Sets (R_R = 0.45 m, ``Track.comparison()``):
 
@@ -58,27 +59,28 @@ from wfjax.scenario import sensors as sensor_mod
 
 REF = {"elements_per_bay": 26, "track_max_frequency": 20e3, "time_step": 6.25e-6,
        "travel_step": 0.25e-3, "n_bays": 70, "contact_element": 1e-3, "precision": "float64",
-       "absorbing_sleepers": 0, "end_network": True}  # since 2026-12-05, late: end networks
-ABSORBING = {"absorbing_sleepers": 3, "end_network": False}  # the ends before
+       "absorbing_sleepers": 0, "ends": "network"}  # since 2026-12-05, late: end networks
+ABSORBING = {"absorbing_sleepers": 3, "ends": "absorbing"}  # the ends before
 OLD = {"elements_per_bay": 8, "track_max_frequency": 10e3, "time_step": 25e-6,
        "travel_step": 1e-3, "n_bays": 70, "absorbing_sleepers": 0,
-       "end_network": False}  # before 2026-12-03
+       "ends": "absorbing"}  # before 2026-12-03
 NEW = {**OLD, "elements_per_bay": 26, "track_max_frequency": 15e3, "n_bays": 24,
        "precision": "float32", "time_step": 40e-6, **ABSORBING}  # today's force
 # settings: float32 forward runs and 40 us since 2026-12-04, absorbing ends since the evening
-# the package's defaults: SimConfig's auto settings, which a run resolves by what it reads
-# (since 2026-12-05 12 kHz, 40 us, float32; a detector's reading 15 kHz, 25 us, float64 on at
-# least 36 bays)
+# the package's defaults before 2026-12-06 (absorbing ends, 24 bays): SimConfig's auto
+# settings, which a run resolves by what it reads (since 2026-12-05 12 kHz, 40 us, float32; a
+# detector's reading 15 kHz, 25 us, float64 on at least 36 bays); since 2026-12-06 the default
+# is NETWORK from 4 bays (Track.ends "auto": networks on the default track)
 DEFAULT = {**NEW, "track_max_frequency": "auto", "time_step": "auto", "precision": "auto"}
 CLAMPED_MARGINS = {"NETWORK_END_FACTOR": 3.0, "NETWORK_SENSOR_END_FACTOR": 8.5,
                    "NETWORK_READING_BAYS": 36}  # the guards' constants from clamped ends
-NETWORK = {**DEFAULT, "absorbing_sleepers": 0, "end_network": True, "n_bays": 18,
+NETWORK = {**DEFAULT, "absorbing_sleepers": 0, "ends": "network", "n_bays": 18,
            "lengthen": True}  # receptances on the track a run with their sensors gets
 ROWS = {  # label -> changes to REF
     "reference": {},
     "reference, absorbing ends": ABSORBING,
-    "default with end networks (from 4 bays, the guards' margins for end networks; "
-    "reading: 24 bays)": {**NETWORK, "n_bays": 4},
+    "default (26 el., end networks from 4 bays, the guards' margins for them; 12 kHz, 40 us "
+    "/ 1 mm, float32; reading: 15 kHz, 25 us, float64, 24 bays)": {**NETWORK, "n_bays": 4},
     "default with end networks, the clamped ends' margins (18 bays; reading: 36 bays)": {
         **NETWORK, "guards": CLAMPED_MARGINS},
     "default with end networks, the clamped ends' margins, 14 bays": {
@@ -91,10 +93,10 @@ ROWS = {  # label -> changes to REF
         **NETWORK, "n_bays": 4, "guards": {
             "NETWORK_END_FACTOR": 0.5, "NETWORK_SENSOR_END_FACTOR": f,
             "NETWORK_READING_BAYS": 4}} for f in (1.0, 2.0, 3.0, 4.0, 6.0)},
-    "reference, clamped ends": {"absorbing_sleepers": 0, "end_network": False},
-    "default (26 el., 24 bays; 12 kHz, 40 us / 1 mm, float32; reading: 15 kHz, 25 us, "
-    "float64, 36 bays)": DEFAULT,
-    "default, clamped ends": {**DEFAULT, "absorbing_sleepers": 0, "end_network": False},
+    "reference, clamped ends": {"absorbing_sleepers": 0, "ends": "absorbing"},
+    "default before 2026-12-06 (26 el., absorbing ends, 24 bays; 12 kHz, 40 us / 1 mm, "
+    "float32; reading: 15 kHz, 25 us, float64, 36 bays)": DEFAULT,
+    "default, clamped ends": {**DEFAULT, "absorbing_sleepers": 0, "ends": "absorbing"},
     "26 el., 15 kHz, 40 us / 1 mm, 24 bays, float32": NEW,
     "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float32": {**NEW, "time_step": 25e-6},
     "26 el., 15 kHz, 25 us / 1 mm, 24 bays, float64": {**NEW, "time_step": 25e-6,
@@ -181,7 +183,7 @@ def model_inputs(s: dict):
     """(Track, SimConfig) of the settings ``s`` (``"auto"``: SimConfig's auto setting)."""
     track = wf.Track.comparison(elements_per_bay=s["elements_per_bay"], n_bays=s["n_bays"],
                                 absorbing_sleepers=s["absorbing_sleepers"],
-                                end_network=s.get("end_network", False))
+                                ends=s.get("ends", "absorbing"))
     auto = {k: None if s[k] == "auto" else s[k] for k in ("time_step", "track_max_frequency")}
     config = wf.SimConfig(max_time_step=auto["time_step"], max_travel_step=s["travel_step"],
                           track_max_frequency=auto["track_max_frequency"],
@@ -303,7 +305,7 @@ def measure(labels, quick: bool, path: pathlib.Path) -> dict:
     for label in labels:
         s = settings(label)
         kept = done.get(label, {})
-        if kept.get("quick") == quick and {"end_network": False, **kept["settings"]} == s:
+        if kept.get("quick") == quick and {"ends": "absorbing", **kept["settings"]} == s:
             continue
         t0 = time.perf_counter()
         with candidate_guards(s.get("guards", {})):

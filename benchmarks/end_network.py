@@ -26,7 +26,7 @@ reference with today's ends.
 Today's ends (clamped, the sleepers' grading and the rail's end damping) give 15.6-20.4 % on
 the 40 frequencies, 92-94 % on the fine grid (943.4 Hz) and 12-14 % outside 850-1050 Hz.
 
-Section ``time``: the time-domain model with the network (``Track(end_network=True)``,
+Section ``time``: the time-domain model with the network (``Track(ends="network")``,
 :mod:`wfjax.model.ends`): a new flat's max and min forces on 24 bays with the network, with
 the absorbing ends and clamped, against 70 bays with absorbing ends; and the network's modal
 receptance beside the band edge.
@@ -209,7 +209,7 @@ def time_domain() -> dict:
     ref = run(wf.Track.comparison(n_bays=70))
     rows = {"24 bays, today's ends": run(wf.Track.comparison(n_bays=24)),
             "24 bays, clamped": run(wf.Track.comparison(n_bays=24, absorbing_sleepers=0))}
-    track = wf.Track.comparison(n_bays=24, absorbing_sleepers=0, end_network=True)
+    track = wf.Track.comparison(n_bays=24, ends="network")
     rows["24 bays, network"] = run(track)
     model = track_mod.modal_model(track, use_cache=False,
                                   max_frequency=cfg.resolved().track_max_frequency)
@@ -261,7 +261,7 @@ def warm() -> dict:
     beside the band edge [%] and the band edge [Hz], or why it was refused."""
     out = {}
     for i, (label, changes) in enumerate(WARM_TRACKS.items()):
-        track = wf.Track.comparison(absorbing_sleepers=0, end_network=True, **changes)
+        track = wf.Track.comparison(ends="network", **changes)
         row = {"band_edge_Hz": round(ends.band_edge(track), 2)}
         ways = [("levenberg_marquardt", ends._fitted), ("lbfgs_rounds", _lbfgs_rounds)]
         for way, fitter in ways[::-1] if i % 2 else ways:
@@ -277,9 +277,9 @@ def warm() -> dict:
     return out
 
 
-SPEED_TRACKS = {"absorbing ends (default)": {},
-                "end networks, n_bays=4": {"n_bays": 4, "absorbing_sleepers": 0,
-                                           "end_network": True}}
+SPEED_TRACKS = {"absorbing ends (the default before 2026-12-06)": {"n_bays": 24,
+                                                                  "ends": "absorbing"},
+                "end networks, n_bays=4 (the default)": {"n_bays": 4, "ends": "network"}}
 
 
 def speed(rounds: int = 3) -> dict:

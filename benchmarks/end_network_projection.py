@@ -24,7 +24,7 @@ small and how fast (``wfjax.model.ends``; docs/convergence.md, "A fitted passive
    K_r, C_r, M_r's least eigenvalues (relative to their largest) and the seconds to build it
    (buffer, responses, greedy choice, projection; the band edge and K_R not included).
 
-Tracks: the default (``Track.comparison(end_network=True, absorbing_sleepers=0)``), those of
+Tracks: the default (``Track.comparison(ends="network")``), those of
 ``benchmarks/end_network.py --sections warm`` (pads 60 and 240 MN/m, ballast 70 MN/m,
 sleepers 0.6 m apart) and the default on 8 and 16 elements per bay.
 
@@ -63,7 +63,7 @@ BAND = 4  # the buffer's half bandwidth in its node-by-node DOF order
 
 
 def make_track(name: str) -> wf.Track:
-    return wf.Track.comparison(end_network=True, absorbing_sleepers=0, **TRACKS[name])
+    return wf.Track.comparison(ends="network", **TRACKS[name])
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""How close wheels, sensors and a detector may come to end networks (``Track.end_network``;
+"""How close wheels, sensors and a detector may come to end networks (``Track.ends``;
 issue 33, "fewer bays where physics allows"): the guards' margins for tracks whose ends
 reflect nothing, derived as the clamped ends' were (``docs/convergence.md``, "Physics
 guards"), against 70 bays with end networks.
@@ -41,7 +41,7 @@ WHEEL_CHOSEN = 0.5  # guards.NETWORK_END_FACTOR: the wheels' margin in the secti
 
 
 def _track(n_bays: int) -> wf.Track:
-    return wf.Track.comparison(n_bays=n_bays, absorbing_sleepers=0, end_network=True)
+    return wf.Track.comparison(n_bays=n_bays, ends="network")
 
 
 def _sweep(track, speeds_kmh, detector=None, **kw):

@@ -34,7 +34,7 @@ BANDS = {"outside 900-990 Hz": lambda f: (f < PEAK[0]) | (f > PEAK[1]),
 
 def receptances(n_bays: int, f: np.ndarray) -> dict:
     """Point receptances [m/N] above a sleeper and at midspan on ``n_bays`` bays."""
-    track = dataclasses.replace(wf.Track(), n_bays=n_bays)
+    track = dataclasses.replace(wf.Track(ends="absorbing"), n_bays=n_bays)
     return {"sleeper": T.receptance(track, f, 0.0),
             "midspan": T.receptance(track, f, float(track.sleeper_spacing) / 2)}
 

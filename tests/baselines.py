@@ -3,8 +3,8 @@ the restructuring, which the restructured code must reproduce (``tests/test_base
 
 Each case is a function returning ``{name: array}`` through the public API only (the API the
 restructuring keeps). ``python tests/baselines.py`` writes ``tests/data/issue30_baselines.npz``
-and ``tests/data/single_wheel_reference.npz`` from an empty cache (``WFJAX_CACHE_DIR`` set to a
-fresh directory) with the commit it ran on.
+and ``tests/data/single_wheel_reference.npz``, each case from an empty cache (``WFJAX_CACHE_DIR``
+set to a fresh directory, as each test does), with the commit it ran on.
 
 Tolerance of the comparison: 1e-12 relative on maxima, plus 1e-12 P absolute on minima (which
 sit near zero where contact is lost); histories are compared with the same bound on their
@@ -50,11 +50,18 @@ def default_sweep() -> dict:
     return {"max_force": np.asarray(res.max_force), "min_force": np.asarray(res.min_force)}
 
 
+# the single-wheel cases' track: 24 bays, which hold the run and its sensors, so the runs
+# with and without sensors in the tests share it (the default track, 4 bays with end
+# networks, is lengthened to what each run's sensors need)
+SINGLE_BAYS = 24
+
+
 def single_wheel(contact: str) -> dict:
     """The single-wheel fixture's case (``tests/data/single_wheel_reference.npz``)."""
     wf = _wf()
     res = wf.simulate(wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH), SPEED, contact=contact,
-                      impact_position=0.1, sensors=[0.2, 0.5],
+                      impact_position=0.1, track=wf.Track(n_bays=SINGLE_BAYS),
+                      sensors=[0.2, 0.5],
                       sensor_quantities=("shear", "seat_force"), config=_f64(wf))
     out = {k: np.asarray(getattr(res, k)) for k in ("force", "rail_disp", "wheel_disp",
                                                     "approach")}
@@ -151,11 +158,20 @@ SINGLE_WHEEL_PATH = Path(__file__).parent / "data" / "single_wheel_reference.npz
 SINGLE_WHEEL_CONTACTS = ("hertz-profile", "hertz-trajectory", "2d", "3d")
 
 
+def _empty_cache() -> None:
+    """Point the cache at a new empty directory: every case builds its own 3D tables, as each
+    test does (a table built beside other flats' shares their window sizes and differs from
+    one built alone by up to the float32 solves' tolerance, ~3e-7 of its largest force:
+    ``wfjax.contact.tables.build_tables_3d``)."""
+    os.environ["WFJAX_CACHE_DIR"] = tempfile.mkdtemp(prefix="wfjax-baseline-")
+
+
 def write_single_wheel(commit: str) -> None:
     """Write :data:`SINGLE_WHEEL_PATH`: every contact model's histories of
     :func:`single_wheel`, and the Hertz-trajectory run's sensors."""
     out = {"commit": np.asarray(commit)}
     for contact in SINGLE_WHEEL_CONTACTS:
+        _empty_cache()
         res = single_wheel(contact)
         out |= {f"{contact}/{k}": v for k, v in res.items() if not k.startswith("sensors/")}
         if contact == "hertz-trajectory":
@@ -165,13 +181,13 @@ def write_single_wheel(commit: str) -> None:
 
 
 def main() -> None:
-    """Write :data:`PATH` and :data:`SINGLE_WHEEL_PATH` from an empty cache."""
-    os.environ["WFJAX_CACHE_DIR"] = tempfile.mkdtemp(prefix="wfjax-baseline-")
+    """Write :data:`PATH` and :data:`SINGLE_WHEEL_PATH`, each case from an empty cache."""
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                             cwd=Path(__file__).parent).stdout.strip()
     out = {"commit": np.asarray(commit)}
     for name, fn in CASES.items():
         print(name, file=sys.stderr, flush=True)
+        _empty_cache()
         out |= {f"{name}::{k}": v for k, v in fn().items()}
     np.savez_compressed(PATH, **out)
     print(f"wrote {PATH} ({len(out)} arrays) at {commit}")

@@ -14,6 +14,10 @@ from wfjax.scenario import guards
 from wfjax.scenario import sensors as sensor_mod
 
 
+def absorbing(**kw) -> wf.Track:
+    return wf.Track(**{"ends": "absorbing", **kw})
+
+
 def test_grading_is_geometric_to_the_outermost_sleeper():
     g = end_grading(10, 3)
     np.testing.assert_allclose(g, [8, 4, 2, 1, 1, 1, 1, 2, 4, 8])
@@ -26,7 +30,7 @@ def test_the_rail_is_damped_over_the_absorbing_zone_only():
     the sleepers, eta quadratic from 0 at the zone's inner edge to END_RAIL_DAMPING at the
     ends, and no rail damping without absorbing sleepers."""
     for n in (3, 0):
-        track = wf.Track(n_bays=10, elements_per_bay=4, absorbing_sleepers=n)
+        track = absorbing(n_bays=10, elements_per_bay=4, absorbing_sleepers=n)
         fe = fe_mod.assemble(track)
         ne, nr = 40, fe.n_rail_dof
         _, me, _ = beam_mod.element_matrices(track.bending_stiffness, track.shear_stiffness,
@@ -48,25 +52,25 @@ def test_the_rail_is_damped_over_the_absorbing_zone_only():
 
 def test_too_many_absorbing_sleepers_are_refused_by_name():
     # checked on the assembled (lengthened) track: a short Track is a least length
-    wf.Track(n_bays=4)
+    absorbing(n_bays=4, absorbing_sleepers=12)
     with pytest.raises(ValueError, match="absorbing_sleepers = 12 needs at least 24"):
-        fe_mod.assemble(wf.Track(n_bays=24, absorbing_sleepers=12))
-    fe_mod.assemble(wf.Track(n_bays=25, absorbing_sleepers=12))
+        fe_mod.assemble(absorbing(n_bays=24, absorbing_sleepers=12))
+    fe_mod.assemble(absorbing(n_bays=25, absorbing_sleepers=12))
     with pytest.raises(ValueError, match="absorbing_sleepers must be an integer"):
-        wf.Track(absorbing_sleepers=-1)
+        absorbing(absorbing_sleepers=-1)
 
 
 def test_wheels_and_sensors_keep_off_the_absorbing_sleepers():
-    track = wf.Track(absorbing_sleepers=6)
+    track = absorbing(n_bays=24, absorbing_sleepers=6)
     assert guards.end_margin(track) >= 7 * 0.65
     assert guards.sensor_margin(track) >= guards.end_margin(track)
-    assert guards.end_margin(wf.Track(absorbing_sleepers=0)) == pytest.approx(
+    assert guards.end_margin(absorbing(n_bays=24, absorbing_sleepers=0)) == pytest.approx(
         guards.END_FACTOR * guards.decay_length(track))
 
 
 def _min_force_20kmh(n_bays: int, absorbing: int) -> float:
     cfg = wf.SimConfig(precision="float64")
-    track = wf.Track.comparison(n_bays=n_bays, absorbing_sleepers=absorbing)
+    track = wf.Track.comparison(ends="absorbing", n_bays=n_bays, absorbing_sleepers=absorbing)
     r = wf.simulate(wf.Flat.new(0.9e-3), 20 / 3.6, contact="hertz-trajectory",
                     impact_position=0.065, track=track, config=cfg)
     return float(r.min_force)
@@ -84,10 +88,10 @@ def test_the_short_track_reads_the_long_ones_min_force():
 
 def test_receptance_comes_closer_to_the_infinite_track():
     f = np.linspace(20.0, 2000.0, 200)
-    h_inf = periodic_receptance(wf.Track(), f, 0.3, 1.0)
+    h_inf = periodic_receptance(wf.Track(), f, 0.3, 1.0)  # no ends
     err = {}
     for n in (0, 3):
-        track = wf.Track(absorbing_sleepers=n)
+        track = absorbing(n_bays=24, absorbing_sleepers=n)
         model = track_mod.modal_model(track, max_frequency=15e3)
         h = sensor_mod.transfer_receptance(track, model, f, 0.3, 1.0)
         err[n] = np.median(np.abs(h - h_inf) / np.abs(h_inf))
@@ -104,7 +108,8 @@ def test_the_short_track_reads_the_long_ones_rebound_in_3d():
 
     def min_force(n_bays):
         r = wf.sweep(wf.Flat.new(0.9e-3), np.array([20 / 3.6]), 5, contact="3d",
-                     track=wf.Track.comparison(n_bays=n_bays), config=cfg, progress=False)
+                     track=wf.Track.comparison(ends="absorbing", n_bays=n_bays), config=cfg,
+                     progress=False)
         return np.asarray(r.min_force)[0, 0]
 
     assert np.max(np.abs(min_force(24) - min_force(70))) < 5e-3 * float(wf.Wheel().preload)

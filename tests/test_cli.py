@@ -295,7 +295,7 @@ def test_detector_command_writes_files_and_rejects_bad_sensors(tmp_path, capsys)
     assert {k: summary["settings"][k] for k in ("track_max_frequency_Hz", "max_time_step_s",
                                                   "precision", "n_bays")} \
         == {"track_max_frequency_Hz": reading.track_max_frequency,
-            "max_time_step_s": reading.max_time_step, "precision": "float64", "n_bays": 36}
+            "max_time_step_s": reading.max_time_step, "precision": "float64", "n_bays": 24}
     assert reading.track_max_frequency > wf.SimConfig().resolved().track_max_frequency
     assert len((out / "sensors.csv").read_text().splitlines()) == 3
     assert (out / "detector.png").stat().st_size > 0

@@ -1,4 +1,4 @@
-"""Non-reflecting track ends (``Track.end_network``, :mod:`wfjax.model.ends`): the fitted
+"""Non-reflecting track ends (``Track.ends``, :mod:`wfjax.model.ends`): the fitted
 passive network against the infinite periodic track, the modal model against direct solves,
 the time loop against a long track."""
 
@@ -19,7 +19,7 @@ BESIDE = EDGE + np.array([-20.0, -10.0, -6.0, 6.0, 10.0, 20.0])
 
 
 def network_track(**kw) -> wf.Track:
-    return wf.Track(**{"absorbing_sleepers": 0, "end_network": True, **kw})
+    return wf.Track(**{"ends": "network", **kw})
 
 
 def test_stored_network_is_passive_and_fits_the_default_track():
@@ -42,7 +42,8 @@ def test_direct_receptance_is_the_infinite_tracks():
     net = T.receptance(network_track(n_bays=12), np.r_[F40, BESIDE], 0.3, xr)
     err = np.abs(net / ref - 1).max(axis=1)
     assert err[:40].max() < 0.006 and err[40:].max() < 0.01
-    absorbing = T.receptance(wf.Track(n_bays=12), np.r_[F40, BESIDE], 0.3, xr)
+    absorbing = T.receptance(wf.Track(n_bays=12, ends="absorbing"), np.r_[F40, BESIDE],
+                             0.3, xr)
     assert np.abs(absorbing / ref - 1).max() > 0.05
 
 
@@ -100,7 +101,7 @@ def test_guards_keep_shorter_margins_from_end_networks():
     """Wheels keep 0.5 / beta and sensors 3 / beta from end networks (against 3 and 8.5 from
     clamped ends, and the absorbing zone), a detector's track at least 24 bays (36), so a
     networked track is lengthened less."""
-    net, absorbing = network_track(n_bays=4), wf.Track(n_bays=4)
+    net, absorbing = network_track(n_bays=4), wf.Track(n_bays=4, ends="absorbing")
     beta = 1 / G.decay_length(net)
     assert G.end_margin(net) * beta == pytest.approx(G.NETWORK_END_FACTOR)
     assert G.sensor_margin(net) * beta == pytest.approx(G.NETWORK_SENSOR_END_FACTOR)
@@ -114,18 +115,19 @@ def test_guards_keep_shorter_margins_from_end_networks():
 def test_a_fit_that_stays_above_tolerance_is_refused_in_one_line(monkeypatch, tmp_path):
     """Another track's network is fitted from the stored one along a path of tracks, then
     polished in rounds; one that stays above FIT_TOLERANCE after them is refused in one line
-    naming the way out, and nothing is cached."""
+    naming the way out, and the refusal is cached (a second call fits nothing)."""
     calls = []
     monkeypatch.setattr(ends, "_levenberg_marquardt",
                         lambda x, problem, it, stall=0.0: calls.append(it) or np.asarray(x))
     monkeypatch.setattr(ends, "_error_of", lambda tr: lambda x: 2 * ends.FIT_TOLERANCE)
     track = network_track(pad_stiffness=60e6)
-    with pytest.raises(ValueError, match="use end_network=False") as info:
-        ends.network(track, cache_dir=tmp_path)
-    assert "\n" not in str(info.value) and "4.0%" in str(info.value)
-    assert calls == ([ends.STEP_ITERATIONS] * len(ends._path(track))
-                     + [ends.POLISH_ITERATIONS] * ends.POLISH_ROUNDS)
-    assert not list(tmp_path.glob("end-network-*"))
+    for _ in range(2):
+        with pytest.raises(ValueError, match="use ends='absorbing'") as info:
+            ends.network(track, cache_dir=tmp_path)
+        assert "\n" not in str(info.value) and "4.0%" in str(info.value)
+        assert calls == ([ends.STEP_ITERATIONS] * len(ends._path(track))
+                         + [ends.POLISH_ITERATIONS] * ends.POLISH_ROUNDS)
+    assert len(list(tmp_path.glob("end-network-*"))) == 1
 
 
 def test_the_fits_path_moves_each_number_by_at_most_the_step_ratio():
@@ -178,8 +180,7 @@ def test_the_fits_jacobian_is_the_residuals_derivative():
 
 
 @pytest.mark.parametrize("make, match", [
-    (lambda: wf.Track(end_network=True), "absorbing_sleepers = 0"),
-    (lambda: network_track(end_network="yes"), "end_network must be true or false"),
+    (lambda: wf.Track(ends="yes"), "Track.ends must be one of"),
     (lambda: S.with_supports(network_track(), pad_stiffness=np.linspace(1e8, 1.4e8, 23)),
      "same supports at every sleeper"),
 ])
@@ -220,7 +221,44 @@ def test_sleepers_far_apart_fit_and_give_a_long_tracks_forces(tmp_path, monkeypa
     short, long = (wf.sweep(flat, speeds, 5, contact="hertz-trajectory", track=track,
                             progress=False)
                    for track in (network_track(n_bays=4, sleeper_spacing=0.7),
-                                 wf.Track(n_bays=70, sleeper_spacing=0.7)))
+                                 wf.Track(n_bays=70, sleeper_spacing=0.7, ends="absorbing")))
     assert short.settings["n_bays"] <= 12
     np.testing.assert_allclose(short.max_force, long.max_force, rtol=1e-3)
     np.testing.assert_allclose(short.min_force, long.min_force, atol=50.0)
+
+
+def test_auto_ends_are_networks_where_the_supports_allow():
+    """``Track.ends = "auto"`` (the default): networks on uniform bonded supports (the default
+    track: the stored network, nothing fitted), absorbing ends on per-sleeper supports and on
+    hanging sleepers (a one-sided ballast has no linear continuation)."""
+    auto = ends.resolved(wf.Track())
+    assert (auto.ends, auto.absorbing_sleepers) == ("network", 0)
+    varied = S.with_supports(wf.Track(n_bays=24), pad_stiffness=np.linspace(1e8, 1.4e8, 23))
+    assert ends.resolved(varied).ends == "absorbing"
+    assert ends.resolved(wf.Track(ballast_gap=1e-3)).ends == "absorbing"
+    assert ends.resolved(wf.Track(ends="absorbing")).absorbing_sleepers == 3
+
+
+def test_auto_ends_fall_back_to_absorbing_where_no_network_fits(monkeypatch):
+    """A uniform track whose network is refused runs on absorbing ends with one warning line
+    naming the fit's error; an explicit ``ends="network"`` is refused instead."""
+    def refused(track, cache_dir=None):
+        raise ValueError("Track.ends='network': no passive network within 2% (9.9%)")
+
+    monkeypatch.setattr(ends, "network", refused)
+    ends._auto.cache_clear()
+    track = wf.Track(pad_stiffness=77e6)
+    with pytest.warns(ends.EndsWarning, match="9.9%.*absorbing ends") as record:
+        assert ends.resolved(track).ends == "absorbing"
+    assert len(record) == 1 and "\n" not in str(record[0].message)
+    ends._auto.cache_clear()
+
+
+def test_absorbing_ends_keep_their_least_length():
+    """A scenario lengthens a track with absorbing ends to at least ABSORBING_BAYS (the
+    length their accuracy was measured at), one with networks only to its wheels' paths."""
+    flat, speed = wf.Flat.new(0.9e-3), 60 / 3.6
+    sc = [wf.Scenario.of(flat, "hertz-trajectory", track=wf.Track(ends=e)) for e in
+          ("absorbing", "auto")]
+    bays = [s.lengthened([flat], [speed], [0.1]).track.n_bays for s in sc]
+    assert bays[0] == wf.params.ABSORBING_BAYS and bays[1] < 12

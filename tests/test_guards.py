@@ -28,7 +28,7 @@ def _scales(track=None):
 def _findings(contact="3d", speeds=SPEEDS, **changes):
     """Findings of a single wheel with ``changes`` ({"config": {...}, "track": {...}})."""
     config = wf.SimConfig(**changes.get("config", {}))
-    track = wf.Track(**changes.get("track", {}))
+    track = wf.Track(**{"n_bays": 24, **changes.get("track", {})})  # holds the path
     sc = Scenario.of(wf.Flat.new(0.9e-3), contact, track=track, config=config,
                      sensors=changes.get("sensors"))
     return sc.guard_findings(speeds, changes.get("path", (-2.0, 3.0)))
@@ -101,18 +101,22 @@ def test_mesh_guard_follows_the_mode_cut_off():
                          track={"elements_per_bay": need}) == []
 
 
-def test_track_end_guard_for_one_wheel_and_the_sensor_range():
-    track = wf.Track()
+@pytest.mark.parametrize("ends", ["absorbing", "network"])
+def test_track_end_guard_for_one_wheel_and_the_sensor_range(ends):
+    track = wf.Track(n_bays=24, ends=ends)
     half = 0.5 * track.n_bays * track.sleeper_spacing
     m = G.end_margin(track)
     inside, outside = half - m - 0.05, half - m + 0.05
-    assert _findings(path=(-1.0, inside)) == []
-    out = _findings(path=(-1.0, outside))
+    assert _findings(path=(-1.0, inside), track={"ends": ends}) == []
+    out = _findings(path=(-1.0, outside), track={"ends": ends})
     head = f"track.n_bays = {track.n_bays}: the wheels' path"
     assert len(out) == 1 and out[0].startswith(head), out
+    assert ("end networks" in out[0]) == (ends == "network")
     s = half - G.sensor_margin(track)
     inside, outside = s - 0.05, s + 0.05
-    assert _findings(sensors=[inside]) == []
+    assert _findings(sensors=[inside], track={"ends": ends}) == []
+    if ends == "network":
+        return
     # per-sleeper supports fix the track's length: a sensor too near its ends is refused
     fixed = wf.supports.with_supports(track, pad_stiffness=np.full(track.n_bays - 1,
                                                                    track.pad_stiffness))
@@ -139,14 +143,17 @@ def test_a_track_with_scalar_supports_is_lengthened_to_what_the_case_needs():
     offsets = long.vehicle.offsets()
     edge = max(hi + offsets.max(), -(lo + offsets.min()))
     assert half(long.track) - edge >= G.end_margin(track) > half(long.track) - edge - 0.65
-    assert wf.Scenario.of(flat, "3d").lengthened(
-        [flat], v, pos).track.n_bays == wf.Track().n_bays  # the default holds a wheel
-    short = wf.simulate(flat, 100 / 3.6, contact="hertz-trajectory", track=track)
-    n = Scenario.of(flat, "hertz-trajectory", track=track).lengthened(
+    default = wf.Scenario.of(flat, "3d").lengthened([flat], v, pos)  # end networks
+    lo, hi = default.path(default.window_flat(flat), v, pos)
+    assert half(default.track) - max(hi, -lo) >= G.end_margin(default.track)
+    assert wf.Track().n_bays < default.track.n_bays < wf.params.ABSORBING_BAYS
+    short = wf.simulate(flat, 100 / 3.6, contact="hertz-trajectory", track=wf.Track(),
+                        impact_position=0.2)
+    n = Scenario.of(flat, "hertz-trajectory", track=wf.Track()).lengthened(
         [flat], [100 / 3.6], [0.2]).track.n_bays
-    assert n > 8
+    assert n > wf.Track().n_bays
     same = wf.simulate(flat, 100 / 3.6, contact="hertz-trajectory",
-                       track=wf.Track(n_bays=n))
+                       track=wf.Track(n_bays=n), impact_position=0.2)
     np.testing.assert_array_equal(short.force, same.force)
 
 
@@ -167,7 +174,8 @@ def test_override_warns_and_is_recorded_in_the_provenance():
     from wfjax.commands._common import provenance
 
     config = wf.SimConfig(track_max_frequency=100.0, allow_inaccurate=True)
-    sc = Scenario.of(wf.Flat.new(0.9e-3), "hertz-trajectory", config=config)
+    sc = Scenario.of(wf.Flat.new(0.9e-3), "hertz-trajectory", config=config,
+                     track=wf.Track(n_bays=24))
     with G.recorded() as notes, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         sc.check_settings(sc.window_flat(sc.flats[0]), [30.0], [0.1])

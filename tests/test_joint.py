@@ -110,7 +110,7 @@ def test_add_to_none_makes_a_rail_profile_over_the_model_rail():
     assert not rough.periodic and float(rough.spacing) == 5e-4
     x = rough.x
     lo, hi = rail_span()
-    half = 0.5 * wf.Track().n_bays * wf.Track().sleeper_spacing  # the default track's rail
+    half = 0.5 * wf.params.ABSORBING_BAYS * wf.Track().sleeper_spacing  # rail_span: >= 24 bays
     assert (lo, hi) == pytest.approx((-half, half))
     assert x[0] <= lo + 1e-9 and x[-1] >= hi - 1e-9 and x[0] > lo - 5e-4
     assert np.min(np.abs(x - X0)) < 1e-12  # a sample on the joint centre
@@ -194,7 +194,7 @@ def test_case_file_joint_section_adds_the_dip(tmp_path):
     assert np.allclose(dip, _v(rail.x, 0.2, 0.8e-3, 0.6), rtol=0, atol=1e-15)
     none = C.resolve("simulate", None, {"joint.depth": 1e-3}, environ={})
     rail, _ = none.roughness(0.45)
-    half = 0.5 * wf.Track().n_bays * wf.Track().sleeper_spacing
+    half = 0.5 * wf.params.ABSORBING_BAYS * wf.Track().sleeper_spacing
     assert rail.x[0] == pytest.approx(-half) and float(np.min(rail.values)) == -1e-3
 
 

@@ -25,9 +25,10 @@ F64 = wf.SimConfig(precision="float64")  # identities to rounding: the float64 l
 
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
 V = 100 / 3.6
-SLEEPER = wf.Track().n_bays // 2  # at x = 0.65 m
+TRACK = wf.Track(n_bays=24)  # hanging sleepers: absorbing ends (Track.ends auto)
+SLEEPER = TRACK.n_bays // 2  # at x = 0.65 m
 # a point of the residual table (8 per element) 9/32 of a bay past that sleeper
-GRID = RESIDUAL_POINTS_PER_ELEMENT * wf.Track().elements_per_bay
+GRID = RESIDUAL_POINTS_PER_ELEMENT * TRACK.elements_per_bay
 X_BESIDE = 0.65 + round(9 / 32 * GRID) / GRID * 0.65
 
 
@@ -68,7 +69,7 @@ def _static_start(track, x_wheel):
     pytest.param(5.0, False, marks=pytest.mark.slow)])  # the default run: under 10 min
 def test_static_start_equals_a_direct_non_linear_static_fe_solve(gap_mm, closed):
     # two sleepers hang; the wheel on residual-grid points over and beside them
-    track = supports.hanging_sleeper(wf.Track(), [SLEEPER, SLEEPER + 1], gap_mm * 1e-3)
+    track = supports.hanging_sleeper(TRACK, [SLEEPER, SLEEPER + 1], gap_mm * 1e-3)
     for x_wheel in (0.65, X_BESIDE, 1.3):
         hist = _static_start(track, x_wheel)
         rail, sleeper, force = _direct_static(track, x_wheel, wf.Wheel().preload)
@@ -82,7 +83,7 @@ def test_static_start_equals_a_direct_non_linear_static_fe_solve(gap_mm, closed)
 def test_bogie_static_start_over_a_hanging_sleeper_equals_the_direct_solve():
     from wfjax.model.vehicle import Vehicle
 
-    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 0.4e-3)
+    track = supports.hanging_sleeper(TRACK, SLEEPER, 0.4e-3)
     config, vehicle = wf.SimConfig(), Vehicle.bogie()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3)]
     struct = structure(vehicle, wheels, track, config)
@@ -100,8 +101,8 @@ def test_bogie_static_start_over_a_hanging_sleeper_equals_the_direct_solve():
 
 
 def test_a_gap_that_never_closes_is_the_void_sleeper():
-    void = supports.void_sleeper(wf.Track(), SLEEPER)
-    deep = supports.hanging_sleeper(wf.Track(), SLEEPER, 0.05)
+    void = supports.void_sleeper(TRACK, SLEEPER)
+    deep = supports.hanging_sleeper(TRACK, SLEEPER, 0.05)
     kw = dict(contact="hertz-profile", impact_position=0.1, sensors=[0.3, 0.65],
               sensor_quantities=("rail_disp", "seat_force"), detector=wf.Detector())
     a = wf.simulate(ROUNDED, V, track=void, **kw, config=F64)
@@ -119,7 +120,7 @@ def test_a_gap_that_never_closes_is_the_void_sleeper():
 
 def test_a_closing_gap_carries_load_only_while_closed():
     # 0.3 mm closes under the wheel over the sleeper (its void deflection: ~1.7 mm)
-    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
+    track = supports.hanging_sleeper(TRACK, SLEEPER, 3e-4)
     hang = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.62, track=track)
     force, disp = np.asarray(hang.support_force)[:, 0], np.asarray(hang.sleeper_disp)[:, 0]
     assert force.max() > 0.3 * wf.Wheel().preload
@@ -131,7 +132,7 @@ def test_a_closing_gap_carries_load_only_while_closed():
 @pytest.mark.slow
 @pytest.mark.parametrize("gap_mm", [0.05, 0.3])
 def test_hanging_sleeper_agrees_with_a_direct_fe_time_integration(gap_mm):
-    track = supports.hanging_sleeper(wf.Track(), SLEEPER, gap_mm * 1e-3)
+    track = supports.hanging_sleeper(TRACK, SLEEPER, gap_mm * 1e-3)
     res = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.62, track=track)
     x = np.asarray(res.x)
     out = []
@@ -149,7 +150,7 @@ def test_hanging_sleeper_agrees_with_a_direct_fe_time_integration(gap_mm):
 def test_hanging_sleeper_gradient_matches_finite_differences():
     import jax
 
-    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
+    track = supports.hanging_sleeper(TRACK, SLEEPER, 3e-4)
     config = wf.SimConfig()
     struct = structure(Vehicle.single(), [wf.Wheel()], track, config)
 
@@ -166,11 +167,11 @@ def test_hanging_sleeper_gradient_matches_finite_differences():
 
 
 @pytest.mark.parametrize("make, match", [
-    (lambda: supports.hanging_sleeper(wf.Track(), SLEEPER, -1e-3), rf"ballast_gap\[{SLEEPER}\]"),
-    (lambda: supports.hanging_sleeper(wf.Track(), SLEEPER, 0.2), "at most 0.05"),
-    (lambda: supports.hanging_sleeper(wf.Track(), 99, 1e-3),
-     rf"\[0, {wf.Track().n_bays - 2}\]"),
-    (lambda: supports.hanging_sleeper(wf.Track(), list(range(SLEEPER - 5, SLEEPER + 5)), 1e-3),
+    (lambda: supports.hanging_sleeper(TRACK, SLEEPER, -1e-3), rf"ballast_gap\[{SLEEPER}\]"),
+    (lambda: supports.hanging_sleeper(TRACK, SLEEPER, 0.2), "at most 0.05"),
+    (lambda: supports.hanging_sleeper(TRACK, 99, 1e-3),
+     rf"\[0, {TRACK.n_bays - 2}\]"),
+    (lambda: supports.hanging_sleeper(TRACK, list(range(SLEEPER - 5, SLEEPER + 5)), 1e-3),
      "at most 8"),
     (lambda: supports.hanging_sleepers(wf.Track(ballast_gap=1e-3)), "per sleeper"),
 ])
@@ -221,7 +222,7 @@ def test_sensor_readings_at_rest_over_hanging_sleepers_equal_the_direct_static_s
 def test_the_adjoint_refuses_hanging_sleepers():
     from wfjax.loop import adjoint
 
-    track = supports.hanging_sleeper(wf.Track(), SLEEPER, 3e-4)
+    track = supports.hanging_sleeper(TRACK, SLEEPER, 3e-4)
     config = wf.SimConfig()
     struct = structure(Vehicle.single(), [wf.Wheel()], track, config)
     law = prepare("hertz-profile", ROUNDED, wf.Wheel(), track, wf.Material(), config)
@@ -232,7 +233,7 @@ def test_the_adjoint_refuses_hanging_sleepers():
 def test_a_hanging_sleeper_in_an_absorbing_end_keeps_the_ends_grading():
     """The one-sided ballast's damping is the linear model's for the same sleeper: graded up
     inside an absorbing end (fe.end_grading), as the FE matrices grade it when it rests."""
-    track = wf.Track(n_bays=8, elements_per_bay=2)
+    track = wf.Track(n_bays=8, elements_per_bay=2, ends="absorbing")
     n_sl = track.n_bays - 1
     for index in (0, 1, n_sl // 2, n_sl - 1):
         hang = supports.hanging_sleeper(track, index, 3e-4)

@@ -16,6 +16,7 @@ from wfjax.loop.observers import DetectorReadings
 from wfjax.loop.run import run_scan
 from wfjax.loop.structure import structure
 from wfjax.model import beam as beam_mod
+from wfjax.model import ends
 from wfjax.model import fe as fe_mod
 from wfjax.model import track as T
 from wfjax.model.vehicle import Vehicle
@@ -105,7 +106,7 @@ def test_transfer_receptance_matches_direct_solve(quantity, elements, max_freque
     0.04 %, displacement 0.004 %; 10 kHz 0.16 % / 0.03 %; 8 elements, 10 kHz 0.08 %. With the
     static correction alone the shear was 3.1 % off at 15 kHz (302 Hz) and needed modes to
     30 kHz for 1.1 % on 26 elements (docs/convergence.md, "Truncated modes")."""
-    tr = wfjax.Track(elements_per_bay=elements)
+    tr = wfjax.Track(n_bays=24, elements_per_bay=elements, ends="absorbing")  # no fit
     model = T.modal_model(tr, max_frequency=max_frequency)
     x_force, x_s = 0.3, np.array([1.0, -0.45])
     f = np.geomspace(20.0, 2000.0, 40)
@@ -162,7 +163,8 @@ def test_detector_reads_static_load_at_low_speed():
 
 def test_a_detector_gets_the_readings_settings_and_track():
     """A scenario with a Detector resolves SimConfig's auto settings to the reading's
-    (params.READING_SETTINGS) on at least params.READING_BAYS bays; without one, to the
+    (params.READING_SETTINGS) on at least params.NETWORK_READING_BAYS bays (the default
+    track's end networks); without one, to the
     force's on the track as given; settings the user gave stay."""
     flat = wfjax.Flat.new(0.9e-3)
     read = Scenario.of(flat, "hertz-trajectory", detector=S.Detector())
@@ -170,11 +172,11 @@ def test_a_detector_gets_the_readings_settings_and_track():
         == wfjax.SimConfig().resolved(reading=True)
     assert (read.config.track_max_frequency, read.config.max_time_step,
             read.config.precision) == (15e3, 25e-6, "float64")
-    assert int(read.track.n_bays) == params.READING_BAYS
+    assert int(read.track.n_bays) == params.NETWORK_READING_BAYS
     plain = Scenario.of(flat, "hertz-trajectory")
     assert plain.config == wfjax.SimConfig().resolved()
     assert (plain.config.track_max_frequency, plain.config.max_time_step) == (12e3, 40e-6)
-    assert plain.track == wfjax.Track()
+    assert plain.track == ends.resolved(wfjax.Track())
     given = Scenario.of(flat, "hertz-trajectory", detector=S.Detector(),
                         config=wfjax.SimConfig(track_max_frequency=12e3, precision="float32"))
     assert (given.config.track_max_frequency, given.config.max_time_step,
@@ -187,8 +189,11 @@ def test_sweep_states_the_settings_it_ran_with(tmp_path):
     flat, kw = wfjax.Flat.new(0.9e-3), dict(contact="hertz-trajectory", progress=False)
     read = wfjax.sweep(flat, [30.0], 2, detector=S.Detector(), **kw).settings
     force = wfjax.sweep(flat, [30.0], 2, **kw)
-    for s, cfg, bays in ((read, wfjax.SimConfig().resolved(reading=True), params.READING_BAYS),
-                         (force.settings, wfjax.SimConfig().resolved(), wfjax.Track().n_bays)):
+    sc = Scenario.of(flat, "hertz-trajectory")
+    least = sc.lengthened([flat], [30.0], sc.positions(2)).track.n_bays
+    for s, cfg, bays in ((read, wfjax.SimConfig().resolved(reading=True),
+                          params.NETWORK_READING_BAYS),
+                         (force.settings, wfjax.SimConfig().resolved(), least)):
         assert (s["track_max_frequency_Hz"], s["max_time_step_s"], s["precision"],
                 s["n_bays"]) == (cfg.track_max_frequency, cfg.max_time_step, cfg.precision,
                                  bays)
@@ -223,7 +228,7 @@ def test_detector_peak_gradient_matches_finite_differences():
     """d(detector reading)/d(depth) through the scan vs central finite differences."""
     from wfjax.contact.laws import prepare
 
-    tr, wh, mat = wfjax.Track(), wfjax.Wheel(), wfjax.Material()
+    tr, wh, mat = wfjax.Track(n_bays=24), wfjax.Wheel(), wfjax.Material()
     det = S.Detector(n_bays=1, first_bay=0)
     cfg = wfjax.scenario.windows.detector_config(det, tr, wfjax.SimConfig())
     struct = structure(Vehicle.single(), [wh], tr, cfg)
@@ -293,7 +298,7 @@ def test_sensor_position_errors(model, bad):
     with pytest.raises(ValueError, match="sensor"):
         S.check_positions(bad, wfjax.Track())
     if bad:  # per-sleeper supports fix the track's length (a scalar one is lengthened)
-        track = wfjax.Track(n_bays=70)
+        track = wfjax.Track(n_bays=70, ends="absorbing")
         fixed = wfjax.supports.with_supports(track, pad_stiffness=np.full(
             track.n_bays - 1, track.pad_stiffness))
         with pytest.raises(ValueError, match=r"allowed range \[-16.694, 16.694\] m"):
@@ -306,7 +311,7 @@ def test_detector_errors():
         S.Detector(gauge_offset=0.4).gauges(LS)
     with pytest.raises(ValueError, match="n_bays"):
         S.Detector(n_bays=0)
-    track = wfjax.Track()
+    track = wfjax.Track(n_bays=24, ends="absorbing")
     fixed = wfjax.supports.with_supports(track, pad_stiffness=np.full(track.n_bays - 1,
                                                                       track.pad_stiffness))
     with pytest.raises(ValueError, match="the wheels. path .* use n_bays >= 92"):

@@ -24,7 +24,7 @@ from wfjax.model import track as T
 LS = 0.65
 NB = 20  # bays of the validation tracks; the middle sleeper (x = 0) has index NB // 2 - 1 = 9
 MID = NB // 2 - 1
-TRACK_NB = wfjax.Track(n_bays=NB, elements_per_bay=8)  # the index arithmetic assumes 8
+TRACK_NB = wfjax.Track(n_bays=NB, elements_per_bay=8, ends="absorbing")  # index arithmetic: 8
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +57,7 @@ def test_uniform_track_unchanged():
     """Numbers of the modal model before per-sleeper supports existed (wfjax 0.1.0, ee207f4),
     with the plain clamped ends of then (``absorbing_sleepers=0``) and its static correction
     alone (the dampers' pseudo-modes of 2026-12-05 left out: they add 14 here)."""
-    tr = wfjax.Track(n_bays=8, elements_per_bay=4, absorbing_sleepers=0)
+    tr = wfjax.Track(n_bays=8, elements_per_bay=4, absorbing_sleepers=0, ends="absorbing")
     assert T.modal_model(tr, 10e3, use_cache=False, n_residual=9).poles.shape == (66,)
     with mock.patch.object(T, "_damper_augmentation", lambda v, w2, keep, d: (v[:, :0], w2[:0])):
         m = T.modal_model(tr, 10e3, use_cache=False, n_residual=9)

@@ -16,9 +16,16 @@ LS = 0.65
 P = 118e3
 
 
+def track(**kw) -> wfjax.Track:
+    """The tests' FE track: absorbing ends on at least 24 bays (the default until 2026-12-06;
+    the FE model's properties do not depend on the ends, and another mesh's end network would
+    be fitted on first use; end networks: tests/test_end_network.py)."""
+    return wfjax.Track(**{"n_bays": 24, "ends": "absorbing", **kw})
+
+
 @pytest.fixture(scope="session")
 def model(tmp_path_factory):
-    return T.modal_model(wfjax.Track(), cache_dir=tmp_path_factory.mktemp("cache"))
+    return T.modal_model(track(), cache_dir=tmp_path_factory.mktemp("cache"))
 
 
 # ---------------------------------------------------------------- static deflection
@@ -31,10 +38,10 @@ def boef_deflection(tr: wfjax.Track, force: float) -> float:
 
 @pytest.mark.parametrize("x", [0.0, LS / 2])
 def test_static_deflection_converged_and_near_boef(x):
-    w = {n: T.static_deflection(wfjax.Track(elements_per_bay=n), P, x) for n in (2, 4, 8, 16)}
+    w = {n: T.static_deflection(track(elements_per_bay=n), P, x) for n in (2, 4, 8, 16)}
     for n in (4, 8):
         assert abs(w[2 * n] / w[n] - 1) < 5e-3
-    w_boef = boef_deflection(wfjax.Track(), P)
+    w_boef = boef_deflection(track(), P)
     assert w_boef == pytest.approx(0.83e-3, rel=0.01)
     assert abs(w[8] / w_boef - 1) < 0.15
     assert w[8] > w_boef  # discrete supports: a little softer than the smeared foundation
@@ -46,7 +53,7 @@ def test_point_load_inside_an_element_is_exact(frac):
     (the Timoshenko element is exact there): the in-element correction closes the gap to
     1e-9 (without it the 8-element mesh is 1 % too stiff at mid-element), and the modal
     model's static point compliance (kept modes + residual table) agrees to 0.05 %."""
-    coarse, fine = wfjax.Track(elements_per_bay=8), wfjax.Track(elements_per_bay=128)
+    coarse, fine = track(elements_per_bay=8), track(elements_per_bay=128)
     x = (2 + frac) * LS / 8  # inside element 2 of the coarse mesh, on a node of the fine one
     w_fine = T.static_deflection(fine, 1.0, x)
     assert T.static_deflection(coarse, 1.0, x) == pytest.approx(w_fine, rel=1e-9)
@@ -61,7 +68,7 @@ def test_point_load_inside_an_element_is_exact(frac):
 
 
 def test_midspan_softer_than_above_sleeper():
-    tr = wfjax.Track()
+    tr = track()
     assert T.static_deflection(tr, P, LS / 2) > T.static_deflection(tr, P, 0.0)
 
 
@@ -74,7 +81,7 @@ def _peak(f, h, lo, hi):
 
 @pytest.mark.parametrize("epb", [8, 16])
 def test_receptance_features(epb):
-    tr = wfjax.Track(elements_per_bay=epb)
+    tr = track(elements_per_bay=epb)
     f = np.concatenate([np.arange(50.0, 500.0, 2.0), np.arange(700.0, 1200.0, 5.0)])
     h0 = T.receptance(tr, f, 0.0)
     hm = T.receptance(tr, f, LS / 2)
@@ -97,13 +104,13 @@ def test_receptance_features(epb):
 
 def test_pinned_pinned_frequency_converges():
     f = np.arange(900.0, 980.0, 0.5)
-    peaks = [_peak(f, T.receptance(wfjax.Track(elements_per_bay=n), f, LS / 2), 900, 980)[0]
+    peaks = [_peak(f, T.receptance(track(elements_per_bay=n), f, LS / 2), 900, 980)[0]
              for n in (8, 16)]
     assert abs(peaks[1] - peaks[0]) <= 2.0
 
 
 def test_reciprocity():
-    tr = wfjax.Track()
+    tr = track()
     f = np.array([30.0, 150.0, 940.0, 2500.0])
     a, b = 0.1, 2.3
     np.testing.assert_allclose(T.receptance(tr, f, a, b), T.receptance(tr, f, b, a), rtol=1e-9)
@@ -122,9 +129,9 @@ def test_modal_model_layout(model):
     # the kept modes below the cut-off; above it at most the dampers' pseudo-modes (one per
     # pad and ballast damper: two per interior sleeper)
     above = np.abs(np.asarray(model.poles)) > 2 * np.pi * 20e3 * 1.01
-    assert 0 < np.sum(above) <= 2 * (wfjax.Track().n_bays - 1)
+    assert 0 < np.sum(above) <= 2 * (track().n_bays - 1)
     nx = np.asarray(model.node_x)
-    half = wfjax.Track().n_bays // 2
+    half = track().n_bays // 2
     assert nx[0] == pytest.approx(-half * LS) and nx[-1] == pytest.approx(half * LS)
     assert np.any(np.isclose(nx, 0.0)) and np.allclose(np.asarray(model.shapes)[:, [0, -1]], 0)
     # residual: positive, periodic, small compared with the static compliance (with the
@@ -135,13 +142,13 @@ def test_modal_model_layout(model):
     tiny = 1e-9 * res.max()
     assert np.all(res > -tiny) and abs(res[0]) < tiny and abs(res[-1]) < tiny
     assert np.all(res[1:-1] > 0)
-    assert res.max() < 0.015 * T.static_deflection(wfjax.Track(), 1.0)
+    assert res.max() < 0.015 * T.static_deflection(track(), 1.0)
 
 
 @pytest.mark.parametrize("x", [0.0, 0.1, LS / 2, -2 * LS + 0.2])
 def test_modal_receptance_matches_direct(model, x):
     f = np.geomspace(20.0, 3000.0, 60)
-    hd = T.receptance(wfjax.Track(), f, x)
+    hd = T.receptance(track(), f, x)
     hm = T.modal_receptance(model, f, x)
     assert np.max(np.abs(hm / hd - 1)) < 0.02
 
@@ -167,7 +174,7 @@ def test_greens_function_fourier_transform_is_point_receptance(model):
     Quadrature: Riemann sum with the Euler-Maclaurin end correction dt^2/12 g'(0) (g jumps in
     slope at t = 0). The window must be long: rail modes near 2.6 kHz decay in ~0.25 s.
     """
-    tr = wfjax.Track()
+    tr = track()
     dt = 1e-5
     f = np.geomspace(20.0, 3000.0, 40)
     for x0 in (0.0, LS / 2):
@@ -192,7 +199,7 @@ def test_greens_function_fourier_transform_is_point_receptance(model):
 # contact force is smooth), and its own Newmark reference (tests/fe_reference.py) agrees.
 # 70 bays: over the 0.1 s default window the ends' reflections of a 24-bay track keep the
 # tail at 2.6 % of the peak (70 bays: under 2 %).
-GREENS_TRACK = wfjax.Track(n_bays=70, elements_per_bay=8)
+GREENS_TRACK = track(n_bays=70, elements_per_bay=8)
 
 
 @pytest.fixture(scope="module")
@@ -231,8 +238,8 @@ def test_moving_greens_default_grid_and_decay(greens_model):
 def test_clamped_end_reflections_do_not_matter():
     """Same response on a 70-bay and a 140-bay track over the default 0.1 s window."""
     v = 30 / 3.6
-    g70 = greens_mod.moving_greens_newmark(wfjax.Track(n_bays=70), v, [0.0], 0.1, substeps=2).g[0]
-    g140 = greens_mod.moving_greens_newmark(wfjax.Track(n_bays=140), v, [0.0], 0.1, substeps=2).g[0]
+    g70 = greens_mod.moving_greens_newmark(track(n_bays=70), v, [0.0], 0.1, substeps=2).g[0]
+    g140 = greens_mod.moving_greens_newmark(track(n_bays=140), v, [0.0], 0.1, substeps=2).g[0]
     assert np.max(np.abs(g70 - g140)) < 5e-3 * np.max(np.abs(g70))
 
 
@@ -271,18 +278,18 @@ def test_discrete_state_space_matches_convolution(model):
 @pytest.mark.parametrize("field", ["pad_stiffness", "ballast_damping", "bending_stiffness"])
 def test_bad_track_parameters(field):
     with pytest.raises(ValueError, match=field):
-        wfjax.Track(**{field: -1.0})
+        track(**{field: -1.0})
     with pytest.raises(ValueError, match=field):
-        wfjax.Track(**{field: float("nan")})
+        track(**{field: float("nan")})
 
 
 def test_bad_elements_per_bay():
     with pytest.raises(ValueError, match="elements_per_bay"):
-        wfjax.Track(elements_per_bay=0)
+        track(elements_per_bay=0)
 
 
 def test_bad_arguments(model):
-    tr = wfjax.Track()
+    tr = track()
     with pytest.raises(ValueError, match="speed"):
         greens_mod.moving_greens(tr, 0.0, model=model)
     with pytest.raises(ValueError, match="speed"):
@@ -338,13 +345,13 @@ def test_cache_roundtrip_corruption_and_env(tmp_path, monkeypatch):
 
 
 def test_track_modal_model_cached(tmp_path):
-    tr = wfjax.Track(n_bays=8, elements_per_bay=4)
+    tr = track(n_bays=8, elements_per_bay=4)
     m1 = T.modal_model(tr, cache_dir=tmp_path)
     files = list(tmp_path.iterdir())
     assert len(files) == 1
     m2 = T.modal_model(tr, cache_dir=tmp_path)
     np.testing.assert_array_equal(np.asarray(m1.shapes), np.asarray(m2.shapes))
-    T.modal_model(wfjax.Track(n_bays=8, elements_per_bay=4, pad_stiffness=100e6),
+    T.modal_model(track(n_bays=8, elements_per_bay=4, pad_stiffness=100e6),
                   cache_dir=tmp_path)
     assert len(list(tmp_path.iterdir())) == 2
 
@@ -359,8 +366,8 @@ def test_receptance_track_length_is_converged_outside_the_pinned_pinned_band():
     f = np.geomspace(20.0, 2000.0, 200)
     f = f[(f < 900.0) | (f > 990.0)]
     for x in (0.0, LS / 2):
-        h = T.receptance(wfjax.Track(n_bays=guards.RECEPTANCE_BAYS), f, x)
-        long = T.receptance(wfjax.Track(n_bays=2 * guards.RECEPTANCE_BAYS), f, x)
+        h = T.receptance(track(n_bays=guards.RECEPTANCE_BAYS), f, x)
+        long = T.receptance(track(n_bays=2 * guards.RECEPTANCE_BAYS), f, x)
         assert np.max(np.abs(h - long) / np.abs(long)) < 5e-3
 
 
@@ -376,11 +383,11 @@ def test_receptance_command_uses_the_infinite_periodic_track(tmp_path):
     assert summary["track_model"] == "infinite periodic"
     rows = np.genfromtxt(tmp_path / "receptance.csv", delimiter=",", names=True)
     grid = np.geomspace(20.0, 5000.0, 120)  # the command's frequencies (20 Hz - 5 kHz)
-    mid = T.periodic_receptance(wfjax.Track(), grid, LS / 2)
+    mid = T.periodic_receptance(track(), grid, LS / 2)
     np.testing.assert_allclose(rows["track_midspan_re_m_per_N"], mid.real, rtol=1e-6,
                                atol=1e-8 * np.abs(mid).max())
     f = np.geomspace(700.0, 1200.0, 400)
-    peak = f[np.argmax(np.abs(T.periodic_receptance(wfjax.Track(), f, LS / 2)))]
+    peak = f[np.argmax(np.abs(T.periodic_receptance(track(), f, LS / 2)))]
     near = grid[np.argmin(np.abs(grid - peak))]
     assert summary["pinned_pinned_hz"] == pytest.approx(near, rel=1e-9)
 
@@ -391,7 +398,7 @@ def test_receptance_of_a_hanging_track_falls_back_to_a_long_finite_track():
     from wfjax.commands.receptance import _track_receptances
     from wfjax.scenario import guards
 
-    _, static, model = _track_receptances(wfjax.Track(ballast_gap=1e-3), np.array([100.0]),
+    _, static, model = _track_receptances(track(ballast_gap=1e-3), np.array([100.0]),
                                           118e3)
     assert model == f"finite, {guards.RECEPTANCE_BAYS} bays"
     assert np.all(np.isfinite(static))

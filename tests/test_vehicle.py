@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import baselines
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,6 +26,7 @@ from wfjax.program.laws import vehicle_laws
 from wfjax.scenario.windows import RUN_IN_TIME
 
 F64 = wf.SimConfig(precision="float64")  # identities to rounding: the float64 loop
+TRACK = wf.Track(n_bays=baselines.SINGLE_BAYS)  # holds a bogie's wheels as given
 
 REFERENCE = Path(__file__).parent / "data" / "single_wheel_reference.npz"
 ROUNDED = wf.Flat.rounded(depth=0.9e-3, length=0.1)
@@ -34,11 +36,15 @@ V = 100 / 3.6
 @pytest.mark.parametrize("contact", [
     "hertz-profile", "hertz-trajectory", pytest.param("2d", marks=pytest.mark.slow),
     pytest.param("3d", marks=pytest.mark.slow)])
-def test_one_wheel_vehicle_reproduces_the_single_wheel_loop(contact):
-    # tests/data holds the histories of the one-wheel loop before the several-wheels rewrite
+def test_one_wheel_vehicle_reproduces_the_single_wheel_loop(contact, tmp_path, monkeypatch):
+    # tests/data holds the histories of the one-wheel loop before the several-wheels rewrite,
+    # each contact's from an empty cache: a 3D table built alone (tests/baselines.py)
+    if contact == "3d":
+        monkeypatch.setenv("WFJAX_CACHE_DIR", str(tmp_path))
     ref = np.load(REFERENCE)
-    plain = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1, config=F64)
-    one = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1,
+    plain = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1, config=F64,
+                        track=TRACK)
+    one = wf.simulate(ROUNDED, V, contact=contact, impact_position=0.1, track=TRACK,
                       vehicle=Vehicle.single(), config=F64)
     for res in (plain, one):
         for key in ("force", "rail_disp", "wheel_disp", "approach"):
@@ -50,7 +56,7 @@ def test_one_wheel_vehicle_reproduces_the_single_wheel_loop(contact):
 
 def test_one_wheel_sensors_reproduce_the_single_wheel_loop():
     ref = np.load(REFERENCE)
-    res = wf.simulate(ROUNDED, V, contact="hertz-trajectory", impact_position=0.1,
+    res = wf.simulate(ROUNDED, V, contact="hertz-trajectory", impact_position=0.1, track=TRACK,
                       sensors=[0.2, 0.5], sensor_quantities=("shear", "seat_force"), config=F64)
     for q, hist in res.sensors.items():
         want = ref[f"sensors/{q}"]
@@ -58,7 +64,7 @@ def test_one_wheel_sensors_reproduce_the_single_wheel_loop():
 
 
 def _single_run(flat, x_start, impact, n, dt, config, contact="hertz-trajectory", track=None):
-    wheel, track = wf.Wheel(), track or wf.Track()
+    wheel, track = wf.Wheel(), track or TRACK
     law = prepare(contact, flat, wheel, track, wf.Material(), config)
     struct = structure(Vehicle.single(), [wheel], track, config)
     return run_scan(law, struct, V, dt, x_start, impact, n)
@@ -100,7 +106,7 @@ def _direct_static(track, positions, loads):
 
 def test_static_deflections_under_several_wheels_superpose_the_direct_solves():
     # three wheels of different loads; the reference wheel on a point of the residual table
-    track, config = wf.Track(), wf.SimConfig().resolved()
+    track, config = TRACK, wf.SimConfig().resolved()
     wheels = [wf.Wheel(preload=p) for p in (118e3, 90e3, 140e3)]
     vehicle = Vehicle((0.0, 1.6, 4.1))
     struct = structure(vehicle, wheels, track, config)
@@ -119,9 +125,9 @@ def test_static_deflections_under_several_wheels_superpose_the_direct_solves():
     np.testing.assert_allclose(want, singles, rtol=1e-12)
 
 
-VARYING_TRACKS = {"void right of x = 0": lambda: supports.void_sleeper(wf.Track(),
-                                                                       wf.Track().n_bays // 2 + 1),
-                  "scattered": lambda: supports.scatter(wf.Track(), 3, cv=0.3)}
+VARYING_TRACKS = {"void right of x = 0": lambda: supports.void_sleeper(TRACK,
+                                                                       TRACK.n_bays // 2 + 1),
+                  "scattered": lambda: supports.scatter(TRACK, 3, cv=0.3)}
 
 
 @pytest.mark.parametrize("name", list(VARYING_TRACKS))
@@ -162,7 +168,7 @@ def test_cross_table_along_a_varying_track_equals_the_direct_mode_sum():
 
 
 def test_residual_pairs_are_symmetric_and_leave_the_diagonal_to_the_tracks_table():
-    track, config = wf.Track(), wf.SimConfig().resolved()
+    track, config = TRACK, wf.SimConfig().resolved()
     model = track_mod.modal_model(track, max_frequency=config.track_max_frequency)
     pairs = residual_pairs(track, model, np.array([0.0, -2.5]))
     np.testing.assert_allclose(pairs, np.swapaxes(pairs, 1, 2), rtol=1e-10, atol=1e-22)
@@ -174,7 +180,7 @@ def test_residual_pairs_are_symmetric_and_leave_the_diagonal_to_the_tracks_table
 
 
 def test_transfer_receptance_is_reciprocal_and_matches_the_direct_solve():
-    track = wf.Track()
+    track = TRACK
     freqs = np.array([20.0, 100.0, 300.0, 800.0, 1500.0])
     a, b = 0.1, -2.4
     direct_ab = track_mod.receptance(track, freqs, x=a, x_response=b)
@@ -208,7 +214,7 @@ def test_axle_box_acceleration_is_the_second_derivative_of_the_axle_displacement
 
 
 def test_bogie_gradient_reaches_the_flat_and_matches_finite_differences():
-    wheel, track, config, mat = wf.Wheel(), wf.Track(), wf.SimConfig(), wf.Material()
+    wheel, track, config, mat = wf.Wheel(), TRACK, wf.SimConfig(), wf.Material()
     vehicle = Vehicle.bogie()
     struct = structure(vehicle, [wheel, wheel], track, config)
     smooth = prepare("hertz-profile", wf.Flat.none(), wheel, track, mat, config)
@@ -282,7 +288,7 @@ def test_a_repeated_strike_carries_the_gradient_to_the_flat():
     the first), the peak force's derivative in the flat's depth by ``jax.grad`` equals a
     central finite difference within 1 % (the strike coordinate s - C round(s / C) has
     derivative 1 in s, so the depth reaches the second strike as it does the first)."""
-    wheel, track, config, mat = wf.Wheel(), wf.Track(), wf.SimConfig(), wf.Material()
+    wheel, track, config, mat = wf.Wheel(), TRACK, wf.SimConfig(), wf.Material()
     struct = structure(Vehicle((0.0,), repeat_flats=True), [wheel], track, config)
     c, x_imp, dt = 2 * np.pi * float(wheel.radius), 0.2, 2.5e-5
     n = int(0.6 / (V * dt))
@@ -325,7 +331,7 @@ def test_a_detector_reads_each_strike_in_its_own_bays():
 
 def test_a_vehicle_too_long_for_a_track_with_per_sleeper_supports_is_refused():
     """Per-sleeper supports fix the track's length (a scalar track is lengthened instead)."""
-    track = wf.Track()
+    track = TRACK
     fixed = wf.supports.with_supports(track, pad_stiffness=np.full(track.n_bays - 1,
                                                                    track.pad_stiffness))
     with pytest.raises(ValueError, match=r"use (track\.)?n_bays >= \d+"):
@@ -363,7 +369,7 @@ def test_two_wheels_agree_with_a_direct_fe_time_integration():
 def test_two_wheels_on_a_hanging_sleeper_agree_with_a_direct_fe_time_integration():
     # the impact bay's sleeper hangs (asymmetric track): the vehicle's coupling tables run
     # along the whole rail
-    track = supports.void_sleeper(wf.Track(), wf.Track().n_bays // 2)
+    track = supports.void_sleeper(TRACK, TRACK.n_bays // 2)
     res = wf.simulate(ROUNDED, V, contact="hertz-profile", impact_position=0.1,
                       vehicle=Vehicle.bogie(), track=track)
     x = np.asarray(res.wheel_x)
@@ -382,7 +388,7 @@ def test_sensors_and_detector_see_every_wheel():
     from wfjax.scenario import sensors as sensor_mod
     from wfjax.scenario.sensors import Detector
 
-    track, config, wheel = wf.Track(), wf.SimConfig(), wf.Wheel()
+    track, config, wheel = TRACK, wf.SimConfig(), wf.Wheel()
     vehicle = Vehicle.bogie()
     struct = structure(vehicle, [wheel, wheel], track, config)
     smooth = prepare("hertz-profile", wf.Flat.none(), wheel, track, wf.Material(), config)

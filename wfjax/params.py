@@ -48,6 +48,11 @@ FORCE_SETTINGS = {"track_max_frequency": 12e3, "max_time_step": 40e-6}
 READING_SETTINGS = {"track_max_frequency": 15e3, "max_time_step": 25e-6, "precision": "float64"}
 READING_BAYS = 36
 NETWORK_READING_BAYS = 24  # the same with end networks (scenario.guards, docs/convergence.md)
+# the least bays of a track with absorbing or clamped ends (max force within 0.02 %, min force
+# 0.32 %P of the reference; 20 bays 0.43 %P, 16 bays 0.55 %P: docs/convergence.md); end
+# networks need none beyond the guards' margins (Track.n_bays, the least, is 4)
+ABSORBING_BAYS = 24
+TRACK_ENDS = ("auto", "network", "absorbing")
 
 
 def loop_precision(precision: str, gradients: bool = False, direct: bool = False) -> str:
@@ -140,7 +145,7 @@ class Wheel(Validated):
 SUPPORT_FIELDS = ("pad_stiffness", "pad_damping", "sleeper_mass", "ballast_stiffness",
                   "ballast_damping", "ballast_gap")
 """Track fields that may vary from sleeper to sleeper (scalar or ``[n_bays - 1]`` array)."""
-@pytree(static=("n_bays", "elements_per_bay", "absorbing_sleepers", "end_network"))
+@pytree(static=("n_bays", "elements_per_bay", "absorbing_sleepers", "ends"))
 class Track(Validated):
     """Discretely supported track of Table 2 (Nielsen & Igeland 1995).
 
@@ -161,24 +166,27 @@ class Track(Validated):
         (:func:`wfjax.model.supports.hanging_sleeper`), solved in every time step with the contacts.
         n_bays (static): the least number of sleeper bays of the finite model. A scenario
             lengthens a track whose supports are scalars to what its wheels' paths, sensors
-            and detector need, with the physics guards' margins from the clamped ends
-            (:meth:`wfjax.Scenario.lengthened`), and a detector's to at least
-            :data:`READING_BAYS` (its reading within 0.5 %);
-            per-sleeper supports fix the length.
+            and detector need, with the physics guards' margins from the ends
+            (:meth:`wfjax.Scenario.lengthened`), a detector's to at least
+            :data:`NETWORK_READING_BAYS` (:data:`READING_BAYS` with absorbing ends) and absorbing
+            ends to at least :data:`ABSORBING_BAYS`; per-sleeper supports fix the length.
         elements_per_bay (static): rail beam elements per sleeper bay.
-        absorbing_sleepers (static): the last n sleepers at each end, whose pad and ballast
-            damping grow geometrically to 8 times the track's at the outermost
-            (:func:`wfjax.model.fe.end_grading`): they absorb the waves the clamped ends would
-            reflect back to the wheels (3 by default: the track's other values hold
-            everywhere else, and the wheels and sensors keep their margins from the
-            absorbing zone, :func:`wfjax.scenario.guards.end_margin`); 0: the plain clamped
-            ends of the paper's finite track.
-        end_network (static): continue the rail at both ends by a fitted passive network, the
-            semi-infinite track's boundary stiffness (:mod:`wfjax.model.ends`): the ends
-            reflect nothing, so the receptances come within 0.6 % of the infinite track's
-            beside the pinned-pinned band edge. Needs scalar supports and
-            ``absorbing_sleepers = 0``; a track other than the default is fitted on first
-            use (5-30 s on 2 cores) and cached.
+        absorbing_sleepers (static): with absorbing ends, the last n sleepers at each end,
+            whose pad and ballast damping grow geometrically to 8 times the track's at the
+            outermost (:func:`wfjax.model.fe.end_grading`): they absorb the waves the clamped
+            ends would reflect back to the wheels (3 by default; the wheels and sensors keep
+            their margins from the absorbing zone, :func:`wfjax.scenario.guards.end_margin`);
+            0: the plain clamped ends of the paper's finite track.
+        ends (static): how the finite track ends. ``"network"``: the rail continues at both
+            ends by a fitted passive network, the semi-infinite track's boundary stiffness
+            (:mod:`wfjax.model.ends`): the ends reflect nothing, so a few bays hold the
+            forces and the receptances come within 0.6 % of the infinite track's beside the
+            pinned-pinned band edge; it needs the same supports at every sleeper, and a track
+            other than the default is fitted on first use (5-30 s on 2 cores) and cached.
+            ``"absorbing"``: clamped ends with ``absorbing_sleepers`` graded sleepers.
+            ``"auto"`` (default): a network where the supports are the same at every sleeper
+            and bonded (no ``ballast_gap``) and its fit comes within tolerance, else absorbing
+            ends (:func:`wfjax.model.ends.resolved`).
 
     Supports that vary from sleeper to sleeper: each of the five support fields
     (:data:`SUPPORT_FIELDS`) is a scalar (every sleeper alike, Table 2) or a float array
@@ -216,19 +224,19 @@ class Track(Validated):
     ballast_gap: Any = option(0.0, unit="m", low=0.0, high=MAX_BALLAST_GAP,
                               doc="gap between sleeper and ballast at rest (0: bonded; one per "
                                   "sleeper: supports.void_gap)")
-    n_bays: int = option(24, low=4, high=1000,
+    n_bays: int = option(4, low=4, high=1000,
                          doc="least number of sleeper bays of the finite track model "
                              "(lengthened to what the case's wheels and sensors need; "
-                             f"a detector's to {READING_BAYS}, {NETWORK_READING_BAYS} with end "
-                             "networks)")
+                             f"a detector's to {NETWORK_READING_BAYS}, {READING_BAYS} with "
+                             f"absorbing ends, which need at least {ABSORBING_BAYS})")
     elements_per_bay: int = option(26, low=1, high=64, doc="rail beam elements per sleeper bay",
                                    flag="--elements-per-bay", flag_commands=("receptance",))
     absorbing_sleepers: int = option(3, low=0, high=40,
-                                     doc="sleepers at each end with damping graded up to 8x "
-                                         "(absorbs the ends' reflections; 0: plain clamped)")
-    end_network: bool = option(False, doc="continue the rail at both ends by a fitted passive "
-                                          "network of the semi-infinite track (non-reflecting "
-                                          "ends; needs absorbing_sleepers = 0)")
+                                     doc="with absorbing ends, sleepers at each end with "
+                                         "damping graded up to 8x (0: plain clamped)")
+    ends: str = option("auto", choices=TRACK_ENDS,
+                       doc="track ends: network (fitted, non-reflecting), absorbing (graded "
+                           "damping), auto (network where supports are uniform and bonded)")
 
     def __post_init__(self):
         lows = {f.name: f.metadata["low"] for f in dataclasses.fields(self)}
@@ -238,7 +246,7 @@ class Track(Validated):
                 raise ValueError(
                     f"Track.{name} must be an integer >= {low}, got {value!r}"
                 )
-        check_ends(self, SUPPORT_FIELDS)
+        check_ends(self, SUPPORT_FIELDS, TRACK_ENDS)
         for name, unit in positive_fields(self).items():
             value = getattr(self, name)
             if not is_concrete(value):

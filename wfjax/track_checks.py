@@ -35,19 +35,16 @@ def check_per_sleeper(name: str, value: Any, unit: str, n_sleepers: int) -> None
         )
 
 
-def check_ends(track, support_fields) -> None:
-    """``Track.end_network``: a bool, without absorbing sleepers, on supports that are the same
-    at every sleeper (``support_fields``: the fields that may vary)."""
-    if not isinstance(track.end_network, (bool, np.bool_)):
-        raise ValueError(f"Track.end_network must be true or false, got {track.end_network!r}")
-    if not track.end_network:
+def check_ends(track, support_fields, allowed) -> None:
+    """``Track.ends``: one of ``allowed``; ``"network"`` on supports that are the same at
+    every sleeper (``support_fields``: the fields that may vary)."""
+    if track.ends not in allowed:
+        raise ValueError(f"Track.ends must be one of {allowed}, got {track.ends!r}")
+    if track.ends != "network":
         return
-    if int(track.absorbing_sleepers):
-        raise ValueError(f"Track.end_network replaces the absorbing ends: give "
-                         f"absorbing_sleepers = 0, got {track.absorbing_sleepers!r}")
     varying = [n for n in support_fields if is_concrete(getattr(track, n))
                and np.ndim(getattr(track, n)) and np.ptp(getattr(track, n))]
     if varying:
-        raise ValueError(f"Track.end_network needs the same supports at every sleeper (a "
+        raise ValueError(f"Track.ends='network' needs the same supports at every sleeper (a "
                          f"per-sleeper {varying[0]} has no semi-infinite continuation to "
-                         f"fit): use end_network=False")
+                         f"fit): use ends='absorbing'")

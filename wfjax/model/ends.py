@@ -1,5 +1,5 @@
 """Non-reflecting track ends: a fitted passive network that continues the rail beyond each end
-of the finite track as the semi-infinite track would (``Track.end_network``).
+of the finite track as the semi-infinite track would (``Track.ends``).
 
 The exact end of a finite track is the semi-infinite track's boundary stiffness K_R(omega)
 [2 x 2 on the end node's w, theta] (:mod:`wfjax.model.periodic`, cyclic reduction). A
@@ -26,10 +26,12 @@ passive end network" and "End networks".
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
 import pathlib
+import warnings
 
 import numpy as np
 
@@ -38,8 +40,9 @@ from ..params import Track
 from . import periodic as P
 from .sleepers import is_uniform
 
-__all__ = ["N_AUX", "FIT_TOLERANCE", "network", "network_stiffness", "boundary_stiffness",
-           "band_edge", "fit", "fit_error", "is_stored", "matrices", "stored"]
+__all__ = ["N_AUX", "FIT_TOLERANCE", "EndsWarning", "network", "resolved", "network_stiffness",
+           "boundary_stiffness", "band_edge", "fit", "fit_error", "is_stored", "matrices",
+           "stored"]
 
 N_AUX = 24  # the network's internal DOFs per end
 THETA_SCALE = 0.1  # m: theta entries scaled to be comparable with w's
@@ -62,7 +65,7 @@ POLISH_ROUNDS = 8  # then rounds of POLISH_ITERATIONS steps on the track itself,
 POLISH_ITERATIONS = 5  # by the tolerance's check, before a fit above it is refused
 STORED = pathlib.Path(__file__).with_name("end_network_default.json")
 FIT_KEY = {"n_aux": N_AUX, "tolerance": FIT_TOLERANCE, "hf_weight": HF_WEIGHT,
-           "band_top": BAND_TOP, "scheme": 3}
+           "band_top": BAND_TOP, "scheme": 4}
 """What a fitted network's cache entries (its own and its track's modal model) are keyed by
 beside the track's numbers: a change of the fit's procedure refits."""
 
@@ -302,10 +305,12 @@ def _path(track: Track) -> list[Track]:
             for i in range(1, steps)] + [Track(**goal)]
 
 
-def _fitted(track: Track) -> np.ndarray:
-    """Factors of ``track``'s network, fitted from the stored one along :func:`_path` (each
-    point a few Levenberg-Marquardt steps), the frequencies scaled with the band edge; then
-    polished on ``track`` until within :data:`FIT_TOLERANCE`, or refused."""
+def _fitted(track: Track) -> dict:
+    """``{"factors", "error"}``: ``track``'s network fitted from the stored one along
+    :func:`_path` (each point a few Levenberg-Marquardt steps), the frequencies scaled with the
+    band edge, then polished on ``track`` until within :data:`FIT_TOLERANCE` or for
+    :data:`POLISH_ROUNDS` rounds; its error (:func:`fit_error`; kept on disk either way, so
+    that a refused track is not refitted in every process)."""
     x = np.asarray(stored()["factors"], dtype=float)
     edge, error, path = band_edge(track), _error_of(track), _path(track)
     first = float(stored()["band_edge_Hz"])
@@ -318,15 +323,9 @@ def _fitted(track: Track) -> np.ndarray:
         x = _levenberg_marquardt(x, problem, STEP_ITERATIONS, STALL)
     for _ in range(POLISH_ROUNDS):
         if error(x) <= FIT_TOLERANCE:
-            return x
+            break
         x = _levenberg_marquardt(x, problem, POLISH_ITERATIONS)
-    err = error(x)
-    if err > FIT_TOLERANCE:
-        raise ValueError(
-            f"Track.end_network: no passive network within {FIT_TOLERANCE:.0%} of this "
-            f"track's semi-infinite continuation ({err:.1%} after fitting from the "
-            "default's): use end_network=False (absorbing_sleepers=3)")
-    return x
+    return {"factors": x, "error": np.asarray(error(x))}
 
 
 def is_stored(track: Track) -> bool:
@@ -342,12 +341,48 @@ def network(track: Track, cache_dir=None) -> tuple[np.ndarray, np.ndarray, np.nd
     Raises ValueError for per-sleeper supports (no semi-infinite continuation to fit) and for
     a fit that stays above :data:`FIT_TOLERANCE`."""
     if not is_uniform(track):
-        raise ValueError("Track.end_network needs the same supports at every sleeper (a "
+        raise ValueError("Track.ends='network' needs the same supports at every sleeper (a "
                          "per-sleeper track has no semi-infinite continuation to fit): use "
-                         "end_network=False")
+                         "ends='absorbing'")
     if is_stored(track):
         return matrices(np.asarray(stored()["factors"], dtype=float))
     key = dict(_key(track))
-    arrays = _cache.load_or_build("end-network", {**key, **FIT_KEY},
-                                  lambda: {"factors": _fitted(track)}, cache_dir)
+    arrays = _cache.load_or_build("end-network", {**key, **FIT_KEY}, lambda: _fitted(track),
+                                  cache_dir)
+    error = float(arrays["error"])
+    if error > FIT_TOLERANCE:
+        raise ValueError(
+            f"Track.ends='network': no passive network within {FIT_TOLERANCE:.0%} of this "
+            f"track's semi-infinite continuation ({error:.1%} after fitting from the "
+            "default's): use ends='absorbing'")
     return matrices(np.asarray(arrays["factors"], dtype=float))
+
+
+def resolved(track: Track) -> Track:
+    """``track`` with its ends decided (``Track.ends``): ``"network"`` (``absorbing_sleepers``
+    0) or ``"absorbing"``. ``"auto"`` is a network where the supports are the same at every
+    sleeper and bonded (``ballast_gap`` 0: a hanging sleeper's one-sided ballast has no linear
+    continuation) and the network's fit comes within :data:`FIT_TOLERANCE` (a one-line
+    :class:`EndsWarning` otherwise, once per track and process); else absorbing ends."""
+    if track.ends == "absorbing":
+        return track
+    if track.ends == "network":
+        return dataclasses.replace(track, absorbing_sleepers=0)
+    if not is_uniform(track) or np.any(np.asarray(track.ballast_gap) > 0):
+        return dataclasses.replace(track, ends="absorbing")
+    return dataclasses.replace(track, **_auto(_key(track)))
+
+
+class EndsWarning(UserWarning):
+    """``Track.ends="auto"`` chose absorbing ends for a uniform track: no network fitted."""
+
+
+@functools.lru_cache(maxsize=64)
+def _auto(key: tuple) -> dict:
+    """The fields ``"auto"`` ends resolve to on the uniform, bonded track of ``key``."""
+    try:
+        network(Track(**dict(key)))
+    except ValueError as err:
+        warnings.warn(f"{err}; this run uses absorbing ends", EndsWarning, stacklevel=3)
+        return {"ends": "absorbing"}
+    return {"ends": "network", "absorbing_sleepers": 0}

@@ -23,7 +23,7 @@ class FEModel(NamedTuple):
     """Assembled FE matrices of the track (scipy CSC, free DOFs only).
 
     DOF order: rail nodes 1 .. N-1 as (w, theta) pairs, then the interior sleepers; with end
-    networks (``Track.end_network``) then the end nodes 0 and N (w, theta each) and the two
+    networks (``Track.ends``) then the end nodes 0 and N (w, theta each) and the two
     networks' internal DOFs (left, right; :mod:`wfjax.model.ends`). Clamped end nodes have
     no DOF: ``rail_dofs`` maps every node's (w, theta) to its row.
     """
@@ -90,10 +90,12 @@ def assemble(track: Track) -> FEModel:
     :mod:`wfjax.model.supports`) enter sleeper by sleeper; scalars are the same at every sleeper.
     A hanging sleeper (``ballast_gap > 0``) has no ballast here: its one-sided ballast is a
     non-linear force solved in the time loop (:func:`wfjax.model.supports.one_sided_spec`).
-    The last ``track.absorbing_sleepers`` sleepers at each end have their pad and ballast
-    damping graded up (:func:`end_grading`), and the rail over the same zone ((n + 1) bays at
-    each end) a mass-proportional damping (:func:`end_rail_damping`).
+    The ends are :func:`wfjax.model.ends.resolved`'s: networks on free end nodes, or clamped
+    ends whose last ``track.absorbing_sleepers`` sleepers have their pad and ballast damping
+    graded up (:func:`end_grading`), and the rail over the same zone ((n + 1) bays at each
+    end) a mass-proportional damping (:func:`end_rail_damping`).
     """
+    track = ends_mod.resolved(track)
     p = track_numbers(track)
     nb, ne = int(track.n_bays), int(track.elements_per_bay)
     n_el = nb * ne
@@ -101,7 +103,7 @@ def assemble(track: Track) -> FEModel:
     ke, me, phi = element_matrices(p["bending_stiffness"], p["shear_stiffness"],
                                    p["rail_mass"], p["rail_rotary_inertia"], le)
     n_rail, n_sl = 2 * (n_el - 1), nb - 1
-    n_ends = 4 + 2 * ends_mod.N_AUX if track.end_network else 0
+    n_ends = 4 + 2 * ends_mod.N_AUX if track.ends == "network" else 0
     rail_dofs = np.full(2 * (n_el + 1), -1)
     rail_dofs[2:-2] = np.arange(n_rail)
     if n_ends:  # the end nodes are free, their DOFs after the sleepers

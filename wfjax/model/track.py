@@ -487,6 +487,7 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
         :class:`ModalModel` with jax arrays.
     """
     max_frequency = check_positive_scalar("max_frequency", max_frequency, "Hz")
+    track = ends_mod.resolved(track)
     if n_residual is None:
         n_residual = RESIDUAL_POINTS_PER_ELEMENT * int(track.elements_per_bay) + 1
     if not isinstance(n_residual, (int, np.integer)) or n_residual < 2:
@@ -500,7 +501,7 @@ def modal_model(track: Track, max_frequency: float = 20e3, cache_dir=None,
         key = {**p, "n_bays": int(track.n_bays), "elements_per_bay": int(track.elements_per_bay),
                "absorbing_sleepers": int(track.absorbing_sleepers),
                "max_frequency": max_frequency, "n_residual": int(n_residual), "scheme": 5}
-        if track.end_network:
+        if track.ends == "network":
             key["end_network"] = (ends_mod.stored()["fit"] if ends_mod.is_stored(track)
                                   else ends_mod.FIT_KEY)
         if not is_uniform(track):

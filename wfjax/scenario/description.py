@@ -20,6 +20,7 @@ import jax
 import numpy as np
 
 from ..contact import registry
+from ..model import ends
 from ..model.supports import hanging_sleepers
 from ..model.vehicle import Vehicle, check_on_track, placement
 from ..params import Flat, Material, SimConfig, Track, Wheel
@@ -129,9 +130,10 @@ class Scenario:
                 raise ValueError(f"flat.wheel_radius ({float(np.asarray(f.wheel_radius))} m) "
                                  f"must equal the radius{where} ({float(ref.radius)} m)")
         if tracks is not None:
-            tracks = _check_tracks(tracks, per_wheel, sensors, detector)
+            tracks = tuple(ends.resolved(t) for t in _check_tracks(tracks, per_wheel, sensors,
+                                                                    detector))
             track = tracks[0]
-        track = guards.holding_instruments(track, sensors, detector)
+        track = guards.holding_instruments(ends.resolved(track), sensors, detector)
         if sensors is not None:
             check_positions(sensors, track)
         rough = rail_roughness(roughness)

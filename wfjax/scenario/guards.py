@@ -32,6 +32,7 @@ import numpy as np
 
 from .. import params as P
 from ..contact.geometry3d import elliptic_hertz
+from ..model import ends
 from ..params import READING_BAYS, SUPPORT_FIELDS, Material, SimConfig, Track, Wheel
 
 ACCURACY = 0.03  # the largest max-force error against the reference that runs without a word
@@ -42,7 +43,7 @@ MESH_FACTOR = 3.0  # rail elements per bending wavelength at the highest kept mo
 ELEMENT_FACTOR = 0.15  # contact element / 2a
 END_FACTOR = 3.0  # a wheel path's distance to the clamped ends x beta
 SENSOR_END_FACTOR = 8.5  # a sensor's distance to the clamped ends x beta
-# the same to end networks (Track.end_network), which reflect nothing: wheel paths 0.5 / beta
+# the same to end networks (Track.ends), which reflect nothing: wheel paths 0.5 / beta
 # (forces as at 3 / beta, within 0.022 % of 70 bays from 0.25 / beta), sensors 3 / beta
 # (receptances within 0.58 % of the reference, 1.50 % at 1 / beta), a detector on at least
 # params.NETWORK_READING_BAYS = 24 (its reading within 0.24 % of 70 bays' at 40-200 km/h,
@@ -98,10 +99,16 @@ def bays_reaching(track: Track, half: float) -> int:
     return 2 * math.ceil(half / float(track.sleeper_spacing) - 1e-9)
 
 
+def has_network(track: Track) -> bool:
+    """Whether ``track`` ends in networks (``Track.ends``, :func:`wfjax.model.ends.resolved`)."""
+    return ends.resolved(track).ends == "network"
+
+
 def at_least(track: Track, half: float) -> Track:
     """``track`` with the least even ``n_bays`` (never fewer than its own) whose rail reaches
-    ``half`` [m] either side of the middle sleeper."""
-    n = bays_reaching(track, half)
+    ``half`` [m] either side of the middle sleeper, and at least
+    :data:`wfjax.params.ABSORBING_BAYS` with absorbing (or clamped) ends."""
+    n = max(bays_reaching(track, half), 0 if has_network(track) else P.ABSORBING_BAYS)
     most = next(f.metadata["high"] for f in dataclasses.fields(Track) if f.name == "n_bays")
     if n > most:
         length = n * float(track.sleeper_spacing)
@@ -118,7 +125,7 @@ def holding_instruments(track: Track, sensors, detector=None) -> Track:
     detector (:data:`wfjax.params.NETWORK_READING_BAYS` with end networks); non-finite
     positions are left to the sensors' own check."""
     x = [] if sensors is None else list(np.ravel(np.asarray(sensors, dtype=float)))
-    least = P.NETWORK_READING_BAYS if track.end_network else READING_BAYS
+    least = P.NETWORK_READING_BAYS if has_network(track) else READING_BAYS
     if detector is not None and extendable(track) and int(track.n_bays) < least:
         track = dataclasses.replace(track, n_bays=least)
     if detector is not None:
@@ -155,8 +162,8 @@ def scales(wheel: Wheel, track: Track, material: Material) -> Scales:
 
 def absorbing_length(track: Track) -> float:
     """[m] of rail at each end over the absorbing sleepers (``Track.absorbing_sleepers``)
-    and the clamped end's bay: a track whose damping is not the user's."""
-    n = int(track.absorbing_sleepers)
+    and the clamped end's bay: a track whose damping is not the user's (0 with networks)."""
+    n = int(ends.resolved(track).absorbing_sleepers)
     return (n + 1) * float(track.sleeper_spacing) if n else 0.0
 
 
@@ -164,7 +171,7 @@ def end_margin(track: Track) -> float:
     """The distance [m] every wheel's path keeps from the ends: END_FACTOR decay lengths from
     clamped ends (NETWORK_END_FACTOR from end networks), and off the absorbing sleepers
     (:func:`absorbing_length`)."""
-    factor = NETWORK_END_FACTOR if track.end_network else END_FACTOR
+    factor = NETWORK_END_FACTOR if has_network(track) else END_FACTOR
     return max(factor * decay_length(track), absorbing_length(track))
 
 
@@ -173,7 +180,7 @@ def sensor_margin(track: Track) -> float:
     force or a shear feels the ends' reflections more than the contact force;
     NETWORK_SENSOR_END_FACTOR decay lengths from end networks), and off the absorbing
     sleepers."""
-    factor = NETWORK_SENSOR_END_FACTOR if track.end_network else SENSOR_END_FACTOR
+    factor = NETWORK_SENSOR_END_FACTOR if has_network(track) else SENSOR_END_FACTOR
     return max(factor * decay_length(track), absorbing_length(track))
 
 
@@ -238,17 +245,18 @@ def element_findings(contact: str, config: SimConfig, sc: Scales) -> list[str]:
 
 def end_findings(track: Track, lo: float, hi: float) -> list[str]:
     """A line when the wheels' path [``lo``, ``hi``] [m] comes within :func:`end_margin` of
-    the clamped rail ends."""
+    the rail's ends."""
     half = 0.5 * int(track.n_bays) * float(track.sleeper_spacing)
     margin = end_margin(track)
     if lo >= -half + margin and hi <= half - margin:
         return []
     need = bays_reaching(track, max(hi, -lo) + margin)
+    ends_text = (f"{NETWORK_END_FACTOR:g} / beta) of the end networks" if has_network(track)
+                 else f"the larger of {END_FACTOR:g} / beta and the absorbing sleepers) of the "
+                      "clamped rail ends")
     return [f"track.n_bays = {int(track.n_bays)}: the wheels' path [{lo:.2f}, {hi:.2f}] m "
-            "comes within "
-            f"{margin:.2f} m (the larger of {END_FACTOR:g} / beta and the absorbing sleepers) "
-            f"of the clamped rail ends at +-{half:.2f} m, where reflections reach the contact: "
-            f"use n_bays >= {need}"]
+            f"comes within {margin:.2f} m ({ends_text} at +-{half:.2f} m, where their "
+            f"reflections reach the contact: use n_bays >= {need}"]
 
 
 _SHOWN: dict = {}  # the warnings registry of the guards' findings

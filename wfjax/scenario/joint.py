@@ -35,7 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..params import MAX_FLAT_DEPTH, MAX_SPEED, Track, Wheel
+from ..params import ABSORBING_BAYS, MAX_FLAT_DEPTH, MAX_SPEED, Track, Wheel
 
 __all__ = ["Joint", "SHAPES", "MAX_DEPTH", "MIN_LENGTH", "MAX_LENGTH", "MAX_SLOPE",
            "MAX_POSITION", "SPACING", "MARGIN", "EquivalentTrack", "equivalent_track",
@@ -269,10 +269,13 @@ def _check_span(span) -> tuple[float, float]:
 
 
 def rail_span(track: Track | None = None) -> tuple[float, float]:
-    """The model rail's span [m]: ``(-n_bays L_S / 2, n_bays L_S / 2)`` (x = 0 above the
-    middle sleeper); the default track's is (-22.75, 22.75) m."""
+    """The model rail's span [m]: ``(-n L_S / 2, n L_S / 2)`` (x = 0 above the middle
+    sleeper), n = ``n_bays`` and at least :data:`wfjax.params.ABSORBING_BAYS` (the least a
+    run's track is lengthened to with absorbing ends; with end networks the guards lengthen
+    it to the wheels' paths, which :func:`wfjax.scenario.windows.check_rail_span` checks
+    a profile covers); the default track's is (-7.8, 7.8) m."""
     track = track or Track()
-    half = 0.5 * int(track.n_bays) * float(track.sleeper_spacing)
+    half = 0.5 * max(int(track.n_bays), ABSORBING_BAYS) * float(track.sleeper_spacing)
     return -half, half
 
 

@@ -86,6 +86,11 @@ def check_positions(positions, track: Track, name: str = "sensor position") -> n
     if x.ndim != 1 or x.size == 0:
         raise ValueError(f"{name}s must be a non-empty 1-D list of positions in m, got "
                          f"{positions!r}")
+    if half < 0:
+        need = 2 * math.ceil(sensor_margin(track) / float(track.sleeper_spacing))
+        raise ValueError(f"the {track.n_bays}-bay track leaves no room for a {name}: each "
+                         f"keeps {sensor_margin(track):.2f} m clear of the ends, where their "
+                         f"reflections have decayed; give Track(n_bays=...) >= {need}")
     for xi in x:
         if not math.isfinite(xi) or abs(xi) > half:
             raise ValueError(f"{name} {float(xi):g} m is outside the allowed range [-{half:g}, "
