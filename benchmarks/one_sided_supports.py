@@ -32,7 +32,7 @@ def run(track, impact, config=None):
 
 def main():
     for gap in (0.05e-3, 0.3e-3):
-        track = supports.hanging_sleeper(wf.Track(), 35, gap)
+        track = supports.hanging_sleeper(wf.Track(n_bays=70), 35, gap)
         res = run(track, 0.62)
         x, out = np.asarray(res.x), []
         f = newmark_wheels(FLAT, V, x[0], x[0] - float(res.s[0]), [0.0], float(res.time_step),
@@ -44,14 +44,14 @@ def main():
               f"{fn.max() / 1e3:.2f} kN, min {fm.min() / 1e3:.2f} / {fn.min() / 1e3:.2f} kN, "
               f"ballast peak {sm.max() / 1e3:.2f} / {sn.max() / 1e3:.2f} kN, open steps "
               f"{np.sum(sm == 0)} / {np.sum(sn == 0)}")
-    for name, track in (("supported", wf.Track()),
-                        ("linear void", supports.void_sleeper(wf.Track(), 35)),
-                        ("0.3 mm gap", supports.hanging_sleeper(wf.Track(), 35, 3e-4))):
+    for name, track in (("supported", wf.Track(n_bays=70, ends="absorbing")),
+                        ("linear void", supports.void_sleeper(wf.Track(n_bays=70), 35)),
+                        ("0.3 mm gap", supports.hanging_sleeper(wf.Track(n_bays=70), 35, 3e-4))):
         print(f"{name}: peak {float(run(track, 0.62).max_force) / 1e3:.1f} kN")
-    tiny = supports.hanging_sleeper(wf.Track(), 35, 1e-9)
+    tiny = supports.hanging_sleeper(wf.Track(n_bays=70), 35, 1e-9)
     for dt in (2.5e-5, 1.25e-5, 6.25e-6):
         config = dataclasses.replace(wf.SimConfig(), time_step=dt)
-        base, hang = run(wf.Track(), 0.1, config), run(tiny, 0.1, config)
+        base, hang = run(wf.Track(n_bays=70, ends="absorbing"), 0.1, config), run(tiny, 0.1, config)
         diff = np.max(np.abs(np.asarray(hang.force) - np.asarray(base.force)))
         lift = int(np.sum(np.asarray(hang.support_force) == 0))
         print(f"1 nm gap, dt {dt * 1e6:g} us: peak {float(hang.max_force) / 1e3:.2f} against "

@@ -88,7 +88,7 @@ def rough_void() -> dict:
     from wfjax.model import supports
     from wfjax.scenario import roughness
 
-    track = wf.Track()
+    track = wf.Track(n_bays=24)  # the per-sleeper supports' length (and absorbing ends)
     rough = roughness.generate(roughness.ISO3095_LIMIT, 0, 6.0, x_start=-3.0)
     flat = wf.Flat.rounded(ROUNDED_DEPTH, ROUNDED_LENGTH)
     void = wf.simulate(flat, SPEED, contact="hertz-trajectory", impact_position=0.65,

@@ -69,7 +69,7 @@ def test_fit_flat_takes_a_vehicle_a_rough_rail_and_varying_supports():
     fitted back from a start 30 % off by the same model (reverse mode through the adjoint)."""
     truth = wf.Flat.new(0.8e-3)
     speeds = np.array([50.0, 80.0, 110.0]) / 3.6
-    track = supports.scatter(wf.Track(), key=1, cv=0.3)  # varying pad and ballast stiffness
+    track = supports.scatter(wf.Track(n_bays=24), key=1, cv=0.3)  # varying pad, ballast stiffness
     kw = dict(contact="hertz-trajectory", config=COARSE, vehicle=Vehicle.bogie(),
               roughness=_rough_rail(), track=track)
     start = wf.Flat.new(0.56e-3)

@@ -60,7 +60,8 @@ SCATTER_FIELDS = ("pad_stiffness", "ballast_stiffness")
 def with_supports(track: Track, **fields) -> Track:
     """A copy of ``track`` with the given support fields replaced (scalar or ``[n_bays - 1]``).
 
-    Example: ``with_supports(Track(), ballast_stiffness=kb)`` with ``kb`` [N/m] per sleeper.
+    Example: ``with_supports(Track(n_bays=24), ballast_stiffness=kb)`` with ``kb`` [N/m] for
+    each of the 23 sleepers.
     Validated as :class:`wfjax.Track` validates (one-line ``ValueError`` naming the field,
     the sleeper index, the value and the allowed range).
     """
