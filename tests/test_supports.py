@@ -90,7 +90,7 @@ def test_uniform_track_unchanged():
 
 def test_constant_arrays_are_the_uniform_track(tmp_path):
     """Per-sleeper arrays that are all equal give the scalar track's model and cache entry."""
-    tr = wfjax.Track(n_bays=8, elements_per_bay=4)
+    tr = wfjax.Track(n_bays=8, elements_per_bay=4, ends="absorbing")
     same = S.with_supports(tr, pad_stiffness=np.full(7, 120e6), sleeper_mass=np.full(7, 125.0))
     assert sleepers.is_uniform(same) and sleepers.is_mirror_symmetric(same)
     a, b = (T._modal_arrays(t, 10e3, 9) for t in (tr, same))
@@ -205,7 +205,7 @@ def test_scatter_is_lognormal_with_the_given_cv_and_reproducible():
 
 
 def test_modal_model_cached_per_support_realisation(tmp_path):
-    tr = wfjax.Track(n_bays=8, elements_per_bay=4)
+    tr = wfjax.Track(n_bays=8, elements_per_bay=4, ends="absorbing")
     a, b = S.scatter(tr, 0, cv=0.2), S.scatter(tr, 1, cv=0.2)
     ma = T.modal_model(a, cache_dir=tmp_path)
     T.modal_model(b, cache_dir=tmp_path)
