@@ -8,8 +8,8 @@ import scipy.sparse.linalg
 import wfjax as wf
 from wfjax.contact.laws import prepare
 from wfjax.model import beam as beam_mod
+from wfjax.model import ends, geometry, sleepers, supports
 from wfjax.model import fe as fe_mod
-from wfjax.model import geometry, sleepers, supports
 from wfjax.model import track as track_mod
 from wfjax.model import wheel as wheel_mod
 
@@ -22,7 +22,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
 
     ``rail_roughness``: None or a function r(x) [m] of the rail coordinate (vectorised; positive
     = rail raised), added to every wheel's compression at its contact point. ``track``: the
-    :class:`wfjax.Track` (default ``Track()``; per-sleeper supports allowed). Hanging
+    :class:`wfjax.Track` (default ``Track(n_bays=24)``; per-sleeper supports allowed). Hanging
     sleepers (``ballast_gap > 0``) are one-sided Kelvin-Voigt supports on their DOFs,
     F = k_B e + c_B e' while e = u - gap > 0 and that is >= 0 (e' the Newmark velocity),
     solved with the wheels by Newton every step; ``supports_out``: a list that receives
@@ -30,7 +30,7 @@ def newmark_wheels(flat, speed, x_lead, impact, offsets, dt, n_steps, rail_rough
     the shape functions miss (static, :func:`wfjax.model.fe.element_interior_compliance`),
     so the reference is exact Timoshenko statics under the moving loads.
     """
-    track, wheel = track or wf.Track(), wf.Wheel()
+    track, wheel = ends.resolved(track or wf.Track(n_bays=24)), wf.Wheel()
     fe = fe_mod.assemble(track)
     k, m, c = fe.stiffness.tocsc(), fe.mass.tocsc(), fe.damping.tocsc()
     c_h = float(prepare("hertz-profile", flat, wheel, track, wf.Material(),

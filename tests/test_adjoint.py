@@ -35,7 +35,7 @@ IMPACT = 0.1
 X0 = IMPACT - 0.2  # the flat's centre reaches the contact after 0.2 m (of 0.33 m)
 TH0 = jnp.array([0.9e-3, 0.1])  # depth, length [m]
 CONFIG = wf.SimConfig(contact_element=2e-3)
-WHEEL, TRACK, MAT = wf.Wheel(), wf.Track(), wf.Material()
+WHEEL, TRACK, MAT = wf.Wheel(), wf.Track(n_bays=24), wf.Material()
 REL = 1e-8
 
 

@@ -71,11 +71,13 @@ def test_loss_of_contact_is_exact():
 def test_sweep_equals_looped_simulate():
     speeds = np.array([40.0, 120.0]) / 3.6
     positions = np.array([0.1, 0.4])
+    track = wf.Track(n_bays=24)  # every run's, as given (the default's is lengthened per run)
     sw = wf.sweep(ROUNDED, speeds, positions, contact="2d", progress=False, chunk_size=3,
-                  config=F64)
+                  config=F64, track=track)
     for j, v in enumerate(speeds):
         for k, p in enumerate(positions):  # each run in simulate's own window and time step
-            r = wf.simulate(ROUNDED, float(v), contact="2d", impact_position=float(p), config=F64)
+            r = wf.simulate(ROUNDED, float(v), contact="2d", impact_position=float(p), config=F64,
+                            track=track)
             assert sw.max_force[0, j, k] == pytest.approx(float(r.max_force), rel=1e-9)
             assert sw.min_force[0, j, k] == pytest.approx(float(r.min_force), rel=1e-9,
                                                            abs=1e-6)

@@ -21,7 +21,7 @@ from wfjax.scenario.windows import n_steps_for, run_windows, simulation_window
 
 COARSE = wf.SimConfig(max_travel_step=2e-3, max_time_step=5e-5,
                        precision="float64")  # batch = single runs to rounding: float64
-MODEL = (wf.Wheel(), wf.Track.comparison(), wf.Material(), COARSE)
+MODEL = (wf.Wheel(), wf.Track.comparison(n_bays=24), wf.Material(), COARSE)
 FLATS = [wf.Flat.rounded(0.6e-3, 0.08), wf.Flat.rounded(0.9e-3, 0.1),
          wf.Flat.rounded(1.2e-3, 0.12)]
 
