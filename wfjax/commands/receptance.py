@@ -25,22 +25,15 @@ def _long(track):
     return guards.at_least(track, 0.5 * guards.RECEPTANCE_BAYS * float(track.sleeper_spacing))
 
 
-def _periodic(track) -> bool:
-    """Whether ``track`` is periodic (the same support at every sleeper, none hanging), so
-    its receptance is the infinite track's (:func:`wfjax.track.periodic_receptance`)."""
-    from wfjax.model.sleepers import is_uniform
-
-    return is_uniform(track) and not np.any(np.asarray(track.ballast_gap, dtype=float) > 0)
-
-
 def _track_receptances(track, f, preload: float):
     """(receptances [m/N] above a sleeper and at midspan at ``f`` [Hz], static deflections
     [m] there under ``preload`` [N], the track model's label): the infinite periodic track
     where ``track`` is periodic, else the finite track lengthened to RECEPTANCE_BAYS."""
     from wfjax import track as T
+    from wfjax.model.sleepers import is_periodic
 
     ls = float(track.sleeper_spacing)
-    if _periodic(track):
+    if is_periodic(track):
         h = T.periodic_receptance(track, np.concatenate([[0.0], f]), 0.0)
         m = T.periodic_receptance(track, np.concatenate([[0.0], f]), ls / 2)
         return (h[1:], m[1:]), (h[0].real * preload, m[0].real * preload), "infinite periodic"

@@ -38,7 +38,7 @@ import numpy as np
 from .. import _cache
 from ..params import Track
 from . import periodic as P
-from .sleepers import is_uniform
+from .sleepers import is_periodic, is_uniform
 
 __all__ = ["N_AUX", "FIT_TOLERANCE", "EndsWarning", "network", "resolved", "network_stiffness",
            "boundary_stiffness", "band_edge", "fit", "fit_error", "is_stored", "matrices",
@@ -367,8 +367,9 @@ def resolved(track: Track) -> Track:
     if track.ends == "absorbing":
         return track
     if track.ends == "network":
-        return dataclasses.replace(track, absorbing_sleepers=0)
-    if not is_uniform(track) or np.any(np.asarray(track.ballast_gap) > 0):
+        return dataclasses.replace(track, absorbing_sleepers=0) if track.absorbing_sleepers \
+            else track
+    if not is_periodic(track):
         return dataclasses.replace(track, ends="absorbing")
     return dataclasses.replace(track, **_auto(_key(track)))
 

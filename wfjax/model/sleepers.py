@@ -87,6 +87,14 @@ def is_uniform(track: Track) -> bool:
     return all(np.all(a == a[0]) for a in support_arrays(track).values())
 
 
+def is_periodic(track: Track) -> bool:
+    """True when the track repeats bay by bay as a linear model: every sleeper the same
+    supports (:func:`is_uniform`) and none hanging (``ballast_gap`` 0), so that it has an
+    infinite periodic and a semi-infinite continuation (:mod:`wfjax.model.periodic`,
+    :mod:`wfjax.model.ends`)."""
+    return is_uniform(track) and not np.any(np.asarray(track.ballast_gap, dtype=float) > 0)
+
+
 def is_mirror_symmetric(track: Track) -> bool:
     """True when the supports are mirror symmetric about the middle sleeper (``x = 0``).
 
