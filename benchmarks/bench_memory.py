@@ -18,7 +18,10 @@ import subprocess
 import sys
 import tempfile
 
-PRELUDE = """
+from _tracks import RECORDED  # benchmarks/, the script's folder
+
+PRELUDE = f"""
+RECORDED = {RECORDED!r}
 import resource, time
 import jax, jax.numpy as jnp, numpy as np
 import wfjax as wf
@@ -32,12 +35,13 @@ jax.effects_barrier()
 print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 """
 
-STRUCTURE = "structure(Vehicle.single(), [wf.Wheel()], wf.Track(), wf.SimConfig())"
+STRUCTURE = ("structure(Vehicle.single(), [wf.Wheel()], wf.Track(**RECORDED), "
+             "wf.SimConfig())")
 
 
 def _table(flat: str) -> str:
     return (f"jax.block_until_ready(wf.contact.laws.prepare('3d', {flat}, wf.Wheel(), "
-            "wf.Track(), wf.Material(), wf.SimConfig()))")
+            "wf.Track(**RECORDED), wf.Material(), wf.SimConfig()))")
 
 
 def _misfit(checkpoint: bool, evaluate: str) -> str:

@@ -43,6 +43,8 @@ import sys
 import time
 from pathlib import Path
 
+from _tracks import RECORDED  # benchmarks/, the script's folder
+
 HERE = Path(__file__).resolve()
 PRECISIONS = ("float64", "float32")
 
@@ -79,8 +81,8 @@ def _loop_job(precision: str, args):
 
     config = wf.SimConfig(precision=precision)
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
-    struct = structure(Vehicle.single(), [wf.Wheel()], wf.Track(), config)
-    law = prepare(args.contact, flat, wf.Wheel(), wf.Track(), wf.Material(), config)
+    struct = structure(Vehicle.single(), [wf.Wheel()], wf.Track(**RECORDED), config)
+    law = prepare(args.contact, flat, wf.Wheel(), wf.Track(**RECORDED), wf.Material(), config)
     speeds = jnp.linspace(20.0, 80.0, args.batch)
 
     def batch(law, struct, v):

@@ -26,6 +26,7 @@ import statistics
 import time
 
 import jax
+from _tracks import RECORDED  # benchmarks/, the script's folder
 
 import wfjax as wf
 from wfjax._compile_clock import compile_seconds
@@ -72,7 +73,7 @@ def main() -> None:
     if a.loop:
         return simulate_loop(a.loop)
     flat = wf.Flat.rounded(depth=0.9e-3, length=0.1)
-    wheel, track, material, config = wf.Wheel(), wf.Track(), wf.Material(), wf.SimConfig()
+    wheel, track, material, config = wf.Wheel(), wf.Track(**RECORDED), wf.Material(), wf.SimConfig()
     v, imp = 100 / 3.6, 0.0
     n, dt = n_steps_for(flat, v, config)
     s0, s1 = simulation_window(flat, v, config)

@@ -17,6 +17,7 @@ import argparse
 import time
 
 import numpy as np
+from _tracks import RECORDED  # benchmarks/, the script's folder
 
 import wfjax
 from wfjax.model import supports as S
@@ -36,7 +37,7 @@ def main() -> None:
                     default=wfjax.SimConfig().resolved().track_max_frequency)
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
-    base = wfjax.Track()
+    base = wfjax.Track(**RECORDED)
     tracks = {
         "uniform (Table 2)": base,
         "scattered, cv 0.3 on k_P and k_B": S.scatter(base, 0, cv=0.3),

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.signal
+from _tracks import RECORDED  # benchmarks/, the script's folder
 
 import wfjax as wf
 from wfjax.scenario.joint import Joint, equivalent_track
@@ -46,7 +47,8 @@ def run(joint, kmh):
 
 def main():
     wheel = wf.Wheel()
-    eq = equivalent_track(wf.Track(), float(wheel.wheelset_mass + wheel.small_mass), POSITION)
+    eq = equivalent_track(wf.Track(**RECORDED), float(wheel.wheelset_mass + wheel.small_mass),
+                          POSITION)
     print(f"equivalent track at x = {POSITION} m: M_t = {eq.mass:.1f} kg, K_t = "
           f"{eq.stiffness / 1e6:.1f} MN/m, C_t = {eq.damping / 1e3:.1f} kN s/m, P2 resonance "
           f"{eq.frequency:.1f} Hz")

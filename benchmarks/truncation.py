@@ -20,6 +20,7 @@ from unittest import mock
 
 import numpy as np
 import scipy.sparse.linalg
+from _tracks import RECORDED  # benchmarks/, the script's folder
 
 import wfjax as wf
 from wfjax.model import beam as beam_mod
@@ -70,7 +71,7 @@ def none_added(vec, w2, keep, dampers):
 def main() -> None:
     rows = []
     for elements, f_max in CASES:
-        track = wf.Track(elements_per_bay=elements)
+        track = wf.Track(elements_per_bay=elements, **RECORDED)
         for quantity in ("shear", "rail_disp"):
             ref = direct(track, quantity)
             n_aug, e_aug = error(track, f_max, quantity, ref)
