@@ -3,10 +3,15 @@ docs/identify.md "Speed"): study wagons of the Hertz study's kept passages ident
 alternately both ways, nothing else changed. ``--compare``:
 
 - ``track``: the neighbour corrections on the 70-bay ``forward.TRACK`` (before 2026-12-05,
-  night) against ``forward.CORRECTION_TRACK`` (the same track at its least length; the
-  guards lengthen it to 36 bays), 8 configurations per neighbour both ways;
-- ``phase-modes``: a neighbour's correction averaged over 8 configurations (the default,
-  ``pipeline.PHASE_MODES``) against 16 (``--phase-modes 16``), both on ``CORRECTION_TRACK``.
+  night) against the same track at its least length with absorbing ends (the guards
+  lengthen it to 36 bays; the corrections' track until 2026-12-06), 8 configurations per
+  neighbour both ways;
+- ``ends``: that absorbing least track against ``forward.CORRECTION_TRACK`` (end networks,
+  24 bays; since 2026-12-06), 8 configurations both ways;
+- ``phase-modes``: a neighbour's correction averaged over 8 configurations
+  (``pipeline.PHASE_MODES``) against 16 (``--phase-modes 16``), both on ``CORRECTION_TRACK``;
+- ``networks16``: the identification of 2026-12-05 (absorbing least track, 8
+  configurations) against end networks with 16 (a default tried 2026-12-06, not kept).
 
 Per wagon and way (the order alternates): one identification that compiles what it needs
 (its seconds kept as ``first_seconds``), then ``--rounds`` timed ones with the programs
@@ -29,19 +34,35 @@ import numpy as np
 from identify_study import kept_passages  # benchmarks/, the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
-# way name -> (forward's track attribute for the corrections, phase_modes); old way first
-COMPARISONS = {"track": {"70 bays": ("TRACK", 8), "least": ("CORRECTION_TRACK", 8)},
-               "phase-modes": {"8": ("CORRECTION_TRACK", 8), "16": ("CORRECTION_TRACK", 16)}}
+# way name -> (the corrections' track: a forward attribute or ABSORBING, phase_modes); old
+# way first
+ABSORBING = "absorbing least"
+COMPARISONS = {"track": {"70 bays": ("TRACK", 8), ABSORBING: (ABSORBING, 8)},
+               "ends": {ABSORBING: (ABSORBING, 8), "networks": ("CORRECTION_TRACK", 8)},
+               "phase-modes": {"8": ("CORRECTION_TRACK", 8), "16": ("CORRECTION_TRACK", 16)},
+               "networks16": {"absorbing, 8": (ABSORBING, 8),
+                              "networks, 16": ("CORRECTION_TRACK", 16)}}
+
+
+def correction_track(name: str):
+    """The corrections' track named ``name`` (:data:`COMPARISONS`)."""
+    import dataclasses
+
+    from wfjax.identify import forward as fwd
+
+    if name == ABSORBING:
+        return dataclasses.replace(fwd.TRACK, n_bays=4, ends="absorbing")
+    return getattr(fwd, name)
 
 
 def identify_with(way: tuple[str, int], passages) -> tuple[float, object]:
     """(seconds, Identification) of ``passages`` with the corrections on ``forward``'s track
-    named ``way[0]`` and ``phase_modes=way[1]``."""
+    named ``way[0]`` (:func:`correction_track`) and ``phase_modes=way[1]``."""
     from wfjax.identify import forward as fwd
     from wfjax.identify import identify
 
     kept = fwd.CORRECTION_TRACK
-    fwd.CORRECTION_TRACK = getattr(fwd, way[0])
+    fwd.CORRECTION_TRACK = correction_track(way[0])
     try:
         t0 = time.perf_counter()
         res = identify(passages, phase_modes=way[1])

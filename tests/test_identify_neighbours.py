@@ -257,3 +257,18 @@ def test_exact_3d_tables_widened_to_one_column_count():
                 a = float(law.point_force(col, delta))
                 b = float(big.point_force(big.point(s), delta))
                 assert a > 1e3 and b == pytest.approx(a, rel=1e-9), (s, c)
+
+
+def test_a_correction_run_with_a_phantom_flat_is_dropped():
+    """``pipeline.explained_away``: after a sweep, a flat wheel whose bogie neighbour is no
+    longer a probable flat (its apparent flat was this wheel's ringing) loses its
+    correction; a round wheel corrected beside a flat keeps its; two flats keep theirs; a
+    bogie whose wheels all came out round is left as corrected (no wheel is flat to clean);
+    a wheel without a correction has nothing to drop."""
+    positions = np.array([0.0, 2.5, 17.5, 20.0])
+    c = np.zeros(5)
+    corr = [[c, None], [c, c], [None, c], [c, None]]
+    assert pipeline.explained_away(positions, [True, False, True, True], corr) == [0]
+    assert pipeline.explained_away(positions, [False, False, True, True], corr) == []
+    assert pipeline.explained_away(positions, [True, False, True, False],
+                                   [[None, None], [c, c], [None, None], [c, c]]) == []

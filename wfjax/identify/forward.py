@@ -63,11 +63,12 @@ TABLE_RUN_IN = 1.3
 # 2026-12-06). Moving it to today's defaults (26 el./bay, end networks, lengthened) rebuilds
 # every table and needs the validation study run again.
 TRACK = Track(n_bays=70, elements_per_bay=8, ends="absorbing")
-# TRACK at its least length, for the neighbour corrections' coupled runs (no support scatter,
-# so the guards lengthen it: 36 bays over the 5-bay detector). A correction is a difference
-# of two runs on it; it reads within 0.34 % of the largest reading of TRACK's on the study's
-# 60-140 km/h (tests/test_identify.py), at 1.4-2.7x less cost
-CORRECTION_TRACK = dataclasses.replace(TRACK, n_bays=4)
+# TRACK at its least length with end networks, for the neighbour corrections' coupled runs
+# (no support scatter, so the guards lengthen it: 24 bays over the 5-bay detector; 36 with
+# TRACK's absorbing ends, the corrections' track until 2026-12-06). A correction is a
+# difference of two runs on it; it reads within 0.5 % of the largest reading of TRACK's on
+# the study's 60-140 km/h (tests/test_identify.py; docs/identify.md "Several wheels")
+CORRECTION_TRACK = dataclasses.replace(TRACK, n_bays=4, ends="network")
 
 
 def identification_config(config: SimConfig | None = None) -> SimConfig:

@@ -44,8 +44,9 @@ KIND_MIN_P = 0.2  # a neighbour's kind (new, rounded) below this probability is 
 PHASE_ERROR = 0.05
 # A flat neighbour's configurations (phase points x kinds) its correction averages: 16 clear
 # the Hertz study's one round wheel flagged beside a rounded 86 mm flat (P 0.92 at 8, 0.78
-# at 16) but take 1.81x the passage time (benchmarks/identify_ab.py --compare phase-modes),
-# past the 20 s a passage may take; docs/identify.md "Neighbour phase".
+# at 16) but take 1.8x the passage time (benchmarks/identify_ab.py --compare phase-modes,
+# --compare networks16), past the 20 s a passage may take on two of five hard wagons, and
+# leave a new 45 mm flat of the reduced 3D study unflagged; docs/identify.md "Neighbour phase".
 PHASE_MODES = 8
 
 
@@ -99,6 +100,28 @@ def _groups(positions: np.ndarray) -> list[list[int]]:
             out[-1].append(i)
         else:
             out.append([i])
+    return out
+
+
+def _probably_flat(posts) -> list[bool]:
+    """Per wheel: whether it probably has a flat (P(l >= :data:`ROUND_LENGTH`) >= 0.5), which
+    makes it a neighbour the corrections run with its posterior's configurations."""
+    return [p.p_length_at_least(ROUND_LENGTH) >= 0.5 for p in posts]
+
+
+def explained_away(positions: np.ndarray, flat: list, corr: list) -> list[int]:
+    """The wheels whose neighbour corrections ``corr`` [wheel][passage] are to be dropped
+    after a sweep: a wheel still probably flat (``flat`` [wheel], after the sweep) none of
+    whose bogie neighbours is. Its correction ran with a neighbour's flat that the
+    neighbour's own correction has since explained as this wheel's ringing (a round wheel
+    beside a flat reads the flat's impact in a gate and looks flat until corrected); kept,
+    it would explain part of the wheel's own impact as that phantom's."""
+    out = []
+    for g in _groups(positions):
+        for i in g:
+            if (flat[i] and any(c is not None for c in corr[i])
+                    and not any(flat[j] for j in g if j != i)):
+                out.append(i)
     return out
 
 
@@ -244,8 +267,7 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     kw = dict(contact=settings["contact"], roughness=rough, cache_dir=settings["cache_dir"],
               track=fwd.CORRECTION_TRACK)
     k, n_max = settings["passage_index"], int(settings["phase_modes"])
-    flat = {i: posts[i].p_length_at_least(ROUND_LENGTH) >= 0.5
-            for i in range(passage.n_wheels)}
+    flat = dict(enumerate(_probably_flat(posts)))
     todo = [(g, i) for g in _groups(passage.positions) if len(g) > 1 for i in g
             if any(flat[j] for j in g if j != i)]
     if not todo:  # no wheel has a neighbour with a flat: no correction
@@ -353,6 +375,11 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
             for i in range(n):
                 corr[i][k] = c[i]
         posts = wheel_posteriors(corr)
+        dropped = explained_away(passages[0].positions, _probably_flat(posts), corr)
+        if dropped:
+            for i in dropped:
+                corr[i] = [None] * len(passages)
+            posts = wheel_posteriors(corr)
         if progress:
             progress("neighbour corrections", it + 1, coupling_iterations)
     line_table = tables[round(line, 9)]
