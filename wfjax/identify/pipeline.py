@@ -12,8 +12,10 @@ one estimate: the coupled runs cover its phase posterior, blurred by the phase e
 readings leave (:func:`blur_phase`), at a few stratified points (:func:`phase_points`) and,
 where its kind is uncertain, the most probable flat of each kind (:func:`kind_modes`), and
 each wheel's likelihood is marginalised over them with their probabilities
-(:class:`wfjax.identify.inference.CorrectionMixture`). No joint grid over the wheels is ever
-formed.
+(:class:`wfjax.identify.inference.CorrectionMixture`). After the sweep a flat wheel none of
+whose neighbours is still a probable flat loses its correction (:func:`explained_away`: it
+was run with a phantom, a round neighbour's reading of this wheel's ringing). No joint grid
+over the wheels is ever formed.
 """
 
 from __future__ import annotations
@@ -298,6 +300,27 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     return out
 
 
+def _sweeps(passages: list[Passage], posts, corr, wheel_posteriors, settings: dict,
+            radius: float, iterations: int, progress) -> list:
+    """The wheels' posteriors after ``iterations`` neighbour-correction sweeps from
+    ``posts``; ``corr`` [wheel][passage] is filled in place, ``wheel_posteriors(corr)``
+    recomputes every wheel's posterior."""
+    for it in range(iterations):
+        for k, p in enumerate(passages):
+            c = _corrections(p, posts, settings | {"passage_index": k}, radius)
+            for i in range(len(posts)):
+                corr[i][k] = c[i]
+        posts = wheel_posteriors(corr)
+        dropped = explained_away(passages[0].positions, _probably_flat(posts), corr)
+        if dropped:
+            for i in dropped:
+                corr[i] = [None] * len(passages)
+            posts = wheel_posteriors(corr)
+        if progress:
+            progress("neighbour corrections", it + 1, iterations)
+    return posts
+
+
 def _response_tables(passages: list[Passage], line: float, opts: dict, progress) -> dict:
     """{speed rounded to 1e-9 m/s: its :class:`~wfjax.identify.forward.ResponseTable`} for
     every passage's speed and the line speed ``line`` [m/s]."""
@@ -369,19 +392,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
     posts = wheel_posteriors(corr)
     settings = dict(contact=contact, seed=seed, cache_dir=cache_dir, phase_modes=phase_modes,
                     phase_error=phase_error)
-    for it in range(coupling_iterations if n > 1 else 0):
-        for k, p in enumerate(passages):
-            c = _corrections(p, posts, settings | {"passage_index": k}, float(wheel.radius))
-            for i in range(n):
-                corr[i][k] = c[i]
-        posts = wheel_posteriors(corr)
-        dropped = explained_away(passages[0].positions, _probably_flat(posts), corr)
-        if dropped:
-            for i in dropped:
-                corr[i] = [None] * len(passages)
-            posts = wheel_posteriors(corr)
-        if progress:
-            progress("neighbour corrections", it + 1, coupling_iterations)
+    posts = _sweeps(passages, posts, corr, wheel_posteriors, settings, float(wheel.radius),
+                    coupling_iterations if n > 1 else 0, progress)
     line_table = tables[round(line, 9)]
     results = [_result(i, posts[i], passages, line_table, force_level, flag_length,
                        flag_probability, user_rule) for i in range(n)]
