@@ -47,8 +47,8 @@ PHASE_ERROR = 0.05
 # A flat neighbour's configurations (phase points x kinds) its correction averages: 16 clear
 # the Hertz study's one round wheel flagged beside a rounded 86 mm flat (P 0.92 at 8, 0.78
 # at 16) but take 1.8x the passage time (benchmarks/identify_ab.py --compare phase-modes,
-# --compare networks16), past the 20 s a passage may take on two of five hard wagons, and
-# leave a new 45 mm flat of the reduced 3D study unflagged; docs/identify.md "Neighbour phase".
+# --compare networks16), past the 20 s a passage may take on two of five hard wagons;
+# docs/identify.md "Neighbour phase".
 PHASE_MODES = 8
 
 
