@@ -1,7 +1,10 @@
 """Where the default sweep's time goes: the same sweep (``_timing.FLATS``, 29 speeds, 10
 positions, 3D, the default track) in one process, caches filled, interleaved rounds.
 
-- ``--cutoffs``: the default track at several mode cut-offs (``allow_inaccurate`` below the
+Both on the tracks the recorded figures ran (``_tracks.RECORDED``: 24 bays, absorbing ends;
+``Track()`` is the 4-bay least track since 2026-12-06).
+
+- ``--cutoffs``: the recorded default track at several mode cut-offs (``allow_inaccurate`` below the
   guards' bound): time against mode count, whose fit gives the part that does not depend on
   the modes and the cost per mode (benchmarks/README.md, issue 33);
 - ``--candidates``: the new default against the old one (8 el./bay, 10 kHz, 70 bays) and the
@@ -16,6 +19,7 @@ import argparse
 
 import numpy as np
 from _timing import interleaved_sweeps, print_ratios
+from _tracks import RECORDED
 
 import wfjax as wf
 from wfjax.model import track as track_mod
@@ -24,9 +28,10 @@ from wfjax.model import track as track_mod
 def cutoffs(rounds: int) -> None:
     variants, modes = {}, []
     for f in (2e3, 5e3, 10e3, 15e3):
-        n = int(track_mod.modal_model(wf.Track(), max_frequency=f).poles.shape[0])
+        n = int(track_mod.modal_model(wf.Track(**RECORDED), max_frequency=f).poles.shape[0])
         modes.append(n)
         variants[f"{f / 1e3:g} kHz ({n} modes)"] = {
+            "track": wf.Track(**RECORDED),
             "config": wf.SimConfig(track_max_frequency=f, allow_inaccurate=True)}
     times = interleaved_sweeps(variants, rounds)
     print_ratios(times, list(variants)[-1])
@@ -35,11 +40,11 @@ def cutoffs(rounds: int) -> None:
 
 
 def candidates(rounds: int) -> None:
-    variants = {"default (26 el., 15 kHz, 24 bays)": {},
+    variants = {"default (26 el., 15 kHz, 24 bays)": {"track": wf.Track(**RECORDED)},
                 "old default (8 el., 10 kHz, 70 bays)": {
-                    "track": wf.Track(elements_per_bay=8, n_bays=70),
+                    "track": wf.Track(elements_per_bay=8, n_bays=70, ends="absorbing"),
                     "config": wf.SimConfig(track_max_frequency=10e3)},
-                "8 el., 10 kHz, 24 bays": {"track": wf.Track(elements_per_bay=8),
+                "8 el., 10 kHz, 24 bays": {"track": wf.Track(elements_per_bay=8, **RECORDED),
                                            "config": wf.SimConfig(track_max_frequency=10e3)}}
     print_ratios(interleaved_sweeps(variants, rounds), "old default (8 el., 10 kHz, 70 bays)")
 
