@@ -26,12 +26,12 @@ from wfjax.model import track as track_mod
 
 
 def cutoffs(rounds: int) -> None:
-    variants, modes = {}, []
+    variants, modes, track = {}, [], wf.Track(**RECORDED)
     for f in (2e3, 5e3, 10e3, 15e3):
-        n = int(track_mod.modal_model(wf.Track(**RECORDED), max_frequency=f).poles.shape[0])
+        n = int(track_mod.modal_model(track, max_frequency=f).poles.shape[0])
         modes.append(n)
         variants[f"{f / 1e3:g} kHz ({n} modes)"] = {
-            "track": wf.Track(**RECORDED),
+            "track": track,
             "config": wf.SimConfig(track_max_frequency=f, allow_inaccurate=True)}
     times = interleaved_sweeps(variants, rounds)
     print_ratios(times, list(variants)[-1])
