@@ -303,8 +303,8 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
 def _sweeps(passages: list[Passage], posts, corr, wheel_posteriors, settings: dict,
             radius: float, iterations: int, progress) -> list:
     """The wheels' posteriors after ``iterations`` neighbour-correction sweeps from
-    ``posts``; ``corr`` [wheel][passage] is filled in place, ``wheel_posteriors(corr)``
-    recomputes every wheel's posterior."""
+    ``posts``; ``corr`` [wheel][passage] is filled in place, ``wheel_posteriors(corr,
+    wheels=None)`` recomputes the posteriors of ``wheels`` (None: every wheel)."""
     for it in range(iterations):
         for k, p in enumerate(passages):
             c = _corrections(p, posts, settings | {"passage_index": k}, radius)
@@ -312,10 +312,10 @@ def _sweeps(passages: list[Passage], posts, corr, wheel_posteriors, settings: di
                 corr[i][k] = c[i]
         posts = wheel_posteriors(corr)
         dropped = explained_away(passages[0].positions, _probably_flat(posts), corr)
-        if dropped:
-            for i in dropped:
-                corr[i] = [None] * len(passages)
-            posts = wheel_posteriors(corr)
+        for i in dropped:  # only these wheels' posteriors change
+            corr[i] = [None] * len(passages)
+        for i, post in zip(dropped, wheel_posteriors(corr, dropped), strict=True):
+            posts[i] = post
         if progress:
             progress("neighbour corrections", it + 1, iterations)
     return posts
@@ -380,9 +380,10 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
     kw = dict(prior=prior, noise=noise, model=model, peak_only=passages[0].peak_only)
     corr = [[None] * len(passages) for _ in range(n)]
 
-    def wheel_posteriors(corrections):
+    def wheel_posteriors(corrections, wheels=None):
         return [posterior(ptables, bays, [p.readings[i] for p in passages],
-                          corrections=corrections[i], **kw) for i in range(n)]
+                          corrections=corrections[i], **kw)
+                for i in (range(n) if wheels is None else wheels)]
 
     posts = wheel_posteriors(corr)  # on the raw readings: the site factors' model
     factors = pooled_site_factors(passages, [np.stack([posts[i].best_fit[k] for i in range(n)])
