@@ -438,13 +438,17 @@ def main(argv=None) -> int:
 
 def merge(paths: list[str], out: str, docs: bool, section: str = "study") -> int:
     """Merge the results of runs (``paths``, JSON) into ``out``; with ``docs`` into
-    docs/identify.md too."""
+    docs/identify.md too. A wagon in a later run replaces its rows of the earlier ones (a
+    rerun of chosen wagons, ``--wagons``, after a change that touches only them)."""
     runs = [json.loads(Path(p).read_text()) for p in paths]
     metas, rows = [], []
     for d in runs:  # a merged run's meta is the list of its runs'
         first = len(metas)
         metas += d["meta"] if isinstance(d["meta"], list) else [d["meta"]]
+        again = {r["wagon"] for r in d["wheels"]}
+        rows = [r for r in rows if r["wagon"] not in again]
         rows += [r | {"run": first + r.get("run", 0)} for r in d["wheels"]]
+    rows.sort(key=lambda r: r["wagon"])
     summary = summarise(rows)
     Path(out).write_text(json.dumps({"meta": metas, "summary": summary, "wheels": rows},
                                     indent=1, default=float) + "\n")

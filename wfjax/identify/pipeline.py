@@ -50,6 +50,13 @@ PHASE_ERROR = 0.05
 # --compare networks16), past the 20 s a passage may take on two of five hard wagons;
 # docs/identify.md "Neighbour phase".
 PHASE_MODES = 8
+# A corrected wheel whose P(flag) lies in [flag_p - REFINE_BELOW, flag_p + REFINE_ABOVE)
+# after a sweep is corrected again over REFINE_FACTOR x PHASE_MODES configurations. From the
+# Hertz study run at 8 and at 16 (252 wheels, docs/identify.md "Refined where in doubt"):
+# P(flag) moved by at most 0.14 below 0.6 and 0.007 at 0.95 and above, by up to 0.58 between.
+REFINE_FACTOR = 2
+REFINE_BELOW = 0.3
+REFINE_ABOVE = 0.05
 
 
 @dataclasses.dataclass
@@ -109,6 +116,14 @@ def _probably_flat(posts) -> list[bool]:
     """Per wheel: whether it probably has a flat (P(l >= :data:`ROUND_LENGTH`) >= 0.5), which
     makes it a neighbour the corrections run with its posterior's configurations."""
     return [p.p_length_at_least(ROUND_LENGTH) >= 0.5 for p in posts]
+
+
+def in_doubt(posts, flag_length: float, flag_p: float) -> list[int]:
+    """The wheels whose flag the neighbours' configurations may still turn: P(l >=
+    ``flag_length``) within [``flag_p`` - :data:`REFINE_BELOW`, ``flag_p`` +
+    :data:`REFINE_ABOVE`)."""
+    return [i for i, p in enumerate(posts)
+            if flag_p - REFINE_BELOW <= p.p_length_at_least(flag_length) < flag_p + REFINE_ABOVE]
 
 
 def explained_away(positions: np.ndarray, flat: list, corr: list) -> list[int]:
@@ -246,7 +261,8 @@ def correction_roughness(seed: int = 0):
                               x_start=-fwd.ROUGHNESS_SPAN / 2)
 
 
-def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list:
+def _corrections(passage: Passage, posts, settings: dict, radius: float,
+                 only: set | None = None) -> list:
     """Per wheel a :class:`CorrectionMixture` of [n_bays] N, the neighbours' effect on its
     readings: the wheel **round** in its bogie with its neighbours at their estimates, minus
     the wheel round alone, over the neighbours' phase points (:func:`phase_points` of their
@@ -262,7 +278,8 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     wheel's own modelled readings. The runs go as one batch per layout
     (:func:`wfjax.identify.forward.coupled_batch`), the wheels alone as one more: a train's
     bogies are not looped over. Both on :data:`wfjax.identify.forward.CORRECTION_TRACK`,
-    the identification's track at the least length the detector's reading needs."""
+    the identification's track at the least length the detector's reading needs. ``only``:
+    the wheels whose corrections are wanted (None: every wheel; the others stay None)."""
     det = passage.detector()
     rough = correction_roughness(settings["seed"])
     out: list = [None] * passage.n_wheels
@@ -271,7 +288,7 @@ def _corrections(passage: Passage, posts, settings: dict, radius: float) -> list
     k, n_max = settings["passage_index"], int(settings["phase_modes"])
     flat = dict(enumerate(_probably_flat(posts)))
     todo = [(g, i) for g in _groups(passage.positions) if len(g) > 1 for i in g
-            if any(flat[j] for j in g if j != i)]
+            if any(flat[j] for j in g if j != i) and (only is None or i in only)]
     if not todo:  # no wheel has a neighbour with a flat: no correction
         return out
     wheels = sorted({j for g, _ in todo for j in g})
@@ -304,17 +321,29 @@ def _sweeps(passages: list[Passage], posts, corr, wheel_posteriors, settings: di
             radius: float, iterations: int, progress) -> list:
     """The wheels' posteriors after ``iterations`` neighbour-correction sweeps from
     ``posts``; ``corr`` [wheel][passage] is filled in place, ``wheel_posteriors(corr,
-    wheels=None)`` recomputes the posteriors of ``wheels`` (None: every wheel)."""
-    for it in range(iterations):
+    wheels=None)`` recomputes the posteriors of ``wheels`` (None: every wheel). After each
+    sweep, a corrected wheel whose flag is in doubt (:func:`in_doubt`) has its correction
+    rerun over ``REFINE_FACTOR`` times the neighbours' configurations."""
+    def rerun(before, settings, only=None):
         for k, p in enumerate(passages):
-            c = _corrections(p, posts, settings | {"passage_index": k}, radius)
-            for i in range(len(posts)):
+            c = _corrections(p, before, settings | {"passage_index": k}, radius, only)
+            for i in (range(len(before)) if only is None else only):
                 corr[i][k] = c[i]
+
+    for it in range(iterations):
+        before = posts
+        rerun(before, settings)
         posts = wheel_posteriors(corr)
         dropped = explained_away(passages[0].positions, _probably_flat(posts), corr)
         for i in dropped:  # only these wheels' posteriors change
             corr[i] = [None] * len(passages)
-        for i, post in zip(dropped, wheel_posteriors(corr, dropped), strict=True):
+        doubt = [i for i in in_doubt(posts, settings["flag_length"], settings["flag_p"])
+                 if i not in dropped and any(c is not None for c in corr[i])]
+        if doubt:
+            rerun(before, settings | {"phase_modes": REFINE_FACTOR * settings["phase_modes"]},
+                  set(doubt))
+        for i, post in zip(dropped + doubt, wheel_posteriors(corr, dropped + doubt),
+                           strict=True):
             posts[i] = post
         if progress:
             progress("neighbour corrections", it + 1, iterations)
@@ -392,7 +421,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
                 for p, f in zip(passages, factors, strict=True)]
     posts = wheel_posteriors(corr)
     settings = dict(contact=contact, seed=seed, cache_dir=cache_dir, phase_modes=phase_modes,
-                    phase_error=phase_error)
+                    phase_error=phase_error, flag_length=flag_length, flag_p=flag_probability)
     posts = _sweeps(passages, posts, corr, wheel_posteriors, settings, float(wheel.radius),
                     coupling_iterations if n > 1 else 0, progress)
     line_table = tables[round(line, 9)]
