@@ -11,7 +11,11 @@ alternately both ways, nothing else changed. ``--compare``:
 - ``phase-modes``: a neighbour's correction averaged over 8 configurations
   (``pipeline.PHASE_MODES``) against 16 (``--phase-modes 16``), both on ``CORRECTION_TRACK``;
 - ``networks16``: the identification of 2026-12-05 (absorbing least track, 8
-  configurations) against end networks with 16 (a default tried 2026-12-06, not kept).
+  configurations) against end networks with 16 (a default tried 2026-12-06, not kept);
+- ``refine``: 8 configurations on ``CORRECTION_TRACK`` without and with a wheel in doubt
+  corrected again over 16 (``pipeline.in_doubt``; the default since 2026-12-06).
+
+The ways before ``refine`` correct no wheel again (as when they were measured).
 
 Per wagon and way (the order alternates): one identification that compiles what it needs
 (its seconds kept as ``first_seconds``), then ``--rounds`` timed ones with the programs
@@ -34,14 +38,16 @@ import numpy as np
 from identify_study import kept_passages  # benchmarks/, the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
-# way name -> (the corrections' track: a forward attribute or ABSORBING, phase_modes); old
-# way first
+# way name -> (the corrections' track: a forward attribute or ABSORBING, phase_modes, a wheel
+# in doubt corrected again); old way first
 ABSORBING = "absorbing least"
-COMPARISONS = {"track": {"70 bays": ("TRACK", 8), ABSORBING: (ABSORBING, 8)},
-               "ends": {ABSORBING: (ABSORBING, 8), "networks": ("CORRECTION_TRACK", 8)},
-               "phase-modes": {"8": ("CORRECTION_TRACK", 8), "16": ("CORRECTION_TRACK", 16)},
-               "networks16": {"absorbing, 8": (ABSORBING, 8),
-                              "networks, 16": ("CORRECTION_TRACK", 16)}}
+NET = "CORRECTION_TRACK"
+COMPARISONS = {"track": {"70 bays": ("TRACK", 8, False), ABSORBING: (ABSORBING, 8, False)},
+               "ends": {ABSORBING: (ABSORBING, 8, False), "networks": (NET, 8, False)},
+               "phase-modes": {"8": (NET, 8, False), "16": (NET, 16, False)},
+               "networks16": {"absorbing, 8": (ABSORBING, 8, False),
+                              "networks, 16": (NET, 16, False)},
+               "refine": {"8": (NET, 8, False), "8, refined in doubt": (NET, 8, True)}}
 
 
 def correction_track(name: str):
@@ -55,20 +61,23 @@ def correction_track(name: str):
     return getattr(fwd, name)
 
 
-def identify_with(way: tuple[str, int], passages) -> tuple[float, object]:
+def identify_with(way: tuple[str, int, bool], passages) -> tuple[float, object]:
     """(seconds, Identification) of ``passages`` with the corrections on ``forward``'s track
-    named ``way[0]`` (:func:`correction_track`) and ``phase_modes=way[1]``."""
+    named ``way[0]`` (:func:`correction_track`), ``phase_modes=way[1]``, and a wheel in doubt
+    corrected again where ``way[2]`` (else the band of ``pipeline.in_doubt`` emptied)."""
     from wfjax.identify import forward as fwd
-    from wfjax.identify import identify
+    from wfjax.identify import identify, pipeline
 
-    kept = fwd.CORRECTION_TRACK
+    kept = fwd.CORRECTION_TRACK, pipeline.REFINE_BELOW, pipeline.REFINE_ABOVE
     fwd.CORRECTION_TRACK = correction_track(way[0])
+    if not way[2]:
+        pipeline.REFINE_BELOW = pipeline.REFINE_ABOVE = -1.0
     try:
         t0 = time.perf_counter()
         res = identify(passages, phase_modes=way[1])
         return time.perf_counter() - t0, res
     finally:
-        fwd.CORRECTION_TRACK = kept
+        fwd.CORRECTION_TRACK, pipeline.REFINE_BELOW, pipeline.REFINE_ABOVE = kept
 
 
 def wheel_summary(res) -> np.ndarray:

@@ -272,3 +272,50 @@ def test_a_correction_run_with_a_phantom_flat_is_dropped():
     assert pipeline.explained_away(positions, [False, False, True, True], corr) == []
     assert pipeline.explained_away(positions, [True, False, True, False],
                                    [[None, None], [c, c], [None, None], [c, c]]) == []
+
+
+class _P:
+    """A stand-in posterior: P(l >= any length) = ``p``."""
+
+    def __init__(self, p):
+        self.p = p
+
+    def p_length_at_least(self, length):
+        return self.p
+
+
+def test_a_wheel_in_doubt_is_corrected_again_over_more_configurations(monkeypatch):
+    """``pipeline.in_doubt`` takes P(flag) in [0.9 - 0.3, 0.9 + 0.05), the band where the
+    Hertz study's P moved by more than 0.14 from 8 to 16 configurations. After a sweep only
+    the corrected wheels in doubt have their corrections rerun, over twice the
+    configurations, from the posteriors the sweep started with, and only their posteriors
+    recomputed; a wheel in doubt without a correction is left alone."""
+    flag = dict(flag_length=0.02, flag_p=0.9)
+    assert pipeline.in_doubt([_P(p) for p in (0.599, 0.601, 0.949, 0.951, 1.0)],
+                             0.02, 0.9) == [1, 2]
+    runs = []
+
+    def corrections(passage, posts, settings, radius, only=None):
+        runs.append((settings["phase_modes"], only, posts))
+        marker = np.full(5, float(settings["phase_modes"]))
+        return [marker if i in (only or {0, 1, 3}) else None for i in range(4)]
+
+    monkeypatch.setattr(pipeline, "_corrections", corrections)
+    after = [_P(0.97), _P(0.85), _P(0.62), _P(0.1)]
+    asked = []
+
+    def wheel_posteriors(corr, wheels=None):
+        asked.append(wheels)
+        return list(after) if wheels is None else [_P(0.3) for _ in wheels]
+
+    passage = Passage(100 / 3.6, np.array([0.0, 2.5, 17.5, 20.0]), np.arange(-1, 4),
+                      np.full((4, 5), 125e3))
+    start = [_P(0.9)] * 4
+    corr = [[None, None] for _ in range(4)]
+    posts = pipeline._sweeps([passage, passage], start, corr, wheel_posteriors,
+                             dict(phase_modes=8, **flag), 0.45, 1, None)
+    assert [(m, o) for m, o, _ in runs] == [(8, None), (8, None), (16, {1}), (16, {1})]
+    assert all(p is start for _, _, p in runs)
+    assert asked == [None, [1]]
+    assert [c[0][0] for c in corr[:2]] == [8.0, 16.0] and corr[2] == [None, None]
+    assert [p.p for p in posts] == [0.97, 0.3, 0.62, 0.1]

@@ -14,8 +14,9 @@ where its kind is uncertain, the most probable flat of each kind (:func:`kind_mo
 each wheel's likelihood is marginalised over them with their probabilities
 (:class:`wfjax.identify.inference.CorrectionMixture`). After the sweep a flat wheel none of
 whose neighbours is still a probable flat loses its correction (:func:`explained_away`: it
-was run with a phantom, a round neighbour's reading of this wheel's ringing). No joint grid
-over the wheels is ever formed.
+was run with a phantom, a round neighbour's reading of this wheel's ringing), and a
+corrected wheel whose flag is in doubt (:func:`in_doubt`) is corrected again over twice the
+configurations. No joint grid over the wheels is ever formed.
 """
 
 from __future__ import annotations
@@ -44,11 +45,10 @@ KIND_MIN_P = 0.2  # a neighbour's kind (new, rounded) below this probability is 
 # impact closest to uniform, Kolmogorov-Smirnov 0.066 of 285 wheel-passages, 0.150 unblurred;
 # benchmarks/identify_phase_error.py on the Hertz study's seed 41, docs/identify.md)
 PHASE_ERROR = 0.05
-# A flat neighbour's configurations (phase points x kinds) its correction averages: 16 clear
-# the Hertz study's one round wheel flagged beside a rounded 86 mm flat (P 0.92 at 8, 0.78
-# at 16) but take 1.8x the passage time (benchmarks/identify_ab.py --compare phase-modes,
-# --compare networks16), past the 20 s a passage may take on two of five hard wagons;
-# docs/identify.md "Neighbour phase".
+# A flat neighbour's configurations (phase points x kinds) its correction averages: 16 for
+# every wheel take 1.8x the passage time (benchmarks/identify_ab.py --compare networks16),
+# past the 20 s a passage may take on two of five hard wagons, so 16 only where a flag is in
+# doubt (below); docs/identify.md "Neighbour phase", "Refined where in doubt".
 PHASE_MODES = 8
 # A corrected wheel whose P(flag) lies in [flag_p - REFINE_BELOW, flag_p + REFINE_ABOVE)
 # after a sweep is corrected again over REFINE_FACTOR x PHASE_MODES configurations. From the
