@@ -421,7 +421,8 @@ def main(argv=None) -> int:
     ap.add_argument("--simulate-only", action="store_true",
                     help="simulate (and keep, with --passages) the passages; identify none")
     ap.add_argument("--merge", nargs="+", metavar="JSON",
-                    help="merge these runs' results into --out (and the docs) instead")
+                    help="merge these runs' results into --out (and the docs) instead; a "
+                    "wagon in a later run replaces its rows of the earlier ones")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
                                          "identify_study.json"))
     args = ap.parse_args(argv)

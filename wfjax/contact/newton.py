@@ -222,15 +222,23 @@ def solve_contact_system(force_fn, delta_free, compliance, max_iter: int = 30,
     return delta, force_fn(delta), jax.lax.stop_gradient(r_abs)
 
 
+STATIC_STEP_MAX = 1e-3  # m: the largest rise of one static Newton step (see static_approach)
+
+
 def static_approach(force_fn, preload, max_iter: int = 30):
     """Approach [m] with force_fn(delta) = preload [N] (Newton from below; law convex).
 
     Starts below the root (10 um: F < P for any realistic contact): the first Newton step on
     the convex law overshoots above the root, from where the iterates decrease monotonically.
-    A fixed iteration count keeps reverse-mode differentiation possible.
+    A step rises by at most :data:`STATIC_STEP_MAX`: a wheel that starts on its flat has no
+    contact at 10 um (F = 0, F' = 0) until the approach reaches the flat's depth (up to
+    about 5 mm), and an unbounded step (P / 1 N/m, 125 km) sent the 3D table laws beyond
+    their tables and the run to 1e11 N. A fixed iteration count keeps reverse-mode
+    differentiation possible.
     """
     def body(_, d):
         f, df = jax.value_and_grad(force_fn)(d)
-        return d - (f - preload) / jnp.where(df > 0, df, 1.0)
+        rise = -(f - preload) / jnp.where(df > 0, df, 1.0)
+        return d + jnp.minimum(rise, STATIC_STEP_MAX)
 
     return jax.lax.fori_loop(0, max_iter, body, jnp.asarray(1e-5))

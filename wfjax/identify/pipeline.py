@@ -432,6 +432,8 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         flag_length_m=flag_length, flag_probability=flag_probability, line_speed_ms=line,
         force_level_N=force_level, coupling_iterations=coupling_iterations,
         phase_modes=phase_modes, phase_error_m=phase_error,
+        refine_in_doubt=dict(factor=REFINE_FACTOR, band=[flag_probability - REFINE_BELOW,
+                                                         flag_probability + REFINE_ABOVE]),
         misfit_p=MISFIT_P, seed=seed, site_factors=[f.tolist() for f in factors],
         table_options={k: v for k, v in opts.items() if k not in ("wheel", "cache_dir")},
         user_rule=None if user_rule is None else dataclasses.asdict(user_rule)),
