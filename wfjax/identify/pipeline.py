@@ -118,12 +118,17 @@ def _probably_flat(posts) -> list[bool]:
     return [p.p_length_at_least(ROUND_LENGTH) >= 0.5 for p in posts]
 
 
+def refine_band(flag_p: float) -> tuple[float, float]:
+    """[lo, hi): the P(flag) of a wheel in doubt around the flag probability ``flag_p``,
+    [``flag_p`` - :data:`REFINE_BELOW`, ``flag_p`` + :data:`REFINE_ABOVE`)."""
+    return flag_p - REFINE_BELOW, flag_p + REFINE_ABOVE
+
+
 def in_doubt(posts, flag_length: float, flag_p: float) -> list[int]:
     """The wheels whose flag the neighbours' configurations may still turn: P(l >=
-    ``flag_length``) within [``flag_p`` - :data:`REFINE_BELOW`, ``flag_p`` +
-    :data:`REFINE_ABOVE`)."""
-    return [i for i, p in enumerate(posts)
-            if flag_p - REFINE_BELOW <= p.p_length_at_least(flag_length) < flag_p + REFINE_ABOVE]
+    ``flag_length``) within :func:`refine_band` of ``flag_p``."""
+    lo, hi = refine_band(flag_p)
+    return [i for i, p in enumerate(posts) if lo <= p.p_length_at_least(flag_length) < hi]
 
 
 def explained_away(positions: np.ndarray, flat: list, corr: list) -> list[int]:
@@ -432,8 +437,7 @@ def identify(passages: list[Passage], contact: str = "hertz-trajectory", noise: 
         flag_length_m=flag_length, flag_probability=flag_probability, line_speed_ms=line,
         force_level_N=force_level, coupling_iterations=coupling_iterations,
         phase_modes=phase_modes, phase_error_m=phase_error,
-        refine_in_doubt=dict(factor=REFINE_FACTOR, band=[flag_probability - REFINE_BELOW,
-                                                         flag_probability + REFINE_ABOVE]),
+        refine_in_doubt=dict(factor=REFINE_FACTOR, band=list(refine_band(flag_probability))),
         misfit_p=MISFIT_P, seed=seed, site_factors=[f.tolist() for f in factors],
         table_options={k: v for k, v in opts.items() if k not in ("wheel", "cache_dir")},
         user_rule=None if user_rule is None else dataclasses.asdict(user_rule)),
