@@ -422,14 +422,11 @@ def test_corrections_on_the_least_track_read_as_on_70_bays(speed_kmh):
     assert np.abs(out["least"][0] - out["70"][0]).max() < 5e-3 * scale
 
 
-def test_study_wagons_option_draws_the_whole_runs_wagons(monkeypatch):
-    """benchmarks/identify_study.py --wagons: the chosen wagons get the flats and site they
-    get in the whole run (the others drawn and skipped), and nothing after the last."""
+def _study_draws(study, monkeypatch, **args) -> dict:
+    """{wagon: (flats, site)} that ``study.run`` (benchmarks/identify_study.py) draws with
+    ``args``, every wagon's simulation and identification stubbed out."""
     import argparse
 
-    import bench_scripts
-
-    study = bench_scripts.load("identify_study")
     seen = {}
 
     def fake_run_wagon(k, rng, args):
@@ -438,11 +435,18 @@ def test_study_wagons_option_draws_the_whole_runs_wagons(monkeypatch):
         return [row], {"simulate_s": 0.0, "identify_s": 0.0}
 
     monkeypatch.setattr(study, "run_wagon", fake_run_wagon)
-    args = argparse.Namespace(flats=100, max_wagons=8, sites=4, seed=41, wagons_chosen=None)
-    study.run(args)
-    whole = dict(seen)
-    seen.clear()
-    study.run(argparse.Namespace(**{**vars(args), "wagons_chosen": "2,5"}))
+    study.run(argparse.Namespace(**{"flats": 100, "sites": 4, "wagons_chosen": None} | args))
+    return seen
+
+
+def test_study_wagons_option_draws_the_whole_runs_wagons(monkeypatch):
+    """benchmarks/identify_study.py --wagons: the chosen wagons get the flats and site they
+    get in the whole run (the others drawn and skipped), and nothing after the last."""
+    import bench_scripts
+
+    study = bench_scripts.load("identify_study")
+    whole = _study_draws(study, monkeypatch, max_wagons=8, seed=41)
+    seen = _study_draws(study, monkeypatch, max_wagons=8, seed=41, wagons_chosen="2,5")
     assert sorted(seen) == [2, 5]
     for k in (2, 5):
         assert repr(seen[k]) == repr(whole[k])
@@ -496,3 +500,16 @@ def test_study_merge_replaces_a_rerun_wagons_rows(tmp_path):
     assert [(r["wagon"], r["length_median"], r["run"]) for r in got["wheels"]] == [
         (0, 0.05, 0), (1, 0.051, 1)]
     assert got["summary"]["median_abs_rel_error_length"] == pytest.approx(0.01)
+
+
+def test_masking_script_draws_the_studys_wagon(monkeypatch):
+    """benchmarks/identify_masking.py re-simulates study wagon k with the flats and site the
+    study draws for it (its own replay of the study's draws)."""
+    import bench_scripts
+
+    monkeypatch.syspath_prepend(str(bench_scripts.BENCHMARKS))  # its import, as when run
+    study = bench_scripts.load("identify_study")
+    masking = bench_scripts.load("identify_masking")
+    seen = _study_draws(study, monkeypatch, max_wagons=6, seed=43)
+    for k in (0, 3, 5):
+        assert repr(masking.wagon_draw(k, 43, 4)) == repr(seen[k])
