@@ -513,3 +513,37 @@ def test_masking_script_draws_the_studys_wagon(monkeypatch):
     seen = _study_draws(study, monkeypatch, max_wagons=6, seed=43)
     for k in (0, 3, 5):
         assert repr(masking.wagon_draw(k, 43, 4)) == repr(seen[k])
+
+
+def test_severity_script_interpolates_the_tables_peak_force():
+    """benchmarks/identify_severity.py: a flat's impact excess is its shape's mean peak force
+    less the round wheel's, linear in the length and, for a rounded flat, in l / l0 between
+    the table's rounded shapes (clamped); the flag table counts each flat in one cell."""
+    import bench_scripts
+
+    severity = bench_scripts.load("identify_severity")
+    shapes = (("new", 0.0), ("rounded", 1.6), ("rounded", 1.8), ("rounded", 2.0))
+    table = _table(shapes=shapes)
+    slopes = np.array([4e6, 3e6, 2e6, 1e6])  # N/m per shape
+    peak = 125e3 + slopes[:, None] * table.lengths[None, :]
+    table = fwd.ResponseTable(table.speed, 0.65, RADIUS, shapes, table.lengths, table.offsets,
+                              table.readings, np.broadcast_to(peak[:, :, None, None],
+                                                              table.peak.shape).copy())
+    length = 0.05
+
+    def depth(factor):
+        return (length / factor) ** 2 / (8 * RADIUS)
+
+    assert severity.impact_excess(table, "new", length, 0.0) == pytest.approx(4e6 * length)
+    assert severity.impact_excess(table, "rounded", length, depth(1.7)) == pytest.approx(
+        2.5e6 * length)
+    assert severity.impact_excess(table, "rounded", length, depth(2.4)) == pytest.approx(
+        1e6 * length)
+    rows = [{"kind": "new", "length": 0.035, "flagged": True},
+            {"kind": "rounded", "length": 0.032, "flagged": False},
+            {"kind": "rounded", "length": 0.08, "flagged": True}]
+    cells = severity.flag_table(rows, [150e3, 10e3, 150e3])
+    got = {(tuple(c["length_mm"]), tuple(c["excess_kN"])): (c["flagged"], c["n"])
+           for c in cells if c["n"]}
+    assert got == {((30.0, 40.0), (100.0, np.inf)): (1, 1), ((30.0, 40.0), (0.0, 20.0)): (0, 1),
+                   ((60.0, 101.0), (100.0, np.inf)): (1, 1)}

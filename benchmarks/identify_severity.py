@@ -1,0 +1,157 @@
+"""Which flats a validation study of ``wfjax identify`` flags, against how hard they strike
+(issue 31, docs/identify.md "Flagged against impact severity").
+
+A flat's *impact excess* at a speed is its mean peak contact force over the response table's
+impact positions and nuisance realisations, less a round wheel's (the same table, so the
+same model as the study's identification: Hertz-trajectory or the exact 3D tables), taken at
+the study's highest speed where it is largest. The study's flat wheels are binned by it and
+by length; the flag rate per bin says whether the misses are the short flats (length) or the
+gentle ones (severity).
+
+    python benchmarks/identify_severity.py benchmarks/results/identify_study.json \
+        benchmarks/results/identify_study_3d_id3d_all.json
+
+Writes ``--out`` (JSON, default ``benchmarks/results/identify_severity.json``) and a PNG
+beside it: each flat's P(l >= 20 mm) against its impact excess, a panel per study.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+EXCESS_BINS_KN = (0.0, 20.0, 40.0, 60.0, 100.0, np.inf)
+LENGTH_BINS_MM = (20.0, 30.0, 40.0, 60.0, 101.0)
+
+
+def impact_excess(table, kind: str, length: float, depth: float) -> float:
+    """[N] the mean peak contact force of a flat of ``kind``, ``length`` [m] and ``depth``
+    [m] in ``table`` (linear in the length and, for a rounded flat, in l / l0 between the
+    table's rounded shapes, clamped to them) less a round wheel's (the table's shortest flat)."""
+    from wfjax.identify import prediction
+
+    peaks = prediction.predict_peak(table, [length]).mean(axis=(2, 3))[:, 0]  # [S] N
+    round_ = float(table.peak[0, 0].mean())
+    if kind == "new":
+        return float(peaks[[k for k, _ in table.shapes].index("new")]) - round_
+    l0 = np.sqrt(8.0 * table.wheel_radius * depth)
+    rounded = [(f, peaks[i]) for i, (k, f) in enumerate(table.shapes) if k == "rounded"]
+    f, p = (np.array(v, float) for v in zip(*rounded, strict=True))
+    return float(np.interp(length / l0, f, p)) - round_
+
+
+def excesses(rows: list[dict], tables: dict) -> list[float]:
+    """[N] per flat row of a study (``kind``, ``length`` [m], ``depth`` [m]) its largest
+    :func:`impact_excess` over ``tables`` ({speed [km/h]: ResponseTable})."""
+    return [max(impact_excess(t, r["kind"], r["length"], r["depth"]) for t in tables.values())
+            for r in rows]
+
+
+def flag_table(rows: list[dict], excess_n: list[float]) -> list[dict]:
+    """Per (length bin, excess bin): flats, flagged; the bins are ``LENGTH_BINS_MM`` x
+    ``EXCESS_BINS_KN``."""
+    length_mm = np.array([r["length"] for r in rows]) * 1e3
+    ex_kn = np.asarray(excess_n) / 1e3
+    flagged = np.array([bool(r["flagged"]) for r in rows])
+    out = []
+    for a, b in zip(LENGTH_BINS_MM[:-1], LENGTH_BINS_MM[1:], strict=True):
+        for c, d in zip(EXCESS_BINS_KN[:-1], EXCESS_BINS_KN[1:], strict=True):
+            m = (length_mm >= a) & (length_mm < b) & (ex_kn >= c) & (ex_kn < d)
+            out.append({"length_mm": [a, b], "excess_kN": [c, d], "n": int(m.sum()),
+                        "flagged": int(flagged[m].sum())})
+    return out
+
+
+def markdown(cells: list[dict]) -> str:
+    """The flag table: rows by length, columns by impact excess, 'flagged / flats'."""
+    cols = [(c, d) for c, d in zip(EXCESS_BINS_KN[:-1], EXCESS_BINS_KN[1:], strict=True)]
+    head = ["length"] + [f"{c:.0f}-{d:.0f} kN" if np.isfinite(d) else f">= {c:.0f} kN"
+                         for c, d in cols]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for a, b in zip(LENGTH_BINS_MM[:-1], LENGTH_BINS_MM[1:], strict=True):
+        row = [c for c in cells if c["length_mm"] == [a, b]]
+        text = [f"{c['flagged']} / {c['n']}" if c["n"] else "-" for c in row]
+        lines.append(f"| {a:.0f}-{min(b, 100.0):.0f} mm | " + " | ".join(text) + " |")
+    return "\n".join(lines)
+
+
+def plot(studies: list[tuple[str, list[dict], list[float]]], path: Path) -> None:
+    """One panel per study (title, flat rows, impact excesses [N]): P(l >= 20 mm) against the
+    impact excess [kN], new and rounded flats apart, coloured by the true length."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(studies), figsize=(5.5 * len(studies) + 1, 4.2),
+                             squeeze=False, sharey=True, layout="constrained")
+    for ax, (title, rows, excess_n) in zip(axes[0], studies, strict=True):
+        for kind, marker in (("new", "o"), ("rounded", "s")):
+            pick = [i for i, r in enumerate(rows) if r["kind"] == kind]
+            dots = ax.scatter([excess_n[i] / 1e3 for i in pick],
+                              [rows[i]["p_flag"] for i in pick],
+                              c=[rows[i]["length"] * 1e3 for i in pick], cmap="viridis",
+                              vmin=20, vmax=100, marker=marker, label=kind, edgecolors="k",
+                              linewidths=0.3)
+        ax.axhline(0.9, color="r", lw=0.8, ls="--", label="flag threshold 0.9")
+        ax.set_xscale("log")
+        ax.set_xlabel("impact excess over a round wheel [kN]")
+        ax.set_title(title, fontsize=9)
+        ax.set_ylim(0, 1.03)
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("P(length >= 20 mm)")
+    axes[0, 0].legend(loc="upper left", fontsize=8)
+    fig.colorbar(dots, ax=axes[0].tolist(), label="true length [mm]")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def one_study(path: str) -> dict:
+    """A study's flat rows, their impact excesses [N] (the study's own tables) and flag
+    table."""
+    from wfjax.identify import forward as fwd
+
+    study = json.loads(Path(path).read_text())
+    meta = study["meta"][0] if isinstance(study["meta"], list) else study["meta"]
+    contact = meta.get("identify_contact", "hertz-trajectory")
+    tables = {v: fwd.build_table(v / 3.6, contact=contact)
+              for v in (float(s) for s in str(meta["speeds_kmh"]).split(","))}
+    rows = [r for r in study["wheels"] if r["length"] > 0]
+    ex = excesses(rows, tables)
+    return {"study": path, "contact": contact, "cells": flag_table(rows, ex),
+            "flats": [{"wagon": r["wagon"], "kind": r["kind"], "length": r["length"],
+                       "flagged": r["flagged"], "p_flag": r["p_flag"], "excess_N": e}
+                      for r, e in zip(rows, ex, strict=True)]}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("studies", nargs="+", help="studies' JSON (identify_study.py --out)")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/identify_severity.json"),
+                    help="JSON to write; the figure goes beside it (.png)")
+    args = ap.parse_args(argv)
+    from wfjax.cli import enable_compilation_cache
+
+    enable_compilation_cache()
+    got = [one_study(p) for p in args.studies]
+    out = Path(args.out)
+    out.write_text(json.dumps(got, indent=1))
+    plot([(f"{Path(g['study']).name} ({g['contact']})", g["flats"],
+           [f["excess_N"] for f in g["flats"]]) for g in got], out.with_suffix(".png"))
+    for g in got:
+        print(f"{g['study']} ({g['contact']}): flagged / flats by length and impact excess")
+        print(markdown(g["cells"]))
+        for f in sorted(g["flats"], key=lambda f: f["excess_N"]):
+            if not f["flagged"] and f["length"] >= 0.03:
+                print(f"missed: wagon {f['wagon'] + 1}, {f['kind']} {f['length'] * 1e3:.1f} "
+                      f"mm, excess {f['excess_N'] / 1e3:.1f} kN, P {f['p_flag']:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
