@@ -27,6 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 EXCESS_BINS_KN = (0.0, 20.0, 40.0, 60.0, 100.0, np.inf)
 LENGTH_BINS_MM = (20.0, 30.0, 40.0, 60.0, 101.0)
+BAYS = np.arange(-1, 4)  # the studies' 5-bay detector
 
 
 def impact_excess(table, kind: str, length: float, depth: float) -> float:
@@ -43,6 +44,44 @@ def impact_excess(table, kind: str, length: float, depth: float) -> float:
     rounded = [(f, peaks[i]) for i, (k, f) in enumerate(table.shapes) if k == "rounded"]
     f, p = (np.array(v, float) for v in zip(*rounded, strict=True))
     return float(np.interp(length / l0, f, p)) - round_
+
+
+def _readings(table, kind: str, length: float, depth: float, bays) -> np.ndarray:
+    """[P, n_bays] N the mean readings (over the realisations) of a flat of ``kind``,
+    ``length`` [m], ``depth`` [m] at every phase of the table's refined grid, a rounded flat
+    linear in l / l0 between the table's rounded shapes (clamped)."""
+    from wfjax.identify import prediction
+    from wfjax.identify.inference import PHASE_REFINE
+
+    mu = prediction.predict_refined(table, bays, [length], PHASE_REFINE)[:, 0].mean(axis=2)
+    kinds = [k for k, _ in table.shapes]
+    if kind == "new":
+        return mu[kinds.index("new")]
+    rows = [i for i, k in enumerate(kinds) if k == "rounded"]
+    f = np.array([table.shapes[i][1] for i in rows], float)
+    w = np.interp(length / np.sqrt(8.0 * table.wheel_radius * depth), f, np.arange(f.size))
+    i0 = int(min(np.floor(w), f.size - 2))
+    return mu[rows[i0]] * (1 - (w - i0)) + mu[rows[i0 + 1]] * (w - i0)
+
+
+def nearest_new(tables: dict, kind: str, length: float, depth: float, bays=BAYS,
+                below: float = 0.02, sigma: float = float(np.hypot(0.03, 0.02))
+                ) -> tuple[float, float]:
+    """(length [m], distance) of the new flat shorter than ``below`` [m] whose readings lie
+    closest to a flat's (``kind``, ``length`` [m], ``depth`` [m]) in every one of
+    ``tables``' passages ({speed: ResponseTable}) with each passage at the phase where they
+    differ most: distance = sqrt(sum over passages of max over phases of sum over ``bays``
+    of ((new - flat) / (sigma flat))^2), in noise standard deviations. Under 1, no method
+    tells the flat from that new one with these passages, however they are struck."""
+    news = np.arange(0.004, below + 1e-9, 0.0005)
+    total = np.zeros(news.size)
+    for table in tables.values():
+        flat = _readings(table, kind, length, depth, bays)
+        for n, ln in enumerate(news):
+            z = (_readings(table, "new", ln, 0.0, bays) - flat) / (sigma * flat)
+            total[n] += np.max(np.sum(z ** 2, axis=-1))
+    k = int(np.argmin(total))
+    return float(news[k]), float(np.sqrt(total[k]))
 
 
 def excesses(rows: list[dict], tables: dict) -> list[float]:
@@ -123,10 +162,13 @@ def one_study(path: str) -> dict:
               for v in (float(s) for s in str(meta["speeds_kmh"]).split(","))}
     rows = [r for r in study["wheels"] if r["length"] > 0]
     ex = excesses(rows, tables)
+    near = {i: nearest_new(tables, r["kind"], r["length"], r["depth"])
+            for i, r in enumerate(rows) if not r["flagged"] and r["length"] >= 0.03}
     return {"study": path, "contact": contact, "cells": flag_table(rows, ex),
             "flats": [{"wagon": r["wagon"], "kind": r["kind"], "length": r["length"],
-                       "flagged": r["flagged"], "p_flag": r["p_flag"], "excess_N": e}
-                      for r, e in zip(rows, ex, strict=True)]}
+                       "flagged": r["flagged"], "p_flag": r["p_flag"], "excess_N": e,
+                       "nearest_new": near.get(i)}
+                      for i, (r, e) in enumerate(zip(rows, ex, strict=True))]}
 
 
 def main(argv=None) -> int:
@@ -148,8 +190,10 @@ def main(argv=None) -> int:
         print(markdown(g["cells"]))
         for f in sorted(g["flats"], key=lambda f: f["excess_N"]):
             if not f["flagged"] and f["length"] >= 0.03:
+                ln, d = f["nearest_new"]
                 print(f"missed: wagon {f['wagon'] + 1}, {f['kind']} {f['length'] * 1e3:.1f} "
-                      f"mm, excess {f['excess_N'] / 1e3:.1f} kN, P {f['p_flag']:.2f}")
+                      f"mm, excess {f['excess_N'] / 1e3:.1f} kN, P {f['p_flag']:.2f}; "
+                      f"a new {ln * 1e3:.1f} mm flat reads within {d:.2f} sigma")
     return 0
 
 

@@ -547,3 +547,28 @@ def test_severity_script_interpolates_the_tables_peak_force():
            for c in cells if c["n"]}
     assert got == {((30.0, 40.0), (100.0, np.inf)): (1, 1), ((30.0, 40.0), (0.0, 20.0)): (0, 1),
                    ((60.0, 101.0), (100.0, np.inf)): (1, 1)}
+
+
+def test_severity_script_finds_the_new_flat_that_reads_alike():
+    """benchmarks/identify_severity.py's nearest_new: a rounded flat whose table reads as a
+    new flat of half its length is found at that length, at distance 0; a gentler reading
+    than every new flat under the bound lies at the bound, at the distance of its excess."""
+    import bench_scripts
+
+    severity = bench_scripts.load("identify_severity")
+    shapes = (("new", 0.0), ("rounded", 1.6), ("rounded", 2.0))
+    base = _table(shapes=shapes)
+    reads = base.readings.copy()
+    reads[1:, ..., 0] = 120e3 + 1.25e6 * base.lengths[None, :, None, None]  # rounded: l / 2
+    table = fwd.ResponseTable(base.speed, 0.65, RADIUS, shapes, base.lengths, base.offsets,
+                              reads, reads[..., 0])
+    length = 0.03
+    depth = (length / 1.8) ** 2 / (8 * RADIUS)
+    ln, d = severity.nearest_new({100.0: table}, "rounded", length, depth, bays=BAYS)
+    assert ln == pytest.approx(length / 2) and d == pytest.approx(0.0, abs=1e-9)
+    ln, d = severity.nearest_new({100.0: table}, "new", 0.05, 0.0, bays=BAYS, below=0.02)
+    flat = 120e3 + 2.5e6 * 0.05
+    assert ln == pytest.approx(0.02)
+    # the most telling phase strikes twice over the 5 bays (a circumference is 4.25 bays)
+    assert d == pytest.approx(np.sqrt(2) * 2.5e6 * 0.03 / (np.hypot(0.03, 0.02) * flat),
+                              rel=1e-6)
