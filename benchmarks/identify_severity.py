@@ -1,5 +1,5 @@
 """Which flats a validation study of ``wfjax identify`` flags, against how hard they strike
-(issue 31, docs/identify.md "Flagged against impact severity").
+(issue 31, docs/identify.md "The criteria at a glance").
 
 A flat's *impact excess* at a speed is its mean peak contact force over the response table's
 impact positions and nuisance realisations, less a round wheel's (the same table, so the
