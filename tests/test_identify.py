@@ -564,9 +564,9 @@ def test_severity_script_finds_the_new_flat_that_reads_alike():
                               reads, reads[..., 0])
     length = 0.03
     depth = (length / 1.8) ** 2 / (8 * RADIUS)
-    ln, d = severity.nearest_new({100.0: table}, "rounded", length, depth, bays=BAYS)
+    ln, d = severity.nearest_new([table], "rounded", length, depth, bays=BAYS)
     assert ln == pytest.approx(length / 2) and d == pytest.approx(0.0, abs=1e-9)
-    ln, d = severity.nearest_new({100.0: table}, "new", 0.05, 0.0, bays=BAYS, below=0.02)
+    ln, d = severity.nearest_new([table], "new", 0.05, 0.0, bays=BAYS, below=0.02)
     flat = 120e3 + 2.5e6 * 0.05
     assert ln == pytest.approx(0.02)
     # the most telling phase strikes twice over the 5 bays (a circumference is 4.25 bays)
