@@ -30,6 +30,20 @@ LENGTH_BINS_MM = (20.0, 30.0, 40.0, 60.0, 101.0)
 BAYS = np.arange(-1, 4)  # the studies' 5-bay detector
 
 
+def _shape_weights(table, kind: str, length: float, depth: float) -> list[tuple[int, float]]:
+    """[(shape row, weight)] of ``table`` standing for a flat of ``kind``, ``length`` [m] and
+    ``depth`` [m]: the new shape, or the two rounded shapes around its l / l0 (linear,
+    clamped to the table's rounded shapes)."""
+    kinds = [k for k, _ in table.shapes]
+    if kind == "new":
+        return [(kinds.index("new"), 1.0)]
+    rows = [i for i, k in enumerate(kinds) if k == "rounded"]
+    f = np.array([table.shapes[i][1] for i in rows], float)
+    w = np.interp(length / np.sqrt(8.0 * table.wheel_radius * depth), f, np.arange(f.size))
+    i0 = int(min(np.floor(w), f.size - 2))
+    return [(rows[i0], 1.0 - (w - i0)), (rows[i0 + 1], w - i0)]
+
+
 def impact_excess(table, kind: str, length: float, depth: float) -> float:
     """[N] the mean peak contact force of a flat of ``kind``, ``length`` [m] and ``depth``
     [m] in ``table`` (linear in the length and, for a rounded flat, in l / l0 between the
@@ -37,31 +51,19 @@ def impact_excess(table, kind: str, length: float, depth: float) -> float:
     from wfjax.identify import prediction
 
     peaks = prediction.predict_peak(table, [length]).mean(axis=(2, 3))[:, 0]  # [S] N
-    round_ = float(table.peak[0, 0].mean())
-    if kind == "new":
-        return float(peaks[[k for k, _ in table.shapes].index("new")]) - round_
-    l0 = np.sqrt(8.0 * table.wheel_radius * depth)
-    rounded = [(f, peaks[i]) for i, (k, f) in enumerate(table.shapes) if k == "rounded"]
-    f, p = (np.array(v, float) for v in zip(*rounded, strict=True))
-    return float(np.interp(length / l0, f, p)) - round_
+    mixed = sum(w * peaks[s] for s, w in _shape_weights(table, kind, length, depth))
+    return float(mixed) - float(table.peak[0, 0].mean())
 
 
-def _readings(table, kind: str, length: float, depth: float, bays) -> np.ndarray:
-    """[P, n_bays] N the mean readings (over the realisations) of a flat of ``kind``,
-    ``length`` [m], ``depth`` [m] at every phase of the table's refined grid, a rounded flat
-    linear in l / l0 between the table's rounded shapes (clamped)."""
+def _readings(table, kind: str, lengths, depth: float, bays) -> np.ndarray:
+    """[n_len, P, n_bays] N the mean readings (over the realisations) of flats of ``kind``,
+    ``lengths`` [n_len] m and ``depth`` [m] (a rounded flat's: one length) at every phase of
+    the table's refined grid (:func:`_shape_weights`)."""
     from wfjax.identify import prediction
     from wfjax.identify.inference import PHASE_REFINE
 
-    mu = prediction.predict_refined(table, bays, [length], PHASE_REFINE)[:, 0].mean(axis=2)
-    kinds = [k for k, _ in table.shapes]
-    if kind == "new":
-        return mu[kinds.index("new")]
-    rows = [i for i, k in enumerate(kinds) if k == "rounded"]
-    f = np.array([table.shapes[i][1] for i in rows], float)
-    w = np.interp(length / np.sqrt(8.0 * table.wheel_radius * depth), f, np.arange(f.size))
-    i0 = int(min(np.floor(w), f.size - 2))
-    return mu[rows[i0]] * (1 - (w - i0)) + mu[rows[i0 + 1]] * (w - i0)
+    mu = prediction.predict_refined(table, bays, lengths, PHASE_REFINE).mean(axis=3)
+    return sum(w * mu[s] for s, w in _shape_weights(table, kind, float(lengths[0]), depth))
 
 
 def nearest_new(tables: list, kind: str, length: float, depth: float, bays=BAYS,
@@ -77,10 +79,9 @@ def nearest_new(tables: list, kind: str, length: float, depth: float, bays=BAYS,
     news = np.arange(0.004, below + 1e-9, 0.0005)
     total = np.zeros(news.size)
     for table in tables:
-        flat = _readings(table, kind, length, depth, bays)
-        for n, ln in enumerate(news):
-            z = (_readings(table, "new", ln, 0.0, bays) - flat) / (sigma * flat)
-            total[n] += np.max(np.sum(z ** 2, axis=-1))
+        flat = _readings(table, kind, [length], depth, bays)  # [1, P, n_bays]
+        z = (_readings(table, "new", news, 0.0, bays) - flat) / (sigma * flat)
+        total += np.max(np.sum(z ** 2, axis=-1), axis=-1)
     k = int(np.argmin(total))
     return float(news[k]), float(np.sqrt(total[k]))
 
