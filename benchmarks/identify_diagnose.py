@@ -146,8 +146,7 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     rows = []
     for k in range(max(args.wagons) + 1):
-        flats = study.draw_flats(rng)
-        site = int(rng.integers(args.sites))
+        flats, site = study.draw_wagon(rng, args.sites)
         if k in args.wagons:
             rows += diagnose(study, k, flats, site, args)
             for r in rows[-4:]:

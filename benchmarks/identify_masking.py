@@ -18,7 +18,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from identify_study import WAGON, draw_flats, speeds  # benchmarks/, the script's folder
+from identify_study import WAGON, draw_wagon, speeds  # benchmarks/, the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,9 +27,8 @@ def wagon_draw(k: int, seed: int, sites: int):
     """(flats, site) of study wagon ``k`` (from 0), drawn as ``identify_study.run`` draws."""
     rng = np.random.default_rng(seed)
     for _ in range(k):
-        draw_flats(rng)
-        rng.integers(sites)
-    return draw_flats(rng), int(rng.integers(sites))
+        draw_wagon(rng, sites)
+    return draw_wagon(rng, sites)
 
 
 def split(args) -> list[dict]:

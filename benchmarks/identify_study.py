@@ -50,6 +50,13 @@ def draw_flats(rng) -> list:
     return out
 
 
+def draw_wagon(rng, sites: int) -> tuple[list, int]:
+    """(flats, site) of the next wagon from ``rng``: its flats (:func:`draw_flats`) and which
+    of ``sites`` detector sites it passes. Every script that replays the study's wagons
+    draws them with this, in this order."""
+    return draw_flats(rng), int(rng.integers(sites))
+
+
 def score_wheel(truth: dict, res) -> dict:
     """The wheel's truth and what the identification said about it."""
     post = res.post
@@ -218,8 +225,7 @@ def run_wagon(k: int, rng, args) -> tuple[list, dict]:
     from wfjax.identify import identify
     from wfjax.identify.pipeline import PHASE_ERROR, PHASE_MODES
 
-    flats = draw_flats(rng)
-    site = int(rng.integers(args.sites))
+    flats, site = draw_wagon(rng, args.sites)
     t0 = time.perf_counter()
     passages, truths = simulate_wagon(k, flats, site, args)
     t1 = time.perf_counter()
@@ -331,13 +337,13 @@ def run(args, checkpoint=None) -> tuple[list, dict]:
     times = {"simulate_s": 0.0, "identify_s": 0.0, "identify_per_wagon_s": []}
     k, chosen = 0, _chosen(args)
     while k < getattr(args, "skip_wagons", 0):  # drawn as before, neither simulated nor scored
-        _skip_wagon(rng, args)
+        draw_wagon(rng, args.sites)
         k += 1
     while sum(r["kind"] != "none" for r in rows) < args.flats and k < args.max_wagons:
         if chosen is not None and k not in chosen:
             if k > max(chosen):
                 break
-            _skip_wagon(rng, args)
+            draw_wagon(rng, args.sites)  # drawn as in the whole run, not simulated
             k += 1
             continue
         wrows, t = run_wagon(k, rng, args)
@@ -366,12 +372,6 @@ def _chosen(args) -> set[int] | None:
     """The wagons ``--wagons`` names (their rows' ``wagon`` numbers), or None: every one."""
     spec = getattr(args, "wagons_chosen", None)
     return None if not spec else {int(w) for w in str(spec).split(",")}
-
-
-def _skip_wagon(rng, args) -> None:
-    """Draw a wagon as :func:`run_wagon` would, and neither simulate nor score it."""
-    draw_flats(rng)
-    rng.integers(args.sites)
 
 
 def write_docs(text: str, section: str = "study") -> None:

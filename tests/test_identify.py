@@ -430,7 +430,7 @@ def _study_draws(study, monkeypatch, **args) -> dict:
     seen = {}
 
     def fake_run_wagon(k, rng, args):
-        seen[k] = (study.draw_flats(rng), int(rng.integers(args.sites)))
+        seen[k] = study.draw_wagon(rng, args.sites)
         row = {"kind": "new", "length": 0.05, "length_median": 0.05, "flagged": True}
         return [row], {"simulate_s": 0.0, "identify_s": 0.0}
 
